@@ -1,0 +1,168 @@
+"""``hilbench``: the command-line face of the bench (a thin layer over the library).
+
+Every command that prints numbers accepts ``--json`` for scripts: lengths in
+mm and angles in degrees, joint values in SI (rad, m). Bad input ends with one
+line on stderr and exit code 2, before anything moves.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="Hardware-in-the-loop test bench for CT-guided needle-placement robots.")
+urdf_app = typer.Typer(no_args_is_help=True, help="Generate or check the URDF scene files.")
+app.add_typer(urdf_app, name="urdf")
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def fail(message: str, code: int = 2) -> "typer.Exit":
+    """Print one line on stderr and leave with ``code``."""
+    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def emit_json(obj: object) -> None:
+    sys.stdout.write(json.dumps(obj) + "\n")
+    sys.stdout.flush()
+
+
+def _robot(name: str):
+    from bench.robots import get_robot
+
+    try:
+        return get_robot(name)
+    except KeyError as e:
+        fail(str(e.args[0]))
+
+
+def _mm(v) -> list[float]:
+    return [round(float(x) * 1e3, 6) + 0.0 for x in v]
+
+
+# ---------------------------------------------------------------------------
+# Kinematics
+# ---------------------------------------------------------------------------
+
+
+@app.command()
+def robot(name: str = typer.Argument(..., help="arc-train"),
+          as_json: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+    """List a robot's joints: type, limits and home (SI units)."""
+    r = _robot(name)
+    joints = [{"name": row.name, "type": row.kind, "lower": row.lower, "upper": row.upper,
+               "home": row.home} for row in r.chain.rows]
+    if as_json:
+        emit_json({"robot": name, "joints": joints})
+        return
+    t = Table(title=f"{name} joints (rad or m)")
+    for col in ("name", "type", "lower", "upper", "home"):
+        t.add_column(col)
+    for j in joints:
+        t.add_row(j["name"], j["type"], f"{j['lower']:.4f}", f"{j['upper']:.4f}", f"{j['home']:.4f}")
+    console.print(t)
+
+
+def _needle_json(pose) -> dict:
+    return {"entry_mm": _mm(pose.entry), "tip_mm": _mm(pose.tip),
+            "angle_deg": round(float(np.degrees(pose.angle)), 9),
+            "depth_mm": round(pose.depth * 1e3, 9)}
+
+
+@app.command()
+def fk(name: str = typer.Argument(..., help="arc-train"),
+       joints: str = typer.Option("{}", "--joints", help='JSON object {"joint": value}; missing joints take home.'),
+       as_json: bool = typer.Option(False, "--json")) -> None:
+    """Forward kinematics to the needle: entry point, tip, insertion angle and depth."""
+    r = _robot(name)
+    try:
+        values = json.loads(joints)
+        if not isinstance(values, dict):
+            raise ValueError("--joints must be a JSON object")
+        q = r.joint_vector(values)
+    except (ValueError, KeyError, TypeError) as e:
+        fail(f"--joints: {e.args[0] if e.args else e}")
+    lo, hi = r.chain.lower, r.chain.upper
+    outside = [f"{n}={v:.4g} not in [{a:.4g}, {b:.4g}]"
+               for n, v, a, b in zip(r.joint_names, q, lo, hi) if not a - 1e-12 <= v <= b + 1e-12]
+    if outside:
+        fail("joint values outside limits: " + "; ".join(outside))
+    out = _needle_json(r.needle(q))
+    if as_json:
+        emit_json(out)
+        return
+    for k, v in out.items():
+        console.print(f"{k:>10}: {v}")
+
+
+@app.command()
+def ik(name: str = typer.Argument(..., help="arc-train"),
+       x_mm: float = typer.Option(..., "--x-mm"), y_mm: float = typer.Option(..., "--y-mm"),
+       z_mm: float = typer.Option(..., "--z-mm"),
+       depth_mm: float = typer.Option(..., "--depth-mm", help="Insertion depth beyond the entry point."),
+       angle_deg: float = typer.Option(..., "--angle-deg", help="From the downward vertical towards +Y."),
+       render: Optional[Path] = typer.Option(None, "--render", help="Also write a PNG of the robot at the solution."),
+       as_json: bool = typer.Option(False, "--json")) -> None:
+    """Inverse kinematics to a needle target (entry point, depth, angle)."""
+    from bench.kinematics.arc_train import NeedleTarget, UnreachableError
+
+    r = _robot(name)
+    target = NeedleTarget(np.array([x_mm, y_mm, z_mm]) * 1e-3, depth_mm * 1e-3, np.radians(angle_deg))
+    try:
+        q = r.ik(target)
+    except UnreachableError as e:
+        fail(str(e))
+    pose = r.needle(q)
+    out = {"joints": {n: float(v) for n, v in zip(r.joint_names, q)}, **_needle_json(pose)}
+    if render is not None:
+        from drivers.pybullet_backend import render_robot
+
+        render_robot(name, q, render)
+        out["render"] = str(render)
+    if as_json:
+        emit_json(out)
+        return
+    t = Table(title=f"{name}: joints for the target")
+    t.add_column("joint")
+    t.add_column("value (rad or m)")
+    t.add_column("deg or mm")
+    for n, v, row in zip(r.joint_names, q, r.chain.rows):
+        t.add_row(n, f"{v:.6f}", f"{np.degrees(v):.3f}°" if row.kind == "revolute" else f"{v * 1e3:.3f} mm")
+    console.print(t)
+    console.print(f"tip at {out['tip_mm']} mm, angle {out['angle_deg']:.4f}°")
+    if render is not None:
+        console.print(f"picture: {render}")
+
+
+@urdf_app.command("build")
+def urdf_build(check: bool = typer.Option(False, "--check", help="Fail if the files differ instead of writing.")) -> None:
+    """Write urdf/ from the parameter sets in bench/kinematics and bench/scene.py."""
+    from bench.scene import URDF_DIR, generated_files, write_scene
+
+    if check:
+        stale = [rel for rel, text in generated_files().items()
+                 if not (URDF_DIR / rel).exists() or (URDF_DIR / rel).read_text() != text]
+        if stale:
+            fail(f"out of date: {', '.join(stale)}; run `hilbench urdf build`", 1)
+        console.print("urdf/ is up to date")
+        return
+    for p in write_scene():
+        console.print(f"wrote {p}")
+
+
+def main() -> None:  # pragma: no cover - console entry point
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    app()

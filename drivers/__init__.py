@@ -1,0 +1,201 @@
+"""The actuator contract every backend honours, in SI units.
+
+An :class:`Actuators` is to the bench what ``gymnasium.Env`` is to an agent: a
+small protocol (read, command, enable, disable, clocks, close) that the runner,
+the fault wrappers and the analysis rely on, and that knows nothing of
+trajectories, trials or reports. Positions are in rad (revolute) or m
+(prismatic), velocities in rad/s or m/s, efforts in N·m or N. Ticks, raw
+currents and sensor counts never leave ``drivers/``.
+
+Lifecycle (after ros2_control's hardware interface): a backend starts
+*inactive* (``read()`` works, ``command()`` raises :class:`NotEnabledError`),
+becomes *active* on ``enable()`` and returns to inactive on ``disable()``.
+Leaving the context manager, normally or by exception, brings the hardware to
+a safe stop (torque off or hold, per configuration) and closes it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+__all__ = [
+    "Actuators",
+    "ActuatorsBase",
+    "ActuatorError",
+    "CommunicationError",
+    "ConfigurationError",
+    "HardwareFault",
+    "JointLimits",
+    "JointState",
+    "NotEnabledError",
+]
+
+
+class ActuatorError(RuntimeError):
+    """Base class of everything a backend raises on purpose."""
+
+
+class NotEnabledError(ActuatorError):
+    """A command arrived while the actuators were not enabled."""
+
+
+class ConfigurationError(ActuatorError):
+    """The backend cannot start with the configuration it was given."""
+
+
+class CommunicationError(ActuatorError):
+    """The bus or a sensor stopped answering (after the allowed retries)."""
+
+
+class HardwareFault(ActuatorError):
+    """A servo reported a hardware error (overload, overheating, ...)."""
+
+    def __init__(self, message: str, faults: dict[str, list[str]] | None = None) -> None:
+        super().__init__(message)
+        self.faults = faults or {}
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Per-joint limits, arrays ordered like ``Actuators.joint_names``."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+
+    def clip(self, position: np.ndarray) -> np.ndarray:
+        return np.clip(position, self.lower, self.upper)
+
+
+@dataclass
+class JointState:
+    """One sample of every joint: time (s) and SI arrays ordered like ``joint_names``."""
+
+    time: float
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+    # Optional per-sample flags a backend may raise (e.g. "stale:train").
+    flags: tuple[str, ...] = field(default_factory=tuple)
+
+    def copy(self) -> "JointState":
+        return JointState(
+            self.time, self.position.copy(), self.velocity.copy(), self.effort.copy(), self.flags
+        )
+
+
+@runtime_checkable
+class Actuators(Protocol):
+    """The one interface through which the bench drives a robot."""
+
+    @property
+    def joint_names(self) -> Sequence[str]: ...
+
+    @property
+    def limits(self) -> JointLimits: ...
+
+    @property
+    def enabled(self) -> bool: ...
+
+    def enable(self) -> None:
+        """Power the joints (torque on) holding their present position."""
+
+    def disable(self) -> None:
+        """Bring the joints to the configured safe state (torque off or hold)."""
+
+    def read(self) -> JointState:
+        """Latest measured state; never blocks longer than one bus transaction."""
+
+    def command(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
+        """Set goal positions (and optional feed-forward velocities)."""
+
+    def now(self) -> float:
+        """The backend's clock in seconds (sim time, or a monotonic wall clock)."""
+
+    def wait_until(self, t: float) -> None:
+        """Advance to time ``t``: sim steps physics, real hardware sleeps."""
+
+    def close(self) -> None:
+        """Safe stop and release every resource; idempotent."""
+
+    def __enter__(self) -> "Actuators": ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+class ActuatorsBase:
+    """Shared lifecycle for backends: the enable guard and the safe-stop context.
+
+    Subclasses implement ``_enable``, ``_disable``, ``_command`` and ``_close``;
+    this class enforces the order (``OrderEnforcing`` in Gymnasium's terms) and
+    the shape of commands, so every backend refuses bad calls the same way.
+    """
+
+    _enabled: bool = False
+    _closed: bool = False
+
+    @property
+    def enabled(self) -> bool:
+        return self._enabled
+
+    def enable(self) -> None:
+        if self._closed:
+            raise ActuatorError(f"{type(self).__name__} is closed; create a new one")
+        self._enable()
+        self._enabled = True
+
+    def disable(self) -> None:
+        if self._enabled and not self._closed:
+            try:
+                self._disable()
+            finally:
+                self._enabled = False
+
+    def command(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
+        if not self._enabled:
+            raise NotEnabledError(
+                f"{type(self).__name__}.command() before enable(): call enable() first"
+            )
+        n = len(self.joint_names)  # type: ignore[attr-defined]
+        position = np.asarray(position, dtype=float)
+        if position.shape != (n,):
+            raise ValueError(f"command position has shape {position.shape}, expected ({n},)")
+        if not np.all(np.isfinite(position)):
+            raise ValueError(f"command position is not finite: {position}")
+        if velocity is not None:
+            velocity = np.asarray(velocity, dtype=float)
+            if velocity.shape != (n,):
+                raise ValueError(f"command velocity has shape {velocity.shape}, expected ({n},)")
+        self._command(position, velocity)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        try:
+            self.disable()
+        finally:
+            self._closed = True
+            self._close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- to implement -------------------------------------------------------
+    def _enable(self) -> None:
+        raise NotImplementedError
+
+    def _disable(self) -> None:
+        raise NotImplementedError
+
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        raise NotImplementedError

@@ -1,0 +1,275 @@
+"""PyBullet joints behind the :class:`~drivers.Actuators` interface.
+
+One physics client per instance (never the global connection), a fixed physics
+step (default 1 kHz), position control through PyBullet's joint motors with
+per-joint force/torque and velocity limits, and a clock that only moves when
+``wait_until`` steps the physics — so a trial runs as fast as the CPU allows
+and gives the same numbers every time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal, Sequence
+
+import numpy as np
+
+from drivers import ActuatorsBase, ConfigurationError, JointLimits, JointState
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """A static body of the room (gantry, bed, phantom) and where it stands."""
+
+    urdf: Path
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # False keeps the body out of the physics world's contact pairs (the
+    # gantry: a concave mesh there triples the cost of every step; proximity
+    # to it is checked separately).
+    collide: bool = True
+
+
+@dataclass
+class PyBulletSettings:
+    """What the backend needs to start; the bench builds it from a trial config."""
+
+    robot_urdf: Path
+    joint_names: Sequence[str]
+    scene: Sequence[SceneObject] = ()
+    physics_hz: float = 1000.0
+    control_period: float = 0.002
+    max_effort: Sequence[float] | None = None  # N·m or N per joint; default: the URDF's
+    max_velocity: Sequence[float] | None = None  # rad/s or m/s per joint; default: the URDF's
+    position_gain: float = 0.2
+    velocity_gain: float = 1.0
+    initial_position: Sequence[float] | None = None  # default: zero, clipped to limits
+    gravity: float = -9.81
+    gui: bool = False
+    safe_stop: Literal["hold", "off"] = "hold"
+    joint_damping: float = 0.02  # N·m·s/rad: gearbox and bearing losses
+    extra: dict = field(default_factory=dict)
+
+
+def steps_per_period(physics_hz: float, control_period: float) -> int:
+    """The control period as a whole number of physics steps, or a ConfigurationError."""
+    if physics_hz <= 0 or control_period <= 0:
+        raise ConfigurationError(
+            f"physics_hz ({physics_hz}) and control_period ({control_period}) must be positive")
+    n = control_period * physics_hz
+    if abs(n - round(n)) > 1e-9 or round(n) < 1:
+        raise ConfigurationError(
+            f"control period {control_period * 1e3:g} ms is not an integer multiple of the "
+            f"physics step {1e3 / physics_hz:g} ms ({n:.4g} steps)")
+    return int(round(n))
+
+
+class PyBulletActuators(ActuatorsBase):
+    """The robot's joints in a private PyBullet world."""
+
+    def __init__(self, settings: PyBulletSettings) -> None:
+        from drivers._quiet import quiet_pybullet
+
+        pb = quiet_pybullet()
+        self._pb = pb
+        self.settings = settings
+        self._steps_per_period = steps_per_period(settings.physics_hz, settings.control_period)
+        urdf = Path(settings.robot_urdf)
+        if not urdf.is_file():
+            raise ConfigurationError(f"robot URDF not found: {urdf}")
+        for obj in settings.scene:
+            if not Path(obj.urdf).is_file():
+                raise ConfigurationError(f"scene URDF not found: {obj.urdf}")
+        self._dt = 1.0 / settings.physics_hz
+        from drivers._quiet import muted_output
+
+        with muted_output():
+            self._client = pb.connect(pb.GUI if settings.gui else pb.DIRECT)
+        if self._client < 0:
+            raise ConfigurationError("could not start a PyBullet client"
+                                     + (" with a window (--gui needs a display)" if settings.gui else ""))
+        try:
+            self._setup(urdf)
+        except Exception:
+            pb.disconnect(self._client)
+            raise
+        self._step_count = 0
+
+    # -- set-up ---------------------------------------------------------------
+    def _setup(self, urdf: Path) -> None:
+        pb, c, s = self._pb, self._client, self.settings
+        pb.setTimeStep(self._dt, physicsClientId=c)
+        pb.setGravity(0, 0, s.gravity, physicsClientId=c)
+        pb.setPhysicsEngineParameter(deterministicOverlappingPairs=1, physicsClientId=c)
+        self.robot = pb.loadURDF(str(urdf), useFixedBase=True, physicsClientId=c,
+                                 flags=pb.URDF_USE_INERTIA_FROM_FILE)
+        self.scene_bodies: dict[str, int] = {}
+        for obj in s.scene:
+            body = pb.loadURDF(str(obj.urdf), obj.position, pb.getQuaternionFromEuler(obj.rpy),
+                               useFixedBase=True, physicsClientId=c)
+            if not obj.collide:
+                pb.setCollisionFilterGroupMask(body, -1, 0, 0, physicsClientId=c)
+            self.scene_bodies[Path(obj.urdf).stem] = body
+        by_name = {}
+        for j in range(pb.getNumJoints(self.robot, physicsClientId=c)):
+            info = pb.getJointInfo(self.robot, j, physicsClientId=c)
+            by_name[info[1].decode()] = (j, info)
+        missing = [n for n in s.joint_names if n not in by_name]
+        if missing:
+            raise ConfigurationError(
+                f"joints {missing} are not in {urdf.name}; it has {sorted(by_name)}")
+        self._joint_index = [by_name[n][0] for n in s.joint_names]
+        self.link_index = {info[12].decode(): j for j, info in by_name.values()}
+        infos = [by_name[n][1] for n in s.joint_names]
+        self._kinds = ["prismatic" if i[2] == pb.JOINT_PRISMATIC else "revolute" for i in infos]
+        lower = np.array([i[8] for i in infos])
+        upper = np.array([i[9] for i in infos])
+        effort = self._per_joint(s.max_effort, [i[10] for i in infos], "max_effort")
+        velocity = self._per_joint(s.max_velocity, [i[11] for i in infos], "max_velocity")
+        self._limits = JointLimits(lower, upper, velocity, effort)
+        q0 = (np.zeros(len(infos)) if s.initial_position is None
+              else self._per_joint(s.initial_position, None, "initial_position"))
+        q0 = np.clip(q0, lower, upper)
+        for j, q in zip(self._joint_index, q0):
+            pb.resetJointState(self.robot, j, float(q), 0.0, physicsClientId=c)
+            pb.changeDynamics(self.robot, j, linearDamping=0.0, angularDamping=0.0,
+                              jointDamping=s.joint_damping, physicsClientId=c)
+        # Inactive: motors off except a little friction, like a servo with torque off.
+        self._hold_target = q0.copy()
+        self._motors_off()
+
+    def _per_joint(self, values, default, what: str) -> np.ndarray:
+        n = len(self.settings.joint_names)
+        if values is None:
+            return np.asarray(default, dtype=float)
+        arr = np.asarray(values, dtype=float)
+        if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+            raise ConfigurationError(f"{what} needs {n} finite values, got {values!r}")
+        if what != "initial_position" and np.any(arr <= 0):
+            raise ConfigurationError(f"{what} must be positive, got {values!r}")
+        return arr
+
+    # -- the Actuators interface ---------------------------------------------
+    @property
+    def joint_names(self) -> Sequence[str]:
+        return list(self.settings.joint_names)
+
+    @property
+    def joint_kinds(self) -> list[str]:
+        return list(self._kinds)
+
+    @property
+    def limits(self) -> JointLimits:
+        return self._limits
+
+    @property
+    def client(self) -> int:
+        return self._client
+
+    @property
+    def physics_dt(self) -> float:
+        return self._dt
+
+    def now(self) -> float:
+        return self._step_count * self._dt
+
+    def read(self) -> JointState:
+        states = self._pb.getJointStates(self.robot, self._joint_index, physicsClientId=self._client)
+        return JointState(
+            time=self.now(),
+            position=np.fromiter((s[0] for s in states), float, len(states)),
+            velocity=np.fromiter((s[1] for s in states), float, len(states)),
+            effort=np.fromiter((s[3] for s in states), float, len(states)),
+        )
+
+    def wait_until(self, t: float) -> None:
+        target = int(math.floor(t / self._dt + 1e-6))
+        step = self._pb.stepSimulation
+        c = self._client
+        while self._step_count < target:
+            step(physicsClientId=c)
+            self._step_count += 1
+
+    def _enable(self) -> None:
+        q = self.read().position
+        self._send(q, None)
+
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
+        self._send(np.clip(position, self._limits.lower, self._limits.upper), velocity)
+
+    def _send(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
+        s = self.settings
+        n = len(position)
+        self._hold_target = position
+        if velocity is None:
+            velocity = np.zeros(n)
+        else:
+            velocity = np.clip(velocity, -self._limits.velocity, self._limits.velocity)
+        self._pb.setJointMotorControlArray(
+            self.robot, self._joint_index, self._pb.POSITION_CONTROL,
+            targetPositions=position.tolist(), targetVelocities=velocity.tolist(),
+            forces=self._limits.effort.tolist(),
+            positionGains=[s.position_gain] * n, velocityGains=[s.velocity_gain] * n,
+            physicsClientId=self._client)
+
+    def _disable(self) -> None:
+        if self.settings.safe_stop == "hold":
+            self._send(self.read().position, None)
+        else:
+            self._motors_off()
+
+    def _motors_off(self) -> None:
+        n = len(self._joint_index)
+        self._pb.setJointMotorControlArray(
+            self.robot, self._joint_index, self._pb.VELOCITY_CONTROL,
+            targetVelocities=[0.0] * n, forces=[0.0] * n, physicsClientId=self._client)
+
+    def _close(self) -> None:
+        try:
+            self._pb.disconnect(self._client)
+        except Exception:  # already gone (e.g. the GUI window was closed)
+            pass
+
+    # -- extras for the bench (not part of the protocol) -----------------------
+    def set_effort_limit(self, joint: int, effort: float) -> None:
+        """Scale a joint's available torque/force (used by the torque-limit fault)."""
+        eff = self._limits.effort.copy()
+        eff[joint] = effort
+        self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)
+
+    def link_pose(self, link_name: str) -> tuple[np.ndarray, np.ndarray]:
+        """World position and rotation matrix of a URDF link frame."""
+        st = self._pb.getLinkState(self.robot, self.link_index[link_name],
+                                   computeForwardKinematics=True, physicsClientId=self._client)
+        return np.array(st[4]), np.array(self._pb.getMatrixFromQuaternion(st[5])).reshape(3, 3)
+
+    def reset_position(self, q: np.ndarray) -> None:
+        """Teleport the joints (only while inactive; for set-up and pictures)."""
+        if self.enabled:
+            raise ConfigurationError("reset_position() while enabled would jump the robot")
+        for j, v in zip(self._joint_index, q):
+            self._pb.resetJointState(self.robot, j, float(v), 0.0, physicsClientId=self._client)
+
+
+def default_scene(urdf_dir: Path | None = None) -> list[SceneObject]:
+    """The CT room of seed 000 as generated in ``urdf/``."""
+    from bench.scene import URDF_DIR
+
+    d = Path(urdf_dir) if urdf_dir else URDF_DIR
+    return [SceneObject(d / "ct_gantry.urdf", collide=False), SceneObject(d / "ct_bed.urdf"),
+            SceneObject(d / "phantom.urdf")]
+
+
+def render_robot(robot: str, q: np.ndarray, path: Path) -> Path:
+    """A picture of the robot at ``q`` in the CT room."""
+    from bench.render import render_png
+    from bench.robots import get_robot
+    from bench.scene import URDF_DIR
+
+    model = get_robot(robot)
+    settings = PyBulletSettings(URDF_DIR / f"{robot.replace('-', '_')}.urdf", model.joint_names,
+                                default_scene(), initial_position=q)
+    with PyBulletActuators(settings) as sim:
+        return render_png(sim.client, path)

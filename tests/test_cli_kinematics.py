@@ -1,0 +1,68 @@
+"""``hilbench robot|fk|ik`` as a script would call them: JSON out, exit 2 with one line on error."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=120)
+
+
+def test_robot_lists_nine_joints():
+    out = run("robot", "arc-train", "--json")
+    assert out.returncode == 0, out.stderr
+    joints = json.loads(out.stdout)["joints"]
+    assert [j["name"] for j in joints] == ["train", "theta3", "theta4", "theta5", "theta6",
+                                           "theta7", "theta8", "d9", "d10"]
+    assert [j["type"] for j in joints].count("prismatic") == 2
+    for j in joints:
+        assert set(j) == {"name", "type", "lower", "upper", "home"}
+        assert j["lower"] <= j["home"] <= j["upper"]
+
+
+def test_ik_target_1_then_fk_returns_it(tmp_path):
+    png = tmp_path / "t1.png"
+    out = run("ik", "arc-train", "--x-mm", "0", "--y-mm", "88.2", "--z-mm", "66",
+              "--depth-mm", "30.1", "--angle-deg", "47", "--json", "--render", str(png))
+    assert out.returncode == 0, out.stderr
+    sol = json.loads(out.stdout)
+    assert png.stat().st_size > 10_000
+    assert set(sol["joints"]) == {"train", "theta3", "theta4", "theta5", "theta6", "theta7",
+                                  "theta8", "d9", "d10"}
+    back = run("fk", "arc-train", "--joints", json.dumps(sol["joints"]), "--json")
+    assert back.returncode == 0, back.stderr
+    fk = json.loads(back.stdout)
+    assert fk["entry_mm"] == pytest.approx([0.0, 88.2, 66.0], abs=0.01)
+    assert fk["angle_deg"] == pytest.approx(47.0, abs=0.01)
+    assert fk["depth_mm"] == pytest.approx(30.1, abs=0.01)
+    assert fk["tip_mm"] == pytest.approx(sol["tip_mm"], abs=1e-6)
+
+
+def test_fk_missing_joints_take_home():
+    out = run("fk", "arc-train", "--joints", "{}", "--json")
+    fk = json.loads(out.stdout)
+    assert fk["entry_mm"] == pytest.approx([0.0, 200.0, 100.0], abs=1e-6)  # straight down at home
+    assert fk["angle_deg"] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["ik", "arc-train", "--x-mm", "0", "--y-mm", "88.2", "--z-mm", "666", "--depth-mm", "30",
+      "--angle-deg", "47", "--json"], "eq 19"),
+    (["fk", "arc-train", "--joints", '{"theta9": 1}', "--json"], "theta9"),
+    (["fk", "arc-train", "--joints", '{"d9": 5}', "--json"], "d9"),
+    (["robot", "delta-bot", "--json"], "known robots"),
+])
+def test_bad_input_exits_2_with_one_line(args, words):
+    out = run(*args)
+    assert out.returncode == 2
+    assert out.stdout == ""
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and words in lines[0]
