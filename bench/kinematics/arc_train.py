@@ -49,12 +49,12 @@ from typing import Mapping
 import numpy as np
 
 from bench.kinematics.dh import DHChain, DHRow, check_rows, translation
+from bench.kinematics.needle import NeedlePose, NeedleTarget, UnreachableError, pose_from_axis
+
+__all__ = ["ArcTrainParams", "ArcTrainRobot", "NeedlePose", "NeedleTarget", "TARGET_1",
+           "UnreachableError", "build_chain", "train_pose", "epsilon_from_d2"]
 
 DEG = np.pi / 180.0
-
-
-class UnreachableError(ValueError):
-    """The target cannot be reached; the message names the constraint that failed."""
 
 
 @dataclass(frozen=True)
@@ -196,35 +196,6 @@ def epsilon_for_target_y(y: float, p: ArcTrainParams = ArcTrainParams()) -> floa
 # ---------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class NeedlePose:
-    """Entry point and tip (m, bed frame), insertion angle (rad) and depth (m)."""
-
-    entry: np.ndarray
-    tip: np.ndarray
-    direction: np.ndarray
-    angle: float
-    depth: float
-    out_of_plane: float  # rad; zero whenever eqs 7-9 hold
-
-
-@dataclass(frozen=True)
-class NeedleTarget:
-    """What the radiologist asks for: entry point (m), depth (m), angle (rad)."""
-
-    entry: np.ndarray
-    depth: float
-    angle: float
-
-    @property
-    def direction(self) -> np.ndarray:
-        return np.array([0.0, np.sin(self.angle), -np.cos(self.angle)])
-
-    @property
-    def tip(self) -> np.ndarray:
-        return np.asarray(self.entry, dtype=float) + self.depth * self.direction
-
-
 TARGET_1 = NeedleTarget(entry=np.array([0.0, 0.0882, 0.066]), depth=0.0301, angle=47.0 * DEG)
 
 
@@ -260,15 +231,7 @@ class ArcTrainRobot:
         F8 = T[8]  # frame after d9: z along the needle, origin on theta8's axis
         axis = F8[:3, 2]
         entry = F8[:3, 3] + self.params.needle_length * axis
-        depth = float(q[8])
-        return NeedlePose(
-            entry=entry,
-            tip=entry + depth * axis,
-            direction=axis,
-            angle=float(np.arctan2(axis[1], -axis[2])),
-            depth=depth,
-            out_of_plane=float(np.arcsin(np.clip(axis[0], -1, 1))),
-        )
+        return pose_from_axis(entry, axis, float(q[8]))
 
     def needle_batch(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Vectorised FK: (entry, tip, angle) for q of shape (N, 9)."""
@@ -344,6 +307,9 @@ class ArcTrainRobot:
                 f"[0, {p.d10_stroke * 1e3:.0f}] mm")
         if not np.all(np.isfinite(target.entry)) or not np.isfinite(target.angle):
             raise UnreachableError(f"target is not finite: {target}")
+        if abs(target.tilt) > 1e-12:
+            raise UnreachableError(
+                "eqs 7-9: the arc-and-train robot keeps the needle in the axial plane (tilt 0)")
         eps0 = epsilon_for_target_y(float(target.entry[1]), p)  # eq 11
         if 0.0 <= eps0 <= p.arc_span:
             q, fail, _ = self._closed_form(target, np.array([eps0]))
