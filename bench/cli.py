@@ -144,6 +144,51 @@ def ik(name: str = typer.Argument(..., help="arc-train"),
         console.print(f"picture: {render}")
 
 
+# ---------------------------------------------------------------------------
+# Trials
+# ---------------------------------------------------------------------------
+
+
+@app.command()
+def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_configs/sim_target1.yaml."),
+          out: Path = typer.Option(Path("runs"), "--out", help="Directory for the run directory."),
+          gui: bool = typer.Option(False, "--gui", help="Show the PyBullet window (sim backend)."),
+          note: str = typer.Option("", "--note", help="Operator note stored in the trial record."),
+          as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
+    """Run one trial: home -> Target -> insertion -> retract, with its log and report."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from bench.config import ConfigError, load_trial_config
+    from bench.trial import TrialError, run_trial
+    from drivers import ActuatorError
+
+    try:
+        cfg = load_trial_config(config)
+    except ConfigError as e:
+        fail(str(e))
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                  TimeRemainingColumn(), console=err_console, transient=True) as bar:
+        task = bar.add_task(f"trial {cfg.name}", total=1.0)
+        try:
+            res = run_trial(cfg, out, gui=gui, note=note,
+                            progress=lambda f: bar.update(task, completed=f))
+        except (TrialError, ConfigError, ActuatorError) as e:
+            fail(str(e))
+    if as_json:
+        emit_json(res.summary())
+    else:
+        o = res.outcome
+        verdict = "[green]PASSED[/]" if res.passed else "[red]FAILED[/]"
+        console.print(f"trial {cfg.name}: {verdict}  ({res.run_dir})")
+        if not res.completed:
+            console.print(f"[red]stopped early:[/] {res.reason}")
+        if o is not None:
+            console.print(f"tip deviation (mm): {o.tip_deviation_mm}, depth {o.depth_deviation_mm:+.3f} mm, "
+                          f"angle {o.angle_deviation_deg:+.4f}°")
+        console.print(f"report: {res.run_dir / 'report.html'}")
+    raise typer.Exit(0 if res.passed else 1)
+
+
 @urdf_app.command("build")
 def urdf_build(check: bool = typer.Option(False, "--check", help="Fail if the files differ instead of writing.")) -> None:
     """Write urdf/ from the parameter sets in bench/kinematics and bench/scene.py."""

@@ -139,6 +139,13 @@ class ActuatorsBase:
     _closed: bool = False
 
     @property
+    def _n_joints(self) -> int:
+        n = self.__dict__.get("_n_cached")
+        if n is None:
+            n = self.__dict__["_n_cached"] = len(self.joint_names)  # type: ignore[attr-defined]
+        return n
+
+    @property
     def enabled(self) -> bool:
         return self._enabled
 
@@ -160,11 +167,11 @@ class ActuatorsBase:
             raise NotEnabledError(
                 f"{type(self).__name__}.command() before enable(): call enable() first"
             )
-        n = len(self.joint_names)  # type: ignore[attr-defined]
         position = np.asarray(position, dtype=float)
+        n = self._n_joints
         if position.shape != (n,):
             raise ValueError(f"command position has shape {position.shape}, expected ({n},)")
-        if not np.all(np.isfinite(position)):
+        if not np.isfinite(position).all():
             raise ValueError(f"command position is not finite: {position}")
         if velocity is not None:
             velocity = np.asarray(velocity, dtype=float)

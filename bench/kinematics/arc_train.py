@@ -209,6 +209,7 @@ class ArcTrainRobot:
         self.chain = build_chain(self.params)
 
     name = "arc-train"
+    insertion_joint = "d10"
 
     @property
     def joint_names(self) -> list[str]:

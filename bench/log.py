@@ -1,0 +1,142 @@
+"""TrialLog: what a trial did, cycle by cycle, plus the metadata to reproduce it.
+
+Saved as one ``.npz`` file: the time series as arrays and the metadata (config,
+package versions, seed, events) as one JSON string inside it, so a log can be
+moved, archived and compared without anything else.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SERIES = ("time", "segment", "q_cmd", "qd_cmd", "q", "qd", "effort")
+
+
+@dataclass
+class Event:
+    """Something that happened during a trial (segment start, interlock, abort...)."""
+
+    time: float
+    kind: str
+    message: str
+
+    def as_dict(self) -> dict:
+        return {"time": self.time, "kind": self.kind, "message": self.message}
+
+
+@dataclass
+class TrialLog:
+    """Recorded samples in SI units; arrays grow in chunks so a cycle costs little."""
+
+    joint_names: list[str]
+    segment_names: list[str] = field(default_factory=list)
+    metadata: dict[str, Any] = field(default_factory=dict)
+    events: list[Event] = field(default_factory=list)
+    capacity: int = 4096
+
+    def __post_init__(self) -> None:
+        n = len(self.joint_names)
+        self._n = 0
+        self._t = np.empty(self.capacity)
+        self._seg = np.empty(self.capacity, dtype=np.int16)
+        self._arr = {k: np.empty((self.capacity, n)) for k in ("q_cmd", "qd_cmd", "q", "qd", "effort")}
+
+    def __len__(self) -> int:
+        return self._n
+
+    def _grow(self) -> None:
+        cap = 2 * len(self._t)
+        self._t = np.resize(self._t, cap)
+        self._seg = np.resize(self._seg, cap)
+        for k, a in self._arr.items():
+            grown = np.empty((cap, a.shape[1]))
+            grown[: self._n] = a[: self._n]
+            self._arr[k] = grown
+
+    def append(self, t: float, segment: int, q_cmd, qd_cmd, q, qd, effort) -> None:
+        i = self._n
+        if i == len(self._t):
+            self._grow()
+        self._t[i] = t
+        self._seg[i] = segment
+        a = self._arr
+        a["q_cmd"][i] = q_cmd
+        a["qd_cmd"][i] = qd_cmd
+        a["q"][i] = q
+        a["qd"][i] = qd
+        a["effort"][i] = effort
+        self._n = i + 1
+
+    def event(self, t: float, kind: str, message: str) -> None:
+        self.events.append(Event(float(t), kind, message))
+
+    # -- views ---------------------------------------------------------------
+    @property
+    def time(self) -> np.ndarray:
+        return self._t[: self._n]
+
+    @property
+    def segment(self) -> np.ndarray:
+        return self._seg[: self._n]
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        if name in ("q_cmd", "qd_cmd", "q", "qd", "effort"):
+            return self.__dict__["_arr"][name][: self.__dict__["_n"]]
+        raise AttributeError(name)
+
+    def joint(self, name: str) -> int:
+        try:
+            return self.joint_names.index(name)
+        except ValueError:
+            raise KeyError(f"no joint {name!r} in this log; it has {self.joint_names}") from None
+
+    # -- persistence -----------------------------------------------------------
+    def save(self, path: Path) -> Path:
+        """Write the log atomically (a temporary file renamed into place)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = {
+            "joint_names": self.joint_names,
+            "segment_names": self.segment_names,
+            "events": [e.as_dict() for e in self.events],
+            "metadata": self.metadata,
+        }
+        tmp = path.with_name(path.name + ".part")
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, time=self.time, segment=self.segment,
+                                **{k: getattr(self, k) for k in SERIES[2:]},
+                                meta=np.array(json.dumps(meta, default=_json_default)))
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: Path) -> "TrialLog":
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"trial log not found: {path}")
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            log = cls(meta["joint_names"], meta["segment_names"], meta["metadata"],
+                      [Event(**e) for e in meta["events"]], capacity=max(1, len(z["time"])))
+            n = len(z["time"])
+            log._t[:n] = z["time"]
+            log._seg[:n] = z["segment"]
+            for k in SERIES[2:]:
+                log._arr[k][:n] = z[k]
+            log._n = n
+        return log
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"cannot store {type(o).__name__} in trial metadata")

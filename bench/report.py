@@ -1,0 +1,234 @@
+"""Trial reports: Fig. 12-style joint profiles, a Table 3-style row, Markdown and self-contained HTML."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bench.log import TrialLog
+
+if TYPE_CHECKING:  # pragma: no cover
+    from bench.trial import PreparedTrial, TrialResult
+
+
+def joint_display(robot, name: str, values: np.ndarray) -> tuple[np.ndarray, str, str]:
+    """Values as the paper plots them: the train as d2 in mm, angles in degrees, slides in mm."""
+    if name == "train" and getattr(robot, "name", "") == "arc-train":
+        from bench.kinematics.arc_train import train_pose
+
+        return np.asarray(train_pose(values, robot.params).d2) * 1e3, "d2 (mm)", "train d2"
+    kind = {r.name: r.kind for r in robot.chain.rows}[name]
+    if kind == "revolute":
+        return np.degrees(values), "angle (°)", name
+    return np.asarray(values) * 1e3, "position (mm)", name
+
+
+def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Path:
+    """Commanded (theoretical) vs measured profile of every joint, one panel each."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = log.joint_names
+    cols = 3
+    rows = int(np.ceil(len(names) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(12, 3.0 * rows), sharex=True)
+    t = log.time - (log.time[0] if len(log) else 0.0)
+    for ax, name in zip(axes.flat, names):
+        j = log.joint(name)
+        cmd, unit, label = joint_display(robot, name, log.q_cmd[:, j])
+        meas, _, _ = joint_display(robot, name, log.q[:, j])
+        ax.plot(t, cmd, "r:", lw=1.8, label="theoretical (commanded)")
+        ax.plot(t, meas, "b-", lw=1.0, label="measured")
+        ax.set_title(label)
+        ax.set_ylabel(unit)
+        ax.grid(alpha=0.3)
+    for ax in axes.flat[len(names):]:
+        ax.axis("off")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    axes.flat[0].legend(loc="best", fontsize=8)
+    for ev in log.events:
+        if ev.kind in ("interlock", "abort"):
+            for ax in axes.flat[: len(names)]:
+                ax.axvline(ev.time - (log.time[0] if len(log) else 0), color="k", ls="--", lw=0.8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def _fmt(v: float, nd: int = 2) -> str:
+    return f"{v:.{nd}f}"
+
+
+def table3_markdown(target_mm: list[float], depth_mm: float, angle_deg: float, outcome) -> str:
+    """Input and output target side by side, as seed 000 Table 3 (in mm)."""
+    o = outcome
+    head = ("| | X (mm) | Y (mm) | Z (mm) | insertion (mm) | angle (°) |\n"
+            "|---|---:|---:|---:|---:|---:|\n")
+    rows = [
+        ("input target", *target_mm, depth_mm, angle_deg),
+        ("output (achieved)", *o.entry_mm, o.depth_mm, o.angle_deg),
+        ("deviation", *o.entry_deviation_mm, o.depth_deviation_mm, o.angle_deviation_deg),
+    ]
+    body = "".join(f"| {r[0]} | " + " | ".join(_fmt(v, 3 if i < 5 else 3) for i, v in enumerate(r[1:]))
+                   + " |\n" for r in rows)
+    tip = (f"\nNeedle tip deviation (mm): X {_fmt(o.tip_deviation_mm[0], 3)}, "
+           f"Y {_fmt(o.tip_deviation_mm[1], 3)}, Z {_fmt(o.tip_deviation_mm[2], 3)}.\n")
+    return head + body + tip
+
+
+def _events_markdown(log: TrialLog) -> str:
+    lines = ["| time (s) | event | detail |", "|---:|---|---|"]
+    t0 = log.time[0] if len(log) else 0.0
+    for e in log.events:
+        lines.append(f"| {e.time - t0:.3f} | {e.kind} | {e.message} |")
+    return "\n".join(lines) + "\n"
+
+
+def tracking_summary(log: TrialLog, robot) -> str:
+    """Per joint: RMS and max |commanded − measured| and the final error, in display units."""
+    lines = ["| joint | RMS error | max error | final error | unit |", "|---|---:|---:|---:|---|"]
+    for name in log.joint_names:
+        j = log.joint(name)
+        cmd, unit, label = joint_display(robot, name, log.q_cmd[:, j])
+        meas, _, _ = joint_display(robot, name, log.q[:, j])
+        e = meas - cmd
+        if e.size == 0:
+            continue
+        lines.append(f"| {label} | {np.sqrt(np.mean(e ** 2)):.4f} | {np.max(np.abs(e)):.4f} | "
+                     f"{e[-1]:.4f} | {unit.split('(')[-1].rstrip(')')} |")
+    return "\n".join(lines) + "\n"
+
+
+def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
+                    figures: dict[str, str]) -> str:
+    cfg = prep.config
+    t = cfg.target
+    o = result.outcome
+    meta = log.metadata
+    verdict = ("PASSED" if result.passed else "FAILED")
+    lines = [f"# Trial {cfg.name}: {verdict}", "",
+             f"- robot: {cfg.robot}, backend: {cfg.backend.kind}, trajectory: {cfg.plan.trajectory}, "
+             f"control rate: {cfg.control_hz:g} Hz, seed: {cfg.seed}",
+             f"- started: {meta.get('start_time', '?')}; log: `{result.log_path.name}`",
+             f"- acceptance: {cfg.acceptance.position_mm:g} mm per axis and depth, "
+             f"{cfg.acceptance.angle_deg:g}° in angle"]
+    if meta.get("note"):
+        lines.append(f"- note: {meta['note']}")
+    if not result.completed:
+        lines.append(f"- **stopped early: {result.reason or 'unknown reason'}**")
+    lines.append("")
+    lines.append("## Needle placement (Table 3 layout)")
+    lines.append("")
+    if o is not None:
+        lines.append(table3_markdown([t.x_mm, t.y_mm, t.z_mm], t.depth_mm, t.angle_deg, o))
+    else:
+        lines.append("The trial stopped before the insertion finished: no placement to report.\n")
+    lines += ["## Joint profiles (Fig. 12 layout)", "", f"![joint profiles]({figures['joints']})", ""]
+    if "robot" in figures:
+        lines += [f"![robot at the end of the insertion]({figures['robot']})", ""]
+    lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Events", "",
+              _events_markdown(log), "## Versions", "",
+              ", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()), ""]
+    return "\n".join(lines)
+
+
+def markdown_to_html(md: str, images: dict[str, Path], title: str) -> str:
+    """A small Markdown subset (headings, lists, tables, images) as one self-contained page."""
+    out = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+           "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;}"
+           "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:4px 8px;"
+           "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}"
+           ".fail{color:#b00}.pass{color:#080}</style></head><body>"]
+    in_table = in_list = False
+    for line in md.splitlines():
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            if all(set(c) <= set("-:") for c in cells):
+                continue
+            if not in_table:
+                out.append("<table>")
+                in_table = True
+                out.append("<tr>" + "".join(f"<th>{_inline(c)}</th>" for c in cells) + "</tr>")
+            else:
+                out.append("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in cells) + "</tr>")
+            continue
+        if in_table:
+            out.append("</table>")
+            in_table = False
+        if line.startswith("- "):
+            if not in_list:
+                out.append("<ul>")
+                in_list = True
+            out.append(f"<li>{_inline(line[2:])}</li>")
+            continue
+        if in_list:
+            out.append("</ul>")
+            in_list = False
+        if line.startswith("!["):
+            alt, src = line[2:].split("](", 1)
+            src = src.rstrip(")")
+            data = base64.b64encode(Path(images[src]).read_bytes()).decode()
+            out.append(f"<p><img alt='{html.escape(alt)}' src='data:image/png;base64,{data}'></p>")
+        elif line.startswith("#"):
+            level = len(line) - len(line.lstrip("#"))
+            text = _inline(line[level:].strip())
+            text = text.replace("PASSED", "<span class='pass'>PASSED</span>").replace(
+                "FAILED", "<span class='fail'>FAILED</span>")
+            out.append(f"<h{level}>{text}</h{level}>")
+        elif line.strip():
+            out.append(f"<p>{_inline(line)}</p>")
+    if in_table:
+        out.append("</table>")
+    if in_list:
+        out.append("</ul>")
+    out.append("</body></html>")
+    return "\n".join(out) + "\n"
+
+
+def _inline(text: str) -> str:
+    import re
+
+    t = html.escape(text)
+    t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
+    t = re.sub(r"`(.+?)`", r"<code>\1</code>", t)
+    return t
+
+
+def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
+                       picture: bool = True) -> dict[str, Path]:
+    """joints.png, robot.png, report.md, report.html and result.json in the run directory."""
+    d = result.run_dir
+    figures = {"joints": "joints.png"}
+    plot_joint_profiles(log, prep.robot, d / "joints.png",
+                        title=f"{prep.config.name}: commanded vs measured")
+    if picture and len(log):
+        try:
+            from drivers.pybullet_backend import render_robot
+
+            insert = log.segment_names.index("insert") if "insert" in log.segment_names else -1
+            idx = np.flatnonzero(log.segment == insert)
+            q = log.q[idx[-1]] if idx.size else log.q[-1]
+            render_robot(prep.config.robot, q, d / "robot.png")
+            figures["robot"] = "robot.png"
+        except Exception:  # a picture is a nicety; never lose a report for it
+            pass
+    md = render_markdown(result, log, prep, figures)
+    (d / "report.md").write_text(md)
+    images = {v: d / v for v in figures.values()}
+    (d / "report.html").write_text(markdown_to_html(md, images, f"Trial {prep.config.name}"))
+    summary = result.summary()
+    summary.update({"completed": result.completed, "reason": result.reason,
+                    "outcome": result.outcome.as_dict() if result.outcome else None})
+    (d / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return {k: d / v for k, v in figures.items()}

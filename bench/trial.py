@@ -1,0 +1,219 @@
+"""One trial end to end: config -> checks -> backend -> plan -> run -> outcome -> run directory.
+
+Everything that can be wrong with a trial (the config, the URDF, the target)
+is checked by :func:`prepare` before a backend is built, so a bad trial never
+moves anything. Whatever happens during the run, the log so far is saved.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import platform
+from dataclasses import dataclass, field
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from bench.config import ConfigError, TrialConfig
+from bench.kinematics.needle import NeedleTarget, UnreachableError
+from bench.log import TrialLog
+from bench.outcome import NeedleOutcome, needle_outcome, settled_position
+from bench.runner import RunResult, Runner, Segment
+from drivers import Actuators, ActuatorError
+
+PACKAGES = ("needle-hil-bench", "numpy", "pybullet", "ruckig", "dynamixel-sdk", "pyserial", "pydantic")
+
+
+class TrialError(RuntimeError):
+    """The trial could not start; nothing moved."""
+
+
+@dataclass
+class PreparedTrial:
+    """A trial that passed every check that can be made before anything moves."""
+
+    config: TrialConfig
+    robot: object
+    target: NeedleTarget
+    q_entry: np.ndarray
+    q_insert: np.ndarray
+
+
+@dataclass
+class TrialResult:
+    run_dir: Path
+    log_path: Path
+    completed: bool
+    reason: str
+    outcome: Optional[NeedleOutcome]
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        return self.completed and self.outcome is not None and self.outcome.passed
+
+    def summary(self) -> dict:
+        o = self.outcome
+        return {
+            "run_dir": str(self.run_dir),
+            "tip_deviation_mm": o.tip_deviation_mm if o else None,
+            "depth_deviation_mm": o.depth_deviation_mm if o else None,
+            "angle_deviation_deg": o.angle_deviation_deg if o else None,
+            "passed": self.passed,
+        }
+
+
+def target_of(config: TrialConfig) -> NeedleTarget:
+    t = config.target
+    return NeedleTarget(np.array([t.x_mm, t.y_mm, t.z_mm]) * 1e-3, t.depth_mm * 1e-3,
+                        np.radians(t.angle_deg), np.radians(t.tilt_deg))
+
+
+def prepare(config: TrialConfig) -> PreparedTrial:
+    """Check the URDF and solve the target; raise TrialError naming the problem."""
+    from bench.robots import get_robot
+
+    robot = get_robot(config.robot)
+    if not config.robot_urdf.is_file():
+        raise TrialError(f"robot URDF not found: {config.robot_urdf} (urdf_dir: {config.urdf_dir})")
+    for name in ("ct_gantry", "ct_bed", "phantom"):
+        p = config.resolve(config.urdf_dir) / f"{name}.urdf"
+        if not p.is_file():
+            raise TrialError(f"scene URDF not found: {p} (urdf_dir: {config.urdf_dir})")
+    target = target_of(config)
+    try:
+        q_insert = robot.ik(target)
+    except UnreachableError as e:
+        raise TrialError(f"target: {e}") from None
+    q_entry = q_insert.copy()
+    q_entry[robot.joint_names.index(robot.insertion_joint)] = 0.0
+    return PreparedTrial(config, robot, target, q_entry, q_insert)
+
+
+def make_backend(prep: PreparedTrial, gui: bool = False) -> Actuators:
+    """The configured backend, inactive (reading allowed, commands refused)."""
+    cfg = prep.config
+    if cfg.backend.kind == "pybullet":
+        from drivers.pybullet_backend import PyBulletActuators, PyBulletSettings, SceneObject
+
+        b = cfg.backend
+        chain = prep.robot.chain
+        effort = [b.joints.get(r.name).effort if b.joints.get(r.name) and b.joints[r.name].effort
+                  else r.effort for r in chain.rows]
+        velocity = [b.joints.get(r.name).velocity if b.joints.get(r.name) and b.joints[r.name].velocity
+                    else r.velocity for r in chain.rows]
+        d = cfg.resolve(cfg.urdf_dir)
+        scene = [SceneObject(d / "ct_gantry.urdf", collide=b.gantry_in_physics),
+                 SceneObject(d / "ct_bed.urdf"), SceneObject(d / "phantom.urdf")]
+        settings = PyBulletSettings(
+            robot_urdf=cfg.robot_urdf, joint_names=prep.robot.joint_names, scene=scene,
+            physics_hz=b.physics_hz, control_period=cfg.control_period, max_effort=effort,
+            max_velocity=velocity, position_gain=b.position_gain, velocity_gain=b.velocity_gain,
+            initial_position=chain.home, gui=gui, safe_stop=b.safe_stop,
+            solver_iterations=b.solver_iterations)
+        return PyBulletActuators(settings)
+    raise ConfigError(f"backend.kind: unknown backend {cfg.backend.kind!r}")
+
+
+def plan(prep: PreparedTrial, q_start: np.ndarray, limits_velocity: np.ndarray) -> list[Segment]:
+    """home -> entry pose -> insertion along the needle axis -> retract."""
+    from trajectories import LSPB, Limits, RuckigOnline, RuckigTrajectory
+
+    p = prep.config.plan
+    vmax = limits_velocity * p.velocity_scale
+    amax = vmax * p.acceleration_scale
+    jmax = amax * p.jerk_scale
+    dt_ctrl = prep.config.control_period
+
+    def traj(a: np.ndarray, b: np.ndarray):
+        if p.trajectory == "lspb":
+            return LSPB(a, b, vmax, amax)
+        if p.trajectory == "ruckig":
+            return RuckigTrajectory(a, b, Limits(vmax, amax, jmax))
+        return RuckigOnline(a, b, Limits(vmax, amax, jmax), dt_ctrl)
+
+    segs = [Segment("approach", traj(q_start, prep.q_entry), p.settle_s),
+            Segment("insert", traj(prep.q_entry, prep.q_insert), p.settle_s)]
+    if p.retract:
+        segs.append(Segment("retract", traj(prep.q_insert, prep.q_entry), 0.0))
+    return segs
+
+
+def package_versions() -> dict[str, str]:
+    out = {}
+    for name in PACKAGES:
+        try:
+            out[name] = importlib_metadata.version(name)
+        except importlib_metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    out["python"] = platform.python_version()
+    return out
+
+
+def new_run_dir(out: Path, name: str) -> Path:
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    base = Path(out) / f"{stamp}-{name}"
+    run_dir, i = base, 1
+    while run_dir.exists():
+        i += 1
+        run_dir = base.with_name(f"{base.name}-{i}")
+    run_dir.mkdir(parents=True)
+    return run_dir
+
+
+def run_trial(config: TrialConfig, out: Path, gui: bool = False,
+              progress: Optional[Callable[[float], None]] = None,
+              backend_factory: Optional[Callable[[PreparedTrial], Actuators]] = None,
+              wrap: Optional[Callable[[Actuators], Actuators]] = None,
+              note: str = "") -> TrialResult:
+    """Run one trial and write its run directory; the log is saved on every exit path."""
+    prep = prepare(config)
+    run_dir = new_run_dir(out, config.name)
+    log_path = run_dir / "trial.npz"
+    backend = (backend_factory or (lambda p: make_backend(p, gui)))(prep)
+    act = wrap(backend) if wrap else backend
+    log = TrialLog(list(prep.robot.joint_names))
+    log.metadata.update({
+        "config": json.loads(config.model_dump_json()),
+        "config_file": str(config.source) if config.source else None,
+        "robot": config.robot, "backend": config.backend.kind, "seed": config.seed,
+        "start_time": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        "versions": package_versions(), "note": note,
+        "target": {"entry_m": prep.target.entry.tolist(), "depth_m": prep.target.depth,
+                   "angle_rad": prep.target.angle, "tilt_rad": prep.target.tilt},
+        "q_entry": prep.q_entry.tolist(), "q_insert": prep.q_insert.tolist(),
+        "control_period": config.control_period,
+    })
+    result: Optional[RunResult] = None
+    reason = ""
+    try:
+        with act:
+            q_start = act.read().position
+            segments = plan(prep, q_start, act.limits.velocity)
+            runner = Runner(act, config.control_period, progress=progress)
+            result = runner.run(segments, log)
+            reason = result.reason
+    except ActuatorError as e:
+        reason = f"{type(e).__name__}: {e}"
+    except KeyboardInterrupt:
+        reason = "interrupted (Ctrl-C)"
+        log.save(log_path)
+        raise
+    finally:
+        log.save(log_path)
+    outcome = None
+    try:
+        q_final = settled_position(log, "insert")
+        outcome = needle_outcome(prep.robot, q_final, prep.target,
+                                 config.acceptance.position_mm, config.acceptance.angle_deg)
+    except (KeyError, ValueError):
+        pass
+    completed = result is not None and result.completed
+    res = TrialResult(run_dir, log_path, completed, reason, outcome)
+    from bench.report import write_trial_report
+
+    write_trial_report(res, log, prep)
+    return res

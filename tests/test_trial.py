@@ -1,0 +1,100 @@
+"""Sim trials end to end: config -> plan -> run -> log -> report, and bad input refused first."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from bench.config import ConfigError, load_trial_config
+from bench.log import TrialLog
+from bench.trial import TrialError, prepare, run_trial
+
+REPO = Path(__file__).resolve().parent.parent
+SIM = REPO / "hil_configs" / "sim_target1.yaml"
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+
+
+def write_config(tmp_path: Path, **changes) -> Path:
+    data = yaml.safe_load(SIM.read_text())
+    for dotted, value in changes.items():
+        node = data
+        *path, last = dotted.split(".")
+        for key in path:
+            node = node[key]
+        node[last] = value
+    p = tmp_path / "trial.yaml"
+    p.write_text(yaml.safe_dump(data))
+    return p
+
+
+@pytest.mark.parametrize("trajectory", ["lspb", "ruckig", "ruckig-online"])
+def test_ideal_sim_trial_reaches_target_1(tmp_path, trajectory):
+    cfg = load_trial_config(write_config(tmp_path, **{"plan.trajectory": trajectory}))
+    res = run_trial(cfg, tmp_path / "runs")
+    assert res.completed and res.passed
+    o = res.outcome
+    assert np.max(np.abs(o.tip_deviation_mm)) < 0.5
+    assert np.max(np.abs(o.entry_deviation_mm)) < 0.5
+    assert abs(o.depth_deviation_mm) < 0.5
+    assert abs(o.angle_deviation_deg) < 0.1
+    # the log holds the whole plan, saved with its metadata
+    log = TrialLog.load(res.log_path)
+    assert log.segment_names == ["approach", "insert", "retract"]
+    assert log.metadata["config"]["plan"]["trajectory"] == trajectory
+    assert "pybullet" in log.metadata["versions"]
+    assert np.all(np.diff(log.time) > 0)
+    # commanded profile starts at home and reaches the IK solution
+    assert log.q_cmd[0] == pytest.approx(np.array(log.metadata["q_entry"]) * 0 + log.q[0], abs=1e-9)
+    # the report shows the Table 3 row with these numbers
+    md = (res.run_dir / "report.md").read_text()
+    assert "PASSED" in md and "| input target | 0.000 | 88.200 | 66.000 | 30.100 | 47.000 |" in md
+    row = f"| output (achieved) | {o.entry_mm[0]:.3f} | {o.entry_mm[1]:.3f} |"
+    assert row in md
+    html = (res.run_dir / "report.html").read_text()
+    assert "data:image/png;base64" in html and "Table 3" in html
+    assert (res.run_dir / "joints.png").stat().st_size > 20_000
+
+
+def test_cli_trial_json(tmp_path):
+    out = subprocess.run([HILBENCH, "trial", str(SIM), "--out", str(tmp_path), "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert set(res) == {"run_dir", "tip_deviation_mm", "depth_deviation_mm", "angle_deviation_deg",
+                        "passed"}
+    assert res["passed"] is True and len(res["tip_deviation_mm"]) == 3
+    assert Path(res["run_dir"], "trial.npz").is_file()
+
+
+@pytest.mark.parametrize("changes, words", [
+    ({"plan.trajectroy": "lspb"}, "plan.trajectroy: unknown field"),
+    ({"plan.trajectory": "cubic"}, "plan.trajectory"),
+    ({"control_hz": -5}, "control_hz"),
+    ({"urdf_dir": "/nonexistent/urdf"}, "URDF not found"),
+    ({"target.z_mm": 666.0}, "eq 19"),
+    ({"target.depth_mm": 250.0}, "insertion depth"),
+    ({"backend.joints": {"theta9": {"effort": 1.0}}}, "theta9"),
+])
+def test_bad_configs_fail_before_anything_moves(tmp_path, changes, words):
+    path = write_config(tmp_path, **changes)
+    runs = tmp_path / "runs"
+    out = subprocess.run([HILBENCH, "trial", str(path), "--out", str(runs), "--json"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and words in lines[0], out.stderr
+    assert not runs.exists()  # no run directory: nothing started
+
+
+def test_library_errors_are_typed(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_trial_config(tmp_path / "missing.yaml")
+    cfg = load_trial_config(write_config(tmp_path, **{"target.y_mm": 900.0}))
+    with pytest.raises(TrialError, match="target"):
+        prepare(cfg)
