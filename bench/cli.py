@@ -111,13 +111,15 @@ def ik(name: str = typer.Argument(..., help="arc-train"),
        z_mm: float = typer.Option(..., "--z-mm"),
        depth_mm: float = typer.Option(..., "--depth-mm", help="Insertion depth beyond the entry point."),
        angle_deg: float = typer.Option(..., "--angle-deg", help="From the downward vertical towards +Y."),
+       tilt_deg: float = typer.Option(0.0, "--tilt-deg", help="Out of the axial plane, towards +X."),
        render: Optional[Path] = typer.Option(None, "--render", help="Also write a PNG of the robot at the solution."),
        as_json: bool = typer.Option(False, "--json")) -> None:
     """Inverse kinematics to a needle target (entry point, depth, angle)."""
     from bench.kinematics.arc_train import NeedleTarget, UnreachableError
 
     r = _robot(name)
-    target = NeedleTarget(np.array([x_mm, y_mm, z_mm]) * 1e-3, depth_mm * 1e-3, np.radians(angle_deg))
+    target = NeedleTarget(np.array([x_mm, y_mm, z_mm]) * 1e-3, depth_mm * 1e-3, np.radians(angle_deg),
+                          np.radians(tilt_deg))
     try:
         q = r.ik(target)
     except UnreachableError as e:
@@ -154,26 +156,34 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
           out: Path = typer.Option(Path("runs"), "--out", help="Directory for the run directory."),
           gui: bool = typer.Option(False, "--gui", help="Show the PyBullet window (sim backend)."),
           note: str = typer.Option("", "--note", help="Operator note stored in the trial record."),
+          emulate: bool = typer.Option(False, "--emulate", help="Run the real backend against the emulated servo bus and sensor."),
           as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Run one trial: home -> Target -> insertion -> retract, with its log and report."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
     from bench.config import ConfigError, load_trial_config
-    from bench.trial import TrialError, run_trial
-    from drivers import ActuatorError
+    from bench.trial import TrialError
 
     try:
         cfg = load_trial_config(config)
     except ConfigError as e:
         fail(str(e))
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                  TimeRemainingColumn(), console=err_console, transient=True) as bar:
-        task = bar.add_task(f"trial {cfg.name}", total=1.0)
+    rig = None
+    if emulate:
+        from bench.emulation import EmulatorProcess
+        from bench.trial import prepare
+
+        if cfg.backend.kind != "dynamixel":
+            fail(f"{config}: --emulate needs backend.kind: dynamixel (this config is {cfg.backend.kind})")
         try:
-            res = run_trial(cfg, out, gui=gui, note=note,
-                            progress=lambda f: bar.update(task, completed=f))
-        except (TrialError, ConfigError, ActuatorError) as e:
+            prepare(cfg)  # nothing starts for a trial that cannot run
+            rig = EmulatorProcess(config)
+        except (TrialError, RuntimeError) as e:
             fail(str(e))
+        cfg = rig.retarget(cfg)
+    try:
+        res = _run_with_progress(cfg, out, gui, note)
+    finally:
+        if rig is not None:
+            rig.close()
     if as_json:
         emit_json(res.summary())
     else:
@@ -187,6 +197,50 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
                           f"angle {o.angle_deviation_deg:+.4f}°")
         console.print(f"report: {res.run_dir / 'report.html'}")
     raise typer.Exit(0 if res.passed else 1)
+
+
+def _run_with_progress(cfg, out: Path, gui: bool, note: str):
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from bench.config import ConfigError
+    from bench.trial import TrialError, run_trial
+    from drivers import ActuatorError
+
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                  TimeRemainingColumn(), console=err_console, transient=True) as bar:
+        task = bar.add_task(f"trial {cfg.name}", total=1.0)
+        try:
+            return run_trial(cfg, out, gui=gui, note=note,
+                             progress=lambda f: bar.update(task, completed=f))
+        except (TrialError, ConfigError, ActuatorError) as e:
+            fail(str(e))
+
+
+@app.command()
+def emulate(config: Path = typer.Argument(..., help="A config with backend.kind: dynamixel."),
+            as_json: bool = typer.Option(False, "--json", help="Print the ports as one JSON line.")) -> None:
+    """Serve the emulated servo bus and ultrasonic sensor of a config until Ctrl-C or SIGTERM."""
+    from bench.config import ConfigError, load_trial_config
+    from bench.emulation import serve
+
+    try:
+        cfg = load_trial_config(config)
+    except ConfigError as e:
+        fail(str(e))
+    if cfg.backend.kind != "dynamixel":
+        fail(f"{config}: backend.kind must be dynamixel to emulate its rig")
+
+    def announce(ports) -> None:
+        if as_json:
+            emit_json({"dynamixel_port": ports.dynamixel_port, "ultrasonic_port": ports.ultrasonic_port})
+        else:
+            console.print(f"Dynamixel bus on [bold]{ports.dynamixel_port}[/], ultrasonic sensor on "
+                          f"[bold]{ports.ultrasonic_port}[/]; Ctrl-C to stop")
+
+    try:
+        serve(cfg, announce)
+    except (ValueError, RuntimeError) as e:
+        fail(str(e))
 
 
 @urdf_app.command("build")
@@ -203,6 +257,17 @@ def urdf_build(check: bool = typer.Option(False, "--check", help="Fail if the fi
         return
     for p in write_scene():
         console.print(f"wrote {p}")
+
+
+
+
+from bench.cli_contact import contact_protocol  # noqa: E402  (kept in its own module)
+
+app.command("contact-protocol")(contact_protocol)
+
+from bench.cli_campaign import campaign_app  # noqa: E402  (kept in its own module)
+
+app.add_typer(campaign_app, name="campaign")
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -8,7 +8,7 @@ and degrees for targets, SI for joint limits and gains.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal, Optional, Union
+from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -53,6 +53,86 @@ class PyBulletBackendConfig(Strict):
     joints: dict[str, JointOverride] = Field(default_factory=dict)
 
 
+class ServoConfig(Strict):
+    """One servo on the bus and its transmission: joint = offset + ratio · shaft angle."""
+
+    id: int = Field(ge=0, le=252)
+    model: str = "XM430-W350"
+    mode: Literal["position", "extended_position", "current_based_position"] = "extended_position"
+    ratio: float = Field(default=1.0, description="joint units (rad or m) per shaft radian")
+    offset: float = Field(default=0.0, description="joint value at 2048 ticks (rad or m)")
+    current_limit_a: Optional[float] = Field(default=None, gt=0)
+    # Position PID gains written to the servo (register units, as Dynamixel Wizard shows them).
+    position_p: Optional[int] = Field(default=None, ge=0, le=16383)
+    position_i: Optional[int] = Field(default=None, ge=0, le=16383)
+    position_d: Optional[int] = Field(default=None, ge=0, le=16383)
+
+    @model_validator(mode="after")
+    def _known_model(self) -> "ServoConfig":
+        from drivers.emulator.control_table import supported_models
+
+        names = set(supported_models().values())
+        if self.model not in names:
+            raise ValueError(f"unknown servo model {self.model!r}; supported: {sorted(names)}")
+        if self.ratio == 0:
+            raise ValueError("ratio must be non-zero")
+        return self
+
+
+def model_number(name: str) -> int:
+    """Dynamixel model number for a model name such as 'XM430-W350'."""
+    from drivers.emulator.control_table import supported_models
+
+    by_name = {v: k for k, v in supported_models().items()}
+    return by_name[name]
+
+
+class UltrasonicConfig(Strict):
+    """The distance sensor that measures the train's d2 (MaxBotix-style 'R####' lines in mm)."""
+
+    port: str
+    baud: int = 9600
+    joint: str = "train"
+    standoff_mm: float = Field(default=300.0, ge=0, description="sensor reading when d2 = 0")
+    median_window: int = Field(default=5, ge=1, le=51)
+    stale_after_s: float = Field(default=0.25, gt=0)
+
+
+class DynamixelBackendConfig(Strict):
+    kind: Literal["dynamixel"] = "dynamixel"
+    port: str
+    baud: int = Field(default=1_000_000, gt=0)
+    return_delay_us: int = Field(default=0, ge=0, le=508)
+    fast_sync_read: bool = True
+    retries: int = Field(default=3, ge=0, le=20)
+    safe_stop: Literal["torque_off", "hold"] = "torque_off"
+    reboot_on_hardware_error: bool = False
+    servos: dict[str, ServoConfig]
+    ultrasonic: Optional[UltrasonicConfig] = None
+
+    @model_validator(mode="after")
+    def _unique_ids(self) -> "DynamixelBackendConfig":
+        ids = [s.id for s in self.servos.values()]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ValueError(f"servos: duplicate ID(s) {dup}")
+        return self
+
+
+class EmulatorConfig(Strict):
+    """The emulated rig used by `--emulate` and `hilbench emulate` (ignored on real hardware)."""
+
+    physics_hz: float = Field(default=1000.0, gt=0)
+    wire_timing: bool = False
+    ultrasonic_rate_hz: float = Field(default=50.0, gt=0)
+    ultrasonic_noise_mm: float = Field(default=1.0, ge=0)
+    ultrasonic_dropout: float = Field(default=0.0, ge=0, lt=1)
+    deadband_deg: float = Field(default=0.0, ge=0)
+    start_torque_on: bool = True  # servos hold their pose at power-up, as a rig left enabled
+    joint_friction: dict[str, float] = Field(default_factory=dict)
+    seed: int = 0
+
+
 class PlanConfig(Strict):
     """home -> entry pose -> insertion along the needle axis -> (retract)."""
 
@@ -80,7 +160,12 @@ class TrialConfig(Strict):
     target: TargetConfig
     plan: PlanConfig = PlanConfig()
     acceptance: AcceptanceConfig = AcceptanceConfig()
-    backend: Annotated[Union[PyBulletBackendConfig], Field(discriminator="kind")] = PyBulletBackendConfig()
+    backend: Annotated[Union[PyBulletBackendConfig, DynamixelBackendConfig],
+                       Field(discriminator="kind")] = PyBulletBackendConfig()
+    emulator: EmulatorConfig = EmulatorConfig()
+    # Faults injected around the backend, by name with parameters and target
+    # joints; validated by bench.faults (unknown names and parameters refused).
+    faults: list[dict[str, Any]] = Field(default_factory=list)
 
     # Where the file came from, to resolve relative paths; not part of the file.
     source: Optional[Path] = Field(default=None, exclude=True)
@@ -93,6 +178,18 @@ class TrialConfig(Strict):
         unknown = sorted(set(getattr(self.backend, "joints", {})) - set(names))
         if unknown:
             raise ValueError(f"backend.joints: unknown joint(s) {unknown}; {self.robot} has {names}")
+        if self.backend.kind == "dynamixel":
+            servos = set(self.backend.servos)
+            if servos != set(names):
+                raise ValueError(f"backend.servos: missing {sorted(set(names) - servos)}, "
+                                 f"unknown {sorted(servos - set(names))}; {self.robot} has {names}")
+            u = self.backend.ultrasonic
+            if u is not None and u.joint not in names:
+                raise ValueError(f"backend.ultrasonic.joint: unknown joint {u.joint!r}")
+        if self.faults:
+            from bench.faults import parse_faults
+
+            parse_faults(self.faults, names)  # raises ValueError naming the bad fault
         return self
 
     @property

@@ -115,7 +115,42 @@ def make_backend(prep: PreparedTrial, gui: bool = False) -> Actuators:
             initial_position=chain.home, gui=gui, safe_stop=b.safe_stop,
             solver_iterations=b.solver_iterations)
         return PyBulletActuators(settings)
+    if cfg.backend.kind == "dynamixel":
+        return make_dynamixel_backend(prep)
     raise ConfigError(f"backend.kind: unknown backend {cfg.backend.kind!r}")
+
+
+def make_dynamixel_backend(prep: PreparedTrial) -> Actuators:
+    """The Dynamixel backend from a config (ports, IDs, models, transmissions)."""
+    from bench.config import model_number
+    from drivers.dynamixel_backend import (
+        DynamixelActuators, DynamixelSettings, ServoSettings, UltrasonicSettings,
+    )
+
+    b = prep.config.backend
+    rows = prep.robot.chain.rows
+    servos = [ServoSettings(joint=n, id=sc.id, model=model_number(sc.model), mode=sc.mode,
+                            ratio=sc.ratio, offset=sc.offset, current_limit_a=sc.current_limit_a,
+                            gains=(sc.position_p, sc.position_i, sc.position_d))
+              for n, sc in b.servos.items()]
+    ultra = None
+    if b.ultrasonic is not None:
+        from bench.kinematics.arc_train import epsilon_from_d2
+
+        u = b.ultrasonic
+        standoff = u.standoff_mm * 1e-3
+        params = prep.robot.params
+        ultra = UltrasonicSettings(port=u.port, joint=u.joint, baud=u.baud,
+                                   median_window=u.median_window, stale_after_s=u.stale_after_s,
+                                   to_joint=lambda d: float(epsilon_from_d2(d - standoff, params)))
+    settings = DynamixelSettings(
+        port=b.port, baud=b.baud, servos=servos, joint_names=prep.robot.joint_names,
+        lower=[r.lower for r in rows], upper=[r.upper for r in rows],
+        velocity=[r.velocity for r in rows], effort=[r.effort for r in rows],
+        return_delay_us=b.return_delay_us, fast_sync_read=b.fast_sync_read, retries=b.retries,
+        safe_stop=b.safe_stop, reboot_on_hardware_error=b.reboot_on_hardware_error,
+        ultrasonic=ultra)
+    return DynamixelActuators(settings)
 
 
 def plan(prep: PreparedTrial, q_start: np.ndarray, limits_velocity: np.ndarray) -> list[Segment]:
@@ -168,13 +203,23 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
               progress: Optional[Callable[[float], None]] = None,
               backend_factory: Optional[Callable[[PreparedTrial], Actuators]] = None,
               wrap: Optional[Callable[[Actuators], Actuators]] = None,
-              note: str = "") -> TrialResult:
-    """Run one trial and write its run directory; the log is saved on every exit path."""
+              note: str = "", report: bool = True) -> TrialResult:
+    """Run one trial and write its run directory; the log is saved on every exit path.
+
+    ``report=False`` writes only the log and ``result.json`` (no figures), for campaigns.
+    """
     prep = prepare(config)
+    backend = (backend_factory or (lambda p: make_backend(p, gui)))(prep)
     run_dir = new_run_dir(out, config.name)
     log_path = run_dir / "trial.npz"
-    backend = (backend_factory or (lambda p: make_backend(p, gui)))(prep)
-    act = wrap(backend) if wrap else backend
+    act = backend
+    if config.faults:
+        from bench.faults import apply_faults, parse_faults
+
+        specs = parse_faults(config.faults, prep.robot.joint_names)
+        act = apply_faults(act, specs, np.random.default_rng(config.seed))
+    if wrap:
+        act = wrap(act)
     log = TrialLog(list(prep.robot.joint_names))
     log.metadata.update({
         "config": json.loads(config.model_dump_json()),
@@ -187,6 +232,10 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
         "q_entry": prep.q_entry.tolist(), "q_insert": prep.q_insert.tolist(),
         "control_period": config.control_period,
     })
+    if hasattr(backend, "servo_info"):
+        log.metadata["servos"] = backend.servo_info()
+    if getattr(getattr(backend, "settings", None), "warnings", None):
+        log.metadata["warnings"] = list(backend.settings.warnings)
     result: Optional[RunResult] = None
     reason = ""
     try:
@@ -213,7 +262,13 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
         pass
     completed = result is not None and result.completed
     res = TrialResult(run_dir, log_path, completed, reason, outcome)
-    from bench.report import write_trial_report
+    if report:
+        from bench.report import write_trial_report
 
-    write_trial_report(res, log, prep)
+        write_trial_report(res, log, prep)
+    else:
+        summary = res.summary()
+        summary.update({"completed": completed, "reason": reason,
+                        "outcome": outcome.as_dict() if outcome else None})
+        (run_dir / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
     return res

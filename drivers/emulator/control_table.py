@@ -1,0 +1,359 @@
+"""X-series control tables for the servo emulator, and the motor figures behind them.
+
+Layout (address, size, name) comes from the ``.model`` files that ship with
+dynamixel-sdk (``dynamixel_easy_sdk/control_table``), so the emulator and the
+SDK can never disagree on where a register lives. Those files carry nothing
+else, so access, EEPROM/RAM area, defaults, ranges and signedness are written
+out below from the ROBOTIS e-manual control-table pages of each model
+(XM430-W350, XL430-W250, XM540-W270, XC430-W150). Indirect addresses are not
+emulated.
+
+Motor figures (:class:`MotorSpec`) are the e-manual's 12 V stall torque,
+stall current and no-load speed; the servo model derives a DC-motor model
+from them (R = V/I_stall, Kt = T_stall/I_stall, Ke = V/w_no_load).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+from functools import lru_cache
+from importlib import resources
+from typing import Iterator, Mapping
+
+from drivers import ConfigurationError
+
+__all__ = [
+    "Access",
+    "Area",
+    "BAUD_RATES",
+    "ControlTable",
+    "ModelSpec",
+    "MotorSpec",
+    "Register",
+    "XC430_W150",
+    "XL430_W250",
+    "XM430_W350",
+    "XM540_W270",
+    "model_spec",
+    "supported_models",
+]
+
+XM430_W350 = 1020
+XL430_W250 = 1060
+XC430_W150 = 1070
+XM540_W270 = 1120
+
+#: Baud Rate register (8) value -> bit/s, X-series.
+BAUD_RATES: dict[int, int] = {
+    0: 9_600,
+    1: 57_600,
+    2: 115_200,
+    3: 1_000_000,
+    4: 2_000_000,
+    5: 3_000_000,
+    6: 4_000_000,
+    7: 4_500_000,
+}
+
+
+class Access(Enum):
+    R = "R"
+    RW = "RW"
+
+
+class Area(Enum):
+    EEPROM = "EEPROM"  # addresses < 64: writable only with torque off
+    RAM = "RAM"
+
+
+@dataclass(frozen=True)
+class Register:
+    """One control-table item. ``minimum``/``maximum`` are the fixed range (None: none)."""
+
+    name: str
+    address: int
+    size: int
+    access: Access
+    area: Area
+    default: int
+    minimum: int | None
+    maximum: int | None
+    signed: bool
+
+    def encode(self, value: int) -> bytes:
+        """Little-endian bytes of ``value`` (two's complement when signed)."""
+        return int(value).to_bytes(self.size, "little", signed=self.signed and value < 0)
+
+    def decode(self, raw: bytes) -> int:
+        return int.from_bytes(raw, "little", signed=self.signed)
+
+
+@dataclass(frozen=True)
+class MotorSpec:
+    """Datasheet figures at ``voltage`` (V); SI units."""
+
+    voltage: float
+    stall_torque: float  # N·m
+    stall_current: float  # A
+    no_load_speed: float  # rad/s at the output shaft
+
+    @property
+    def kt(self) -> float:
+        """Torque constant at the output shaft (N·m/A), T_stall / I_stall."""
+        return self.stall_torque / self.stall_current
+
+    @property
+    def resistance(self) -> float:
+        """Winding resistance (Ω) that makes V / R equal the stall current."""
+        return self.voltage / self.stall_current
+
+    @property
+    def ke(self) -> float:
+        """Back-EMF constant at the output shaft (V·s/rad), V / w_no_load."""
+        return self.voltage / self.no_load_speed
+
+
+def _rpm(value: float) -> float:
+    return value * 2.0 * math.pi / 60.0
+
+
+class ControlTable:
+    """Registers of one model, by name and by address."""
+
+    def __init__(self, registers: list[Register]) -> None:
+        self._by_name = {r.name: r for r in registers}
+        self._by_address = {r.address: r for r in registers}
+        self.size = max(r.address + r.size for r in registers)
+
+    def __getitem__(self, name: str) -> Register:
+        try:
+            return self._by_name[name]
+        except KeyError:
+            raise KeyError(f"no register named {name!r} in this control table") from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._by_name
+
+    def __iter__(self) -> Iterator[Register]:
+        return iter(sorted(self._by_name.values(), key=lambda r: r.address))
+
+    def __len__(self) -> int:
+        return len(self._by_name)
+
+    def at(self, address: int) -> Register | None:
+        """The register starting at ``address``, if any."""
+        return self._by_address.get(address)
+
+    def covering(self, address: int, length: int) -> list[Register]:
+        """Registers overlapping ``[address, address + length)``, in address order."""
+        end = address + length
+        return [r for r in self if r.address < end and r.address + r.size > address]
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Everything the emulator knows about one model."""
+
+    number: int
+    name: str
+    table: ControlTable
+    motor: MotorSpec
+    operating_modes: frozenset[int]
+    #: A per unit of Present/Goal Current; None for models reporting Present Load.
+    current_unit: float | None
+    extra: Mapping[str, object] = field(default_factory=dict)
+
+    @property
+    def senses_current(self) -> bool:
+        return self.current_unit is not None
+
+
+# -- attributes written out from the e-manual ----------------------------------
+# name: (access, default, minimum, maximum, signed)
+_COMMON: dict[str, tuple[Access, int, int | None, int | None, bool]] = {
+    "Model Number": (Access.R, 0, None, None, False),
+    "Model Information": (Access.R, 0, None, None, False),
+    "Firmware Version": (Access.R, 48, None, None, False),
+    "ID": (Access.RW, 1, 0, 252, False),
+    "Baud Rate": (Access.RW, 1, 0, 7, False),
+    "Return Delay Time": (Access.RW, 250, 0, 254, False),
+    "Drive Mode": (Access.RW, 0, 0, 13, False),
+    "Operating Mode": (Access.RW, 3, 0, 16, False),
+    "Secondary(Shadow) ID": (Access.RW, 255, 0, 255, False),
+    # Protocol 1.0 is not emulated, so only 2 is accepted.
+    "Protocol Type": (Access.RW, 2, 2, 2, False),
+    "Homing Offset": (Access.RW, 0, -1_044_479, 1_044_479, True),
+    "Moving Threshold": (Access.RW, 10, 0, 1023, False),
+    "Temperature Limit": (Access.RW, 80, 0, 100, False),
+    "Max Voltage Limit": (Access.RW, 160, 95, 160, False),
+    "Min Voltage Limit": (Access.RW, 95, 95, 160, False),
+    "PWM Limit": (Access.RW, 885, 0, 885, False),
+    "Current Limit": (Access.RW, 1193, 0, 1193, False),
+    "Velocity Limit": (Access.RW, 200, 0, 1023, False),
+    "Max Position Limit": (Access.RW, 4095, 0, 4095, False),
+    "Min Position Limit": (Access.RW, 0, 0, 4095, False),
+    "External Port Mode 1": (Access.RW, 3, 0, 3, False),
+    "External Port Mode 2": (Access.RW, 3, 0, 3, False),
+    "External Port Mode 3": (Access.RW, 3, 0, 3, False),
+    "Shutdown": (Access.RW, 52, 0, 255, False),
+    "Torque Enable": (Access.RW, 0, 0, 1, False),
+    "LED": (Access.RW, 0, 0, 1, False),
+    "Status Return Level": (Access.RW, 2, 0, 2, False),
+    "Registered Instruction": (Access.R, 0, None, None, False),
+    "Hardware Error Status": (Access.R, 0, None, None, False),
+    "Velocity I Gain": (Access.RW, 1920, 0, 16383, False),
+    "Velocity P Gain": (Access.RW, 100, 0, 16383, False),
+    "Position D Gain": (Access.RW, 0, 0, 16383, False),
+    "Position I Gain": (Access.RW, 0, 0, 16383, False),
+    "Position P Gain": (Access.RW, 800, 0, 16383, False),
+    "Feedforward 2nd Gain": (Access.RW, 0, 0, 16383, False),
+    "Feedforward 1st Gain": (Access.RW, 0, 0, 16383, False),
+    "Bus Watchdog": (Access.RW, 0, 0, 127, False),
+    # Goal PWM/Current/Velocity/Position are bounded by other registers (limit
+    # checks in servo.py); the fixed ranges here are the register extremes.
+    "Goal PWM": (Access.RW, 885, -885, 885, True),
+    "Goal Current": (Access.RW, 1193, -2047, 2047, True),
+    "Goal Velocity": (Access.RW, 0, -1023, 1023, True),
+    "Profile Acceleration": (Access.RW, 0, 0, 32767, False),
+    "Profile Velocity": (Access.RW, 0, 0, 32767, False),
+    "Goal Position": (Access.RW, 2048, -1_048_575, 1_048_575, True),
+    "Realtime Tick": (Access.R, 0, None, None, False),
+    "Moving": (Access.R, 0, None, None, False),
+    "Moving Status": (Access.R, 0, None, None, False),
+    "Present PWM": (Access.R, 0, None, None, True),
+    "Present Current": (Access.R, 0, None, None, True),
+    "Present Load": (Access.R, 0, None, None, True),
+    "Present Velocity": (Access.R, 0, None, None, True),
+    "Present Position": (Access.R, 2048, None, None, True),
+    "Velocity Trajectory": (Access.R, 0, None, None, True),
+    "Position Trajectory": (Access.R, 2048, None, None, True),
+    "Present Input Voltage": (Access.R, 120, None, None, False),
+    "Present Temperature": (Access.R, 30, None, None, False),
+    "External Port Data 1": (Access.RW, 0, 0, 65535, False),
+    "External Port Data 2": (Access.RW, 0, 0, 65535, False),
+    "External Port Data 3": (Access.RW, 0, 0, 65535, False),
+}
+
+# Per-model: model file, defaults/ranges that differ, motor, operating modes.
+_MODELS: dict[int, dict] = {
+    XM430_W350: dict(
+        file="xm430_w350.model",
+        name="XM430-W350",
+        overrides={},
+        motor=MotorSpec(12.0, 4.1, 2.3, _rpm(46.0)),
+        modes=(0, 1, 3, 4, 5, 16),
+        current_unit=0.00269,
+    ),
+    XM540_W270: dict(
+        file="xm540_w270.model",
+        name="XM540-W270",
+        overrides={
+            "Current Limit": (2047, 0, 2047),
+            "Goal Current": (2047, -2047, 2047),
+            "Velocity Limit": (128, 0, 1023),
+        },
+        motor=MotorSpec(12.0, 10.6, 4.4, _rpm(30.0)),
+        modes=(0, 1, 3, 4, 5, 16),
+        current_unit=0.00269,
+    ),
+    XL430_W250: dict(
+        file="xl430_w250.model",
+        name="XL430-W250",
+        overrides={
+            "Temperature Limit": (72, 0, 100),
+            "Max Voltage Limit": (140, 60, 140),
+            "Min Voltage Limit": (60, 60, 140),
+            "Velocity Limit": (415, 0, 1023),
+            "Velocity I Gain": (1000, 0, 16383),
+            "Position D Gain": (4000, 0, 16383),
+            "Position P Gain": (640, 0, 16383),
+        },
+        motor=MotorSpec(12.0, 1.5, 1.4, _rpm(61.0)),
+        modes=(1, 3, 4, 16),
+        current_unit=None,
+    ),
+    XC430_W150: dict(
+        file="xc430_w150.model",
+        name="XC430-W150",
+        overrides={
+            "Max Voltage Limit": (160, 60, 160),
+            "Min Voltage Limit": (60, 60, 160),
+            "Velocity Limit": (460, 0, 1023),
+            "Position P Gain": (460, 0, 16383),
+        },
+        motor=MotorSpec(12.0, 1.6, 1.4, _rpm(106.0)),
+        modes=(1, 3, 4, 16),
+        current_unit=None,
+    ),
+}
+
+
+def _sdk_layout(filename: str) -> list[tuple[int, int, str]]:
+    """(address, size, name) rows of a dynamixel-sdk ``.model`` file."""
+    try:
+        text = (resources.files("dynamixel_easy_sdk") / "control_table" / filename).read_text(
+            encoding="utf-8"
+        )
+    except (ModuleNotFoundError, FileNotFoundError) as exc:
+        raise ConfigurationError(
+            f"control-table file {filename!r} not found in dynamixel-sdk's dynamixel_easy_sdk "
+            "package; install dynamixel-sdk>=4.0"
+        ) from exc
+    rows: list[tuple[int, int, str]] = []
+    in_table = False
+    for line in text.splitlines():
+        line = line.strip()
+        if not line:
+            continue
+        if line.startswith("["):
+            in_table = line == "[control table]"
+            continue
+        parts = line.split("\t")
+        if not in_table or len(parts) < 3 or not parts[0].isdigit():
+            continue
+        rows.append((int(parts[0]), int(parts[1]), parts[2].strip()))
+    if not rows:
+        raise ConfigurationError(f"no [control table] rows in dynamixel-sdk file {filename!r}")
+    return rows
+
+
+@lru_cache(maxsize=None)
+def model_spec(model: int) -> ModelSpec:
+    """The :class:`ModelSpec` for a model number (1020, 1060, 1070 or 1120)."""
+    try:
+        info = _MODELS[model]
+    except KeyError:
+        raise ConfigurationError(
+            f"model number {model} is not emulated; supported: {sorted(_MODELS)}"
+        ) from None
+    registers = []
+    for address, size, name in _sdk_layout(info["file"]):
+        if name.startswith("Indirect") or name in {r.name for r in registers}:
+            continue
+        try:
+            access, default, lo, hi, signed = _COMMON[name]
+        except KeyError:
+            raise ConfigurationError(
+                f"register {name!r} (address {address}) of {info['name']} has no attributes here"
+            ) from None
+        if name in info["overrides"]:
+            default, lo, hi = info["overrides"][name]
+        if name == "Model Number":
+            default = model
+        area = Area.EEPROM if address < 64 else Area.RAM
+        registers.append(Register(name, address, size, access, area, default, lo, hi, signed))
+    return ModelSpec(
+        number=model,
+        name=info["name"],
+        table=ControlTable(registers),
+        motor=info["motor"],
+        operating_modes=frozenset(info["modes"]),
+        current_unit=info["current_unit"],
+    )
+
+
+def supported_models() -> dict[int, str]:
+    """Model number -> model name of every emulated model."""
+    return {number: info["name"] for number, info in _MODELS.items()}

@@ -1,0 +1,125 @@
+"""The robot's rigid-body dynamics (from PyBullet) as the mechanical plant of the servo-bus emulator.
+
+The emulated servos return shaft torques; this plant applies them to the
+robot's joints through each servo's transmission, with gravity and the link
+inertias computed by PyBullet from the URDF, so a joint that carries the arm
+lags the way a weak servo lags on the real robot.
+
+Why not ``stepSimulation`` under torque control: a geared servo's reflected
+rotor inertia (the armature, ~0.01 kg·m² at an XM430's output) and its
+back-EMF damping (Kt·Ke/R ≈ 0.9 N·m·s/rad) dwarf the small links of the
+wrist, and PyBullet has no armature and integrates damping explicitly, which
+goes unstable at 1 kHz. Here the joint-space equation
+
+    (M(q) + J_a + dt·B) Δq̇ = dt · (τ_drive − B q̇ − h(q, q̇) − friction)
+
+is integrated semi-implicitly, with M and h = C q̇ + g from PyBullet's
+``calculateMassMatrix`` and ``calculateInverseDynamics``. Stable for any
+damping; joint limits act as hard stops.
+
+Shaft angle and joint value: ``joint = offset + ratio · shaft``; joint torque
+is ``shaft torque / ratio``; armature and damping scale by ``1 / ratio²``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from drivers import ConfigurationError
+
+# Reflected rotor inertia at the output of an X-series servo (kg·m²): a coreless
+# rotor of ~1e-7 kg·m² through the ~350:1 gearbox of the XM430-W350.
+DEFAULT_ARMATURE = 0.012
+
+
+class PyBulletPlant:
+    """``Plant`` for :class:`~drivers.emulator.bus.DynamixelBusEmulator`."""
+
+    def __init__(self, urdf: Path, joint_names: Sequence[str], ratio: Sequence[float],
+                 offset: Sequence[float], initial_position: Sequence[float],
+                 motor_damping: Sequence[float], armature: Sequence[float] | float = DEFAULT_ARMATURE,
+                 physics_dt: float = 0.001, gravity: float = -9.81,
+                 friction: Sequence[float] | None = None) -> None:
+        from drivers._quiet import muted_output, quiet_pybullet
+
+        pb = quiet_pybullet()
+        self._pb = pb
+        urdf = Path(urdf)
+        if not urdf.is_file():
+            raise ConfigurationError(f"plant URDF not found: {urdf}")
+        with muted_output():
+            self._c = pb.connect(pb.DIRECT)
+        c = self._c
+        pb.setGravity(0, 0, gravity, physicsClientId=c)
+        self.body = pb.loadURDF(str(urdf), useFixedBase=True, flags=pb.URDF_USE_INERTIA_FROM_FILE,
+                                physicsClientId=c)
+        infos = [pb.getJointInfo(self.body, j, physicsClientId=c)
+                 for j in range(pb.getNumJoints(self.body, physicsClientId=c))]
+        movable = [i for i in infos if i[2] != pb.JOINT_FIXED]
+        names = [i[1].decode() for i in movable]
+        if list(joint_names) != names:
+            raise ConfigurationError(
+                f"plant joints must be the URDF's movable joints in order {names}, got {list(joint_names)}")
+        n = len(names)
+        self.joint_names = names
+        self._lower = np.array([i[8] for i in movable])
+        self._upper = np.array([i[9] for i in movable])
+        self._ratio = np.asarray(ratio, dtype=float)
+        self._offset = np.asarray(offset, dtype=float)
+        r2 = self._ratio ** 2
+        self._B = np.asarray(motor_damping, dtype=float) / r2
+        self._Ja = np.broadcast_to(np.asarray(armature, dtype=float), (n,)) / r2
+        self._friction = np.zeros(n) if friction is None else np.asarray(friction, dtype=float)
+        self._dt = physics_dt
+        self._q = np.clip(np.asarray(initial_position, dtype=float), self._lower, self._upper)
+        self._qd = np.zeros(n)
+        self._zeros = [0.0] * n
+
+    @property
+    def joint_count(self) -> int:
+        return len(self._q)
+
+    def joint_position(self) -> np.ndarray:
+        """Joint values (rad or m), for sensors that see the joint rather than the shaft."""
+        return self._q.copy()
+
+    def joint_velocity(self) -> np.ndarray:
+        return self._qd.copy()
+
+    def position(self) -> np.ndarray:
+        return (self._q - self._offset) / self._ratio
+
+    def velocity(self) -> np.ndarray:
+        return self._qd / self._ratio
+
+    def step(self, dt: float, torque: np.ndarray) -> None:
+        if abs(dt - self._dt) > 1e-12:
+            raise ValueError(f"plant steps {self._dt} s, asked for {dt} s")
+        pb, c = self._pb, self._c
+        q, qd = self._q, self._qd
+        # The servo's torque already holds -B·qd (explicit); take the drive part
+        # and apply the damping implicitly.
+        drive = np.asarray(torque, dtype=float) / self._ratio + self._B * qd
+        ql = q.tolist()
+        M = np.array(pb.calculateMassMatrix(self.body, ql, physicsClientId=c))
+        h = np.array(pb.calculateInverseDynamics(self.body, ql, qd.tolist(), self._zeros,
+                                                 physicsClientId=c))
+        rhs = drive - self._B * qd - h - self._friction * np.tanh(qd / 1e-3)
+        A = M + np.diag(self._Ja + dt * self._B)
+        qd_new = qd + dt * np.linalg.solve(A, rhs)
+        q_new = q + dt * qd_new
+        # Hard stops at the URDF limits.
+        low, high = q_new < self._lower, q_new > self._upper
+        if low.any() or high.any():
+            q_new = np.clip(q_new, self._lower, self._upper)
+            qd_new[low | high] = 0.0
+        self._q, self._qd = q_new, qd_new
+
+    def close(self) -> None:
+        try:
+            self._pb.disconnect(self._c)
+        except Exception:
+            pass

@@ -1,0 +1,650 @@
+"""One emulated X-series servo: control-table memory, firmware rules and motor physics.
+
+Register rules (ROBOTIS e-manual, Protocol 2.0 and X-series control tables):
+
+* EEPROM (address < 64) is writable only with Torque Enable = 0, otherwise
+  Access Error 0x07; so are read-only items and addresses holding no item.
+* A value outside an item's fixed range gets Data Range Error 0x04 (e.g.
+  Operating Mode 2, Return Delay Time 255, Goal Position beyond ±1,048,575
+  in extended position mode).
+* A value beyond a bound set by another register gets Data Limit Error 0x06
+  ("data to be written is outside of the Limit value"): Goal Position outside
+  Min/Max Position Limit in Position Control Mode, |Goal Current| > Current
+  Limit, |Goal Velocity| > Velocity Limit, |Goal PWM| > PWM Limit. Users of
+  real XM430s report this error for Goal Current above Current Limit.
+* A write covering only part of a multi-byte item gets Data Length Error 0x05.
+* A rejected write changes nothing (the whole instruction is refused).
+
+Emulator choices where the e-manual is silent (documented, not firmware-verified):
+Torque Enable 0 -> 1 sets Goal Position to Present Position so the servo holds
+still; Torque Enable = 1 while a shutdown error is latched answers Result Fail
+0x01; hardware-error bits latch until REBOOT and the alert bit (0x80) is set on
+every status packet while any is latched; bits not selected in Shutdown(63)
+are reported but do not switch the torque off.
+
+Physics per substep (the firmware's loop runs at ``CONTROL_PERIOD_S`` = 1 ms):
+
+1. Profile: Goal Position -> Position/Velocity Trajectory with Profile
+   Velocity (0.229 rev/min) and Profile Acceleration (214.577 rev/min²), a
+   trapezoid; 0 means unlimited. Drive Mode bit 2 selects the time-based
+   profile (Profile Velocity = total time, Profile Acceleration = ramp time,
+   in ms).
+2. Position PID on the encoder reading (integer ticks): KPP = P/128,
+   KPI = I/65536, KPD = D/16 per 1 ms sample, output in PWM units (885 = 100 %)
+   limited by Goal PWM and PWM Limit — or, in Current-based Position Control
+   Mode, in current units limited by Goal Current. Velocity mode: KVP = P/128,
+   KVI = I/65536. Feed-forward gains are stored but not applied.
+3. Motor: V = PWM/885 · V_in, I = (V − Ke·w)/R, clamped to ±Current Limit,
+   torque = Kt·I. R, Ke, Kt come from the datasheet stall/no-load figures
+   (:class:`~drivers.emulator.control_table.MotorSpec`); XM430-W350 at 12 V:
+   4.1 N·m / 2.3 A -> Kt = 1.78 N·m/A, R = 5.2 Ω, Ke = 2.49 V·s/rad (46 rpm).
+4. Reports: Present Position = encoder ticks (4096/rev, 0.088°) + Homing
+   Offset, tick 2048 = 0 rad; Present Velocity in 0.229 rev/min; Present
+   Current in 2.69 mA (Present Load in 0.1 % of stall current on XL/XC430);
+   Moving = |Present Velocity| > Moving Threshold or a profile in progress.
+5. Overload: |I| at >= ``overload_fraction`` of the largest current the
+   supply and Current Limit allow, continuously for more than
+   ``overload_time_s`` -> Hardware Error Status bit 5; with the default
+   Shutdown (52) that switches the torque off until REBOOT.
+
+An optional deadband (ticks) makes the servo stop correcting once it is
+within ±deadband of the goal, like a worn or deliberately detuned unit.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping, NoReturn
+
+from drivers.dxl_protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
+from drivers.emulator.control_table import (
+    BAUD_RATES,
+    XM430_W350,
+    Access,
+    Area,
+    ModelSpec,
+    Register,
+    model_spec,
+)
+
+__all__ = [
+    "CENTER_TICK",
+    "CONTROL_PERIOD_S",
+    "OperatingMode",
+    "RAD_PER_TICK",
+    "ServoModel",
+    "VELOCITY_UNIT_RAD_S",
+]
+
+TICKS_PER_REV = 4096
+RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
+CENTER_TICK = 2048
+VELOCITY_UNIT_RAD_S = 0.229 * 2.0 * math.pi / 60.0
+ACCEL_UNIT_RAD_S2 = 214.577 * 2.0 * math.pi / 3600.0
+PWM_FULL_SCALE = 885
+CONTROL_PERIOD_S = 0.001
+_CLEAR_MAGIC = bytes((0x01, 0x44, 0x58, 0x4C, 0x22))
+
+
+class OperatingMode:
+    """Operating Mode (11) values."""
+
+    CURRENT = 0
+    VELOCITY = 1
+    POSITION = 3
+    EXTENDED_POSITION = 4
+    CURRENT_BASED_POSITION = 5
+    PWM = 16
+
+
+_POSITION_MODES = (
+    OperatingMode.POSITION,
+    OperatingMode.EXTENDED_POSITION,
+    OperatingMode.CURRENT_BASED_POSITION,
+)
+_HW_BIT = {name: bit for bit, name in HARDWARE_ERROR_BITS.items()}
+
+
+def _clamp(value: float, limit: float) -> float:
+    return max(-limit, min(limit, value))
+
+
+class ServoModel:
+    """An emulated servo with its own control table, driven through the bus emulator.
+
+    ``registers`` sets initial values by item name on top of the factory
+    defaults (e.g. ``{"Baud Rate": 3, "Operating Mode": 4}``) without write
+    checks; FACTORY_RESET returns to the factory defaults, REBOOT keeps EEPROM.
+    """
+
+    def __init__(
+        self,
+        model: int | ModelSpec = XM430_W350,
+        *,
+        id: int = 1,  # noqa: A002 - the register's name
+        registers: Mapping[str, int] | None = None,
+        deadband_ticks: int = 0,
+        overload_time_s: float = 1.0,
+        overload_fraction: float = 0.95,
+        input_voltage: float = 12.0,
+        temperature_c: float = 30.0,
+    ) -> None:
+        self.spec = model if isinstance(model, ModelSpec) else model_spec(model)
+        self.table = self.spec.table
+        if deadband_ticks < 0:
+            raise ValueError(f"deadband_ticks must be >= 0, got {deadband_ticks}")
+        if overload_time_s <= 0:
+            raise ValueError(f"overload_time_s must be > 0 s, got {overload_time_s}")
+        if not 0 < overload_fraction <= 1:
+            raise ValueError(f"overload_fraction must be in (0, 1], got {overload_fraction}")
+        self.deadband_ticks = int(deadband_ticks)
+        self.overload_time_s = float(overload_time_s)
+        self.overload_fraction = float(overload_fraction)
+        #: Supply voltage (V); change it to provoke an input-voltage error.
+        self.input_voltage = float(input_voltage)
+        #: Internal temperature (°C); raise it above Temperature Limit to provoke overheating.
+        self.temperature_c = float(temperature_c)
+        # Item values live in a dict (the physics touches ~40 of them per step);
+        # the byte image the bus reads is brought up to date lazily.
+        self._memory = bytearray(self.table.size)
+        self._fmt = {r.name: (r.address, r.size, r.signed) for r in self.table}
+        self._bounds = {
+            r.name: (-(1 << (8 * r.size - 1)), (1 << (8 * r.size - 1)) - 1)
+            if r.signed
+            else (0, (1 << (8 * r.size)) - 1)
+            for r in self.table
+        }
+        self._values: dict[str, int] = {}
+        self._dirty: set[str] = set()
+        self._forced: dict[str, int] = {}
+        self._registered: tuple[int, bytes] | None = None
+        self._time = 0.0
+        self._turn_offset = 0.0
+        self._factory_reset_memory()
+        self.set("ID", id)
+        for name, value in (registers or {}).items():
+            self.set(name, value)
+        self._reset_controller(goal_to_present=True)
+
+    # -- register access ------------------------------------------------------
+    def get(self, name: str) -> int:
+        """Current value of an item (no access rules)."""
+        try:
+            return self._values[name]
+        except KeyError:
+            self._missing(name)
+
+    def set(self, name: str, value: int) -> None:
+        """Store an item's value directly (no access or range rules; for set-up and physics)."""
+        try:
+            low, high = self._bounds[name]
+        except KeyError:
+            self._missing(name)
+        value = int(value)
+        if not low <= value <= high:
+            raise ValueError(f"{name} = {value} does not fit {self._fmt[name][1]} byte(s)")
+        self._values[name] = value
+        self._dirty.add(name)
+
+    @property
+    def memory(self) -> bytes:
+        """The control table as bytes, as a READ sees it."""
+        self._sync_memory()
+        return bytes(self._memory)
+
+    def _sync_memory(self) -> None:
+        dirty = self._dirty
+        while dirty:  # pop, not iterate: another thread may force() meanwhile
+            name = dirty.pop()
+            address, size, signed = self._fmt[name]
+            value = self._values[name]
+            self._memory[address : address + size] = value.to_bytes(
+                size, "little", signed=signed and value < 0
+            )
+
+    def _missing(self, name: str) -> NoReturn:
+        raise KeyError(f"{self.spec.name} has no control-table item {name!r}")
+
+    def has(self, name: str) -> bool:
+        return name in self._fmt
+
+    def force(self, name: str, value: int) -> None:
+        """Pin a reported item (e.g. a stuck sensor): physics no longer updates it."""
+        self.set(name, value)
+        self._forced[name] = int(value)
+
+    def release(self, name: str) -> None:
+        """Undo :meth:`force`."""
+        self._forced.pop(name, None)
+
+    # -- identity and bus settings -------------------------------------------
+    @property
+    def id(self) -> int:
+        return self.get("ID")
+
+    @property
+    def model_number(self) -> int:
+        return self.get("Model Number")
+
+    @property
+    def firmware_version(self) -> int:
+        return self.get("Firmware Version")
+
+    @property
+    def baud_rate(self) -> int:
+        """Configured bus speed in bit/s."""
+        return BAUD_RATES.get(self.get("Baud Rate"), 57_600)
+
+    @property
+    def return_delay_s(self) -> float:
+        return self.get("Return Delay Time") * 2e-6
+
+    @property
+    def status_return_level(self) -> int:
+        return self.get("Status Return Level")
+
+    @property
+    def torque_enabled(self) -> bool:
+        return self.get("Torque Enable") == 1
+
+    @property
+    def hardware_error_status(self) -> int:
+        return self.get("Hardware Error Status")
+
+    @property
+    def has_registered_instruction(self) -> bool:
+        return self._registered is not None
+
+    def status_error(self, error: int = 0) -> int:
+        """ERR byte for a status packet: ``error`` plus the alert bit if a fault is latched."""
+        return error | (ALERT_BIT if self.hardware_error_status else 0)
+
+    # -- instructions -----------------------------------------------------------
+    def read(self, address: int, length: int) -> tuple[int, bytes]:
+        """(error, data) for a READ of ``length`` bytes at ``address``."""
+        if length <= 0 or address < 0 or address + length > self.table.size:
+            return StatusError.ACCESS, b""
+        if not self.table.covering(address, length):
+            return StatusError.ACCESS, b""
+        self._sync_memory()
+        return 0, bytes(self._memory[address : address + length])
+
+    def check_write(self, address: int, data: bytes) -> int:
+        """Error code a WRITE of ``data`` at ``address`` would get (0: accepted)."""
+        return self._validate(address, bytes(data))[0]
+
+    def write(self, address: int, data: bytes) -> int:
+        """Apply a WRITE; returns the status error code (0: done, nothing changed otherwise)."""
+        error, items = self._validate(address, bytes(data))
+        if error:
+            return error
+        before_torque = self.torque_enabled
+        before_mode = self.get("Operating Mode")
+        for register, value in items:
+            self.set(register.name, value)
+        written = {register.name for register, _ in items}
+        if "Operating Mode" in written and self.get("Operating Mode") != before_mode:
+            self._reset_controller(goal_to_present=True)
+            if self.get("Operating Mode") == OperatingMode.POSITION:
+                self._wrap_turns()
+        if "Torque Enable" in written and self.torque_enabled != before_torque:
+            self._reset_controller(goal_to_present=self.torque_enabled)
+        if "Goal Position" in written:
+            self._plan_profile()
+        if "Homing Offset" in written:  # reported at once, not at the next physics step
+            raw = getattr(self, "_raw_ticks", float(CENTER_TICK))
+            self.set("Present Position", math.floor(raw + 0.5) + self.get("Homing Offset"))
+            self._apply_forced()
+        return 0
+
+    def register_write(self, address: int, data: bytes) -> int:
+        """REG_WRITE: validate now, apply on :meth:`action`."""
+        error = self.check_write(address, data)
+        if error:
+            return error
+        self._registered = (address, bytes(data))
+        self.set("Registered Instruction", 1)
+        return 0
+
+    def action(self) -> int:
+        """ACTION: apply the registered write; Instruction Error if there is none."""
+        if self._registered is None:
+            return StatusError.INSTRUCTION
+        address, data = self._registered
+        self._registered = None
+        self.set("Registered Instruction", 0)
+        return self.write(address, data)
+
+    def reboot(self) -> None:
+        """REBOOT: RAM back to defaults, latched faults cleared, EEPROM kept."""
+        for register in self.table:
+            if register.area is Area.RAM:
+                self.set(register.name, register.default)
+        self._registered = None
+        self._forced.clear()
+        self._wrap_turns()
+        self._reset_controller(goal_to_present=True)
+
+    def factory_reset(self, option: int) -> int:
+        """FACTORY_RESET: 0xFF everything, 0x01 all but ID, 0x02 all but ID and baud rate."""
+        if option not in (0xFF, 0x01, 0x02):
+            return StatusError.DATA_RANGE
+        keep = {"ID": self.get("ID"), "Baud Rate": self.get("Baud Rate")}
+        self._factory_reset_memory()
+        if option in (0x01, 0x02):
+            self.set("ID", keep["ID"])
+        if option == 0x02:
+            self.set("Baud Rate", keep["Baud Rate"])
+        self._registered = None
+        self._forced.clear()
+        self._wrap_turns()
+        self._reset_controller(goal_to_present=True)
+        return 0
+
+    def clear(self, params: bytes) -> int:
+        """CLEAR 0x01: Present Position back into one turn; Result Fail while moving."""
+        if bytes(params) != _CLEAR_MAGIC:
+            return StatusError.DATA_RANGE
+        if self.get("Moving"):
+            return StatusError.RESULT_FAIL
+        self._wrap_turns()
+        self._reset_controller(goal_to_present=True)
+        return 0
+
+    def raise_hardware_error(self, fault: str | int) -> None:
+        """Latch a hardware fault by name (``'overload'``...) or bit; shut down if selected."""
+        bit = _HW_BIT[fault] if isinstance(fault, str) else int(fault)
+        if not 0 <= bit <= 7:
+            raise ValueError(f"hardware error bit must be 0..7, got {fault!r}")
+        mask = 1 << bit
+        self.set("Hardware Error Status", self.hardware_error_status | mask)
+        if self.get("Shutdown") & mask and self.torque_enabled:
+            self.set("Torque Enable", 0)
+            self._reset_controller(goal_to_present=False)
+
+    # -- physics ------------------------------------------------------------------
+    def step(self, dt: float, position: float, velocity: float) -> float:
+        """Run the firmware for ``dt`` s given the shaft state (rad, rad/s); return shaft torque (N·m)."""
+        self._time += dt
+        sign = -1.0 if self.get("Drive Mode") & 1 else 1.0
+        present = self._sense(position, velocity, sign)
+        self._check_supervision()
+        mode = self.get("Operating Mode")
+        motor = self.spec.motor
+        omega = sign * velocity  # servo frame
+        pwm_limit = float(self.get("PWM Limit"))
+        current_cmd: float | None = None
+        pwm = 0.0
+        if not self.torque_enabled:
+            self._track_present(present)
+            current = 0.0
+        else:
+            if mode in _POSITION_MODES:
+                u = self._position_control(dt, present)
+                if mode == OperatingMode.CURRENT_BASED_POSITION:
+                    current_cmd = _clamp(u, abs(self.get("Goal Current"))) * self._current_unit()
+                else:
+                    pwm = _clamp(u, min(pwm_limit, abs(self.get("Goal PWM"))))
+            elif mode == OperatingMode.VELOCITY:
+                pwm = _clamp(self._velocity_control(dt), min(pwm_limit, abs(self.get("Goal PWM"))))
+            elif mode == OperatingMode.CURRENT:
+                current_cmd = self.get("Goal Current") * self._current_unit()
+            else:  # PWM
+                pwm = _clamp(float(self.get("Goal PWM")), pwm_limit)
+            vin = max(self.input_voltage, 1e-6)
+            if current_cmd is not None:
+                needed = current_cmd * motor.resistance + motor.ke * omega
+                pwm = _clamp(needed / vin * PWM_FULL_SCALE, pwm_limit)
+            current = (pwm / PWM_FULL_SCALE * vin - motor.ke * omega) / motor.resistance
+            current = _clamp(current, self._current_limit_a())
+            self._check_overload(dt, current)
+        if not self.torque_enabled:  # overload may just have switched it off
+            current, pwm = 0.0, 0.0
+        self._report_drive(pwm, current)
+        self._apply_forced()
+        return sign * motor.kt * current
+
+    def power_on(self, position: float, velocity: float = 0.0) -> None:
+        """Read the absolute encoder as at power-up: one turn, goal = present, torque off."""
+        sign = -1.0 if self.get("Drive Mode") & 1 else 1.0
+        self._sense(position, velocity, sign)
+        self._wrap_turns()
+        self._reset_controller(goal_to_present=True)
+        self._apply_forced()
+
+    def observe(self, position: float, velocity: float) -> None:
+        """Refresh the reported state from the shaft without running the controller."""
+        sign = -1.0 if self.get("Drive Mode") & 1 else 1.0
+        self._sense(position, velocity, sign)
+        self._apply_forced()
+
+    # -- internals ------------------------------------------------------------------
+    def _factory_reset_memory(self) -> None:
+        self._memory[:] = bytes(len(self._memory))
+        self._values.clear()
+        self._dirty.clear()
+        for register in self.table:
+            self.set(register.name, register.default)
+
+    def _current_unit(self) -> float:
+        return self.spec.current_unit or (self.spec.motor.stall_current / 1000.0)
+
+    def _current_limit_a(self) -> float:
+        if self.has("Current Limit"):
+            return self.get("Current Limit") * self._current_unit()
+        return math.inf
+
+    def _validate(self, address: int, data: bytes) -> tuple[int, list[tuple[Register, int]]]:
+        if not data or address < 0 or address + len(data) > self.table.size:
+            return StatusError.ACCESS, []
+        registers = self.table.covering(address, len(data))
+        if not registers:
+            return StatusError.ACCESS, []
+        items: list[tuple[Register, int]] = []
+        for register in registers:
+            start = register.address - address
+            if start < 0 or start + register.size > len(data):
+                return StatusError.DATA_LENGTH, []
+            items.append((register, register.decode(data[start : start + register.size])))
+        new = {register.name: value for register, value in items}
+        for register, value in items:
+            if register.access is Access.R:
+                return StatusError.ACCESS, []
+            if register.area is Area.EEPROM and self.torque_enabled:
+                return StatusError.ACCESS, []
+            if register.minimum is not None and value < register.minimum:
+                return StatusError.DATA_RANGE, []
+            if register.maximum is not None and value > register.maximum:
+                return StatusError.DATA_RANGE, []
+            error = self._check_limits(register.name, value, new)
+            if error:
+                return error, []
+        return 0, items
+
+    def _check_limits(self, name: str, value: int, new: Mapping[str, int]) -> int:
+        def now(item: str) -> int:
+            return new[item] if item in new else self.get(item)
+
+        if name == "Operating Mode" and value not in self.spec.operating_modes:
+            return StatusError.DATA_RANGE
+        if name == "Goal Position" and now("Operating Mode") == OperatingMode.POSITION:
+            if not now("Min Position Limit") <= value <= now("Max Position Limit"):
+                return StatusError.DATA_LIMIT
+        if name == "Goal Current" and abs(value) > now("Current Limit"):
+            return StatusError.DATA_LIMIT
+        if name == "Goal Velocity" and abs(value) > now("Velocity Limit"):
+            return StatusError.DATA_LIMIT
+        if name == "Goal PWM" and abs(value) > now("PWM Limit"):
+            return StatusError.DATA_LIMIT
+        if name == "Torque Enable" and value == 1:
+            if self.hardware_error_status & self.get("Shutdown"):
+                return StatusError.RESULT_FAIL
+        return 0
+
+    def _sense(self, position: float, velocity: float, sign: float) -> float:
+        """Update Present Position/Velocity; return the encoder reading in ticks."""
+        raw = CENTER_TICK + sign * position / RAD_PER_TICK + self._turn_offset
+        self._raw_ticks = raw
+        present = math.floor(raw + 0.5) + self.get("Homing Offset")
+        self.set("Present Position", present)
+        self.set("Present Velocity", round(sign * velocity / VELOCITY_UNIT_RAD_S))
+        self.set("Realtime Tick", int(self._time * 1000.0) % 32768)
+        self.set("Present Input Voltage", round(self.input_voltage * 10.0))
+        self.set("Present Temperature", max(0, min(255, round(self.temperature_c))))
+        return float(present)
+
+    def _wrap_turns(self) -> None:
+        """Bring the encoder count back into one revolution, as after power-up."""
+        raw = getattr(self, "_raw_ticks", CENTER_TICK + self._turn_offset)
+        self._turn_offset -= TICKS_PER_REV * math.floor(raw / TICKS_PER_REV)
+        self._raw_ticks = raw - TICKS_PER_REV * math.floor(raw / TICKS_PER_REV)
+        self.set("Present Position", math.floor(self._raw_ticks + 0.5) + self.get("Homing Offset"))
+
+    def _reset_controller(self, *, goal_to_present: bool) -> None:
+        present = float(self.get("Present Position"))
+        self._traj_pos = present
+        self._traj_vel = 0.0
+        self._integral = 0.0
+        self._prev_error: float | None = None
+        self._vel_integral = 0.0
+        self._overload_timer = 0.0
+        self._profile_vmax = math.inf
+        self._profile_amax = math.inf
+        self._profile_ongoing = False
+        if goal_to_present and self.get("Operating Mode") in _POSITION_MODES:
+            self.set("Goal Position", int(present))
+        self.set("Position Trajectory", int(present))
+        self.set("Velocity Trajectory", 0)
+
+    def _track_present(self, present: float) -> None:
+        self._traj_pos = present
+        self._traj_vel = 0.0
+        self._profile_ongoing = False
+        self.set("Position Trajectory", int(present))
+        self.set("Velocity Trajectory", 0)
+        self.set("Moving Status", 0)
+
+    def _plan_profile(self) -> None:
+        """Profile limits for a new Goal Position (ticks/s, ticks/s²)."""
+        pv = self.get("Profile Velocity")
+        pa = self.get("Profile Acceleration")
+        if pv == 0:
+            self._profile_vmax = self._profile_amax = math.inf
+        elif self.get("Drive Mode") & 0x04:  # time-based profile
+            distance = abs(self.get("Goal Position") - self._traj_pos)
+            total = pv / 1000.0
+            ramp = min(pa, pv / 2.0) / 1000.0
+            self._profile_vmax = max(distance / max(total - ramp, 1e-3), 1e-9)
+            self._profile_amax = self._profile_vmax / ramp if ramp > 0 else math.inf
+        else:
+            self._profile_vmax = pv * VELOCITY_UNIT_RAD_S / RAD_PER_TICK
+            self._profile_amax = pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK if pa else math.inf
+        self._profile_ongoing = True
+
+    def _advance_profile(self, dt: float) -> None:
+        goal = float(self.get("Goal Position"))
+        remaining = goal - self._traj_pos
+        vmax, amax = self._profile_vmax, self._profile_amax
+        if math.isinf(vmax) or remaining == 0.0:
+            self._traj_pos, self._traj_vel = goal, 0.0
+        else:
+            direction = math.copysign(1.0, remaining)
+            if math.isinf(amax):
+                self._traj_vel = direction * vmax
+            else:
+                target = direction * min(vmax, math.sqrt(2.0 * amax * abs(remaining)))
+                self._traj_vel += _clamp(target - self._traj_vel, amax * dt)
+            step = self._traj_vel * dt
+            if abs(step) >= abs(remaining) or abs(remaining) < 1e-3:
+                self._traj_pos, self._traj_vel = goal, 0.0
+            else:
+                self._traj_pos += step
+        self._profile_ongoing = self._traj_pos != goal
+        self.set("Position Trajectory", round(self._traj_pos))
+        self.set("Velocity Trajectory", round(self._traj_vel * RAD_PER_TICK / VELOCITY_UNIT_RAD_S))
+
+    def _position_control(self, dt: float, present: float) -> float:
+        self._advance_profile(dt)
+        goal = self.get("Goal Position")
+        error = self._traj_pos - present
+        if (
+            self.deadband_ticks
+            and not self._profile_ongoing
+            and abs(goal - present) <= self.deadband_ticks
+        ):
+            self._integral = 0.0
+            self._prev_error = error
+            return 0.0
+        kp = self.get("Position P Gain") / 128.0
+        ki = self.get("Position I Gain") / 65536.0
+        kd = self.get("Position D Gain") / 16.0
+        samples = dt / CONTROL_PERIOD_S
+        limit = float(self.get("PWM Limit"))
+        self._integral = _clamp(self._integral + ki * error * samples, limit)
+        derivative = 0.0 if self._prev_error is None else (error - self._prev_error) / samples
+        self._prev_error = error
+        return kp * error + self._integral + kd * derivative
+
+    def _velocity_control(self, dt: float) -> float:
+        goal = float(self.get("Goal Velocity"))  # 0.229 rev/min units
+        pa = self.get("Profile Acceleration")
+        per_unit = VELOCITY_UNIT_RAD_S / RAD_PER_TICK  # ticks/s per velocity unit
+        target = goal * per_unit
+        if pa:
+            self._traj_vel += _clamp(target - self._traj_vel, pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK * dt)
+        else:
+            self._traj_vel = target
+        self._profile_ongoing = self._traj_vel != target
+        self.set("Velocity Trajectory", round(self._traj_vel / per_unit))
+        error = self._traj_vel / per_unit - self.get("Present Velocity")
+        kp = self.get("Velocity P Gain") / 128.0
+        ki = self.get("Velocity I Gain") / 65536.0
+        limit = float(self.get("PWM Limit"))
+        self._vel_integral = _clamp(self._vel_integral + ki * error * dt / CONTROL_PERIOD_S, limit)
+        return kp * error + self._vel_integral
+
+    def _check_supervision(self) -> None:
+        volts = self.input_voltage * 10.0
+        if not self.get("Min Voltage Limit") <= volts <= self.get("Max Voltage Limit"):
+            self.raise_hardware_error("input_voltage")
+        if self.temperature_c > self.get("Temperature Limit"):
+            self.raise_hardware_error("overheating")
+
+    def _check_overload(self, dt: float, current: float) -> None:
+        available = min(self._current_limit_a(), self.input_voltage / self.spec.motor.resistance)
+        if available > 0 and abs(current) >= self.overload_fraction * available:
+            self._overload_timer += dt
+            if self._overload_timer > self.overload_time_s:
+                self.raise_hardware_error("overload")
+        else:
+            self._overload_timer = 0.0
+
+    def _report_drive(self, pwm: float, current: float) -> None:
+        self.set("Present PWM", round(pwm))
+        if self.spec.senses_current:
+            self.set("Present Current", round(current / self._current_unit()))
+        else:
+            load = round(current / self.spec.motor.stall_current * 1000.0)
+            self.set("Present Load", max(-1000, min(1000, load)))
+        velocity = self.get("Present Velocity")
+        moving = abs(velocity) > self.get("Moving Threshold") or self._profile_ongoing
+        self.set("Moving", 1 if moving else 0)
+        status = 0
+        if self.torque_enabled and self.get("Operating Mode") in _POSITION_MODES:
+            if abs(self.get("Goal Position") - self.get("Present Position")) <= max(2, self.deadband_ticks):
+                status |= 0x01  # in position
+            if self._profile_ongoing:
+                status |= 0x02
+            if not math.isinf(self._profile_vmax):
+                status |= 0x30 if not math.isinf(self._profile_amax) else 0x10
+        self.set("Moving Status", status)
+
+    def _apply_forced(self) -> None:
+        for name, value in list(self._forced.items()):  # may change from another thread
+            self.set(name, value)
+
+    def __repr__(self) -> str:
+        return (
+            f"ServoModel({self.spec.name}, id={self.id}, torque={'on' if self.torque_enabled else 'off'}, "
+            f"hw_error={self.hardware_error_status:#04x})"
+        )

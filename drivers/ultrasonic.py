@@ -1,0 +1,211 @@
+"""Host-side reader for a MaxBotix HR-MaxSonar ultrasonic range finder (``R####\\r`` lines).
+
+The sensor free-runs, so a background thread drains the serial port and
+keeps the latest readings; :meth:`UltrasonicSensor.read` returns the median
+of the last few in metres together with the age of the newest one, and
+refuses (:class:`StaleReadingError`) once the stream has been silent longer
+than ``stale_after_s``. Counters say how healthy the stream is: lines missed
+against the expected rate, lines that did not parse, readings outside the
+configured range.
+
+On the needle robot the sensor looks along the train's axis from a fixed
+standoff (``DEFAULT_STANDOFF_M``), so ``d2 = distance - standoff``; see
+:mod:`drivers.emulator.ultrasonic`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import select
+import statistics
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import serial
+
+from drivers import CommunicationError, ConfigurationError
+
+__all__ = [
+    "DEFAULT_STANDOFF_M",
+    "StaleReadingError",
+    "UltrasonicCounters",
+    "UltrasonicSensor",
+]
+
+DEFAULT_STANDOFF_M = 0.30
+_LINE = re.compile(rb"R(\d{4})")
+
+
+class StaleReadingError(CommunicationError):
+    """No fresh reading within the staleness timeout (sensor silent or unplugged)."""
+
+
+@dataclass
+class UltrasonicCounters:
+    """Stream health since the sensor was opened."""
+
+    readings: int = 0  # lines accepted into the filter
+    dropouts: int = 0  # lines missing against the expected rate
+    parse_errors: int = 0  # lines that are not R####
+    out_of_range: int = 0  # well-formed readings outside range_m, discarded
+    saturated: int = 0  # readings at a range limit (target too close, or none)
+
+
+class UltrasonicSensor:
+    """Background reader: ``with UltrasonicSensor(port) as s: distance, age = s.read()``.
+
+    ``expected_rate_hz`` is the sensor's free-run rate, used to count missing
+    lines (a gap of ``k`` periods means ``k - 1`` dropouts).
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baud: int = 9600,
+        median_window: int = 5,
+        stale_after_s: float = 0.25,
+        range_m: tuple[float, float] = (0.3, 5.0),
+        expected_rate_hz: float = 20.0,
+    ) -> None:
+        if median_window < 1:
+            raise ConfigurationError(f"median_window must be >= 1, got {median_window}")
+        if stale_after_s <= 0:
+            raise ConfigurationError(f"stale_after_s must be > 0 s, got {stale_after_s}")
+        if not 0 <= range_m[0] < range_m[1]:
+            raise ConfigurationError(f"range_m must be (low, high) with 0 <= low < high, got {range_m}")
+        if expected_rate_hz <= 0:
+            raise ConfigurationError(f"expected_rate_hz must be > 0 Hz, got {expected_rate_hz}")
+        self.port = port
+        self.stale_after_s = float(stale_after_s)
+        self.range_m = (float(range_m[0]), float(range_m[1]))
+        self.expected_rate_hz = float(expected_rate_hz)
+        self.counters = UltrasonicCounters()
+        self._window: deque[float] = deque(maxlen=median_window)
+        self._last_line_time: float | None = None  # any well-formed line (rate bookkeeping)
+        self._last_time: float | None = None  # newest reading accepted into the filter
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._closed = False
+        try:
+            self._serial = serial.Serial(port, baudrate=baud, timeout=0)
+        except (serial.SerialException, OSError) as exc:
+            raise CommunicationError(f"cannot open ultrasonic sensor port {port!r}: {exc}") from exc
+        self._serial.reset_input_buffer()
+        self._wake_r, self._wake_w = os.pipe()
+        self._thread = threading.Thread(target=self._run, name=f"ultrasonic:{port}", daemon=True)
+        self._thread.start()
+
+    # -- public API -----------------------------------------------------------------
+    def read(self, *, allow_stale: bool = False) -> tuple[float, float]:
+        """(median distance in m, age of the newest reading in s).
+
+        Raises :class:`StaleReadingError` when there is no reading yet or the
+        newest is older than ``stale_after_s`` — unless ``allow_stale``, which
+        returns the last value anyway (``nan`` if there never was one).
+        """
+        with self._lock:
+            if not self._window:
+                if allow_stale:
+                    return float("nan"), float("inf")
+                raise StaleReadingError(f"ultrasonic sensor on {self.port}: no reading received yet")
+            distance = statistics.median(self._window)
+            age = time.monotonic() - (self._last_time or 0.0)
+        if age > self.stale_after_s and not allow_stale:
+            raise StaleReadingError(
+                f"ultrasonic sensor on {self.port}: newest reading is {age:.3f} s old "
+                f"(stale after {self.stale_after_s:.3f} s)"
+            )
+        return distance, age
+
+    @property
+    def is_stale(self) -> bool:
+        with self._lock:
+            if self._last_time is None:
+                return True
+            return time.monotonic() - self._last_time > self.stale_after_s
+
+    def close(self) -> None:
+        """Stop the reader thread and close the port; idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass
+        self._thread.join(timeout=2.0)
+        self._serial.close()
+        for fd in (self._wake_r, self._wake_w):
+            os.close(fd)
+
+    def __enter__(self) -> "UltrasonicSensor":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- reader thread ----------------------------------------------------------------
+    def _run(self) -> None:
+        fd = self._serial.fileno()
+        pending = bytearray()
+        synced = False  # the first bytes may be the tail of a line sent before we opened
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([fd, self._wake_r], [], [], 0.5)
+            except (OSError, ValueError):
+                return
+            if self._wake_r in ready or fd not in ready:
+                continue
+            try:
+                chunk = os.read(fd, 256)
+            except BlockingIOError:
+                continue
+            except OSError:
+                # The device went away (e.g. emulator stopped): readings go stale.
+                self._stop.wait(0.05)
+                continue
+            if not chunk:
+                self._stop.wait(0.05)
+                continue
+            now = time.monotonic()
+            pending += chunk
+            while b"\r" in pending:
+                line, _, rest = bytes(pending).partition(b"\r")
+                pending[:] = rest
+                if not synced:
+                    synced = True
+                    if not line.startswith(b"R"):
+                        continue
+                self._accept(line.strip(), now)
+            if len(pending) > 64:  # no CR for far too long: garbage
+                with self._lock:
+                    self.counters.parse_errors += 1
+                pending.clear()
+
+    def _accept(self, line: bytes, now: float) -> None:
+        match = _LINE.fullmatch(line)
+        with self._lock:
+            if match is None:
+                self.counters.parse_errors += 1
+                return
+            distance = int(match.group(1)) / 1000.0
+            if self._last_line_time is not None:
+                # A gap of k periods means k - 1 missing lines; the +0.25 keeps a
+                # late line (gap ~1.5 periods) from counting as a dropout.
+                periods = math.floor((now - self._last_line_time) * self.expected_rate_hz + 0.25)
+                self.counters.dropouts += max(0, periods - 1)
+            self._last_line_time = now
+            low, high = self.range_m
+            if not low <= distance <= high:
+                self.counters.out_of_range += 1
+                return
+            if distance in (low, high):
+                self.counters.saturated += 1
+            self.counters.readings += 1
+            self._window.append(distance)
+            self._last_time = now

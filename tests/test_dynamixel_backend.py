@@ -1,0 +1,210 @@
+"""The real backend, end to end against the emulated servo bus and ultrasonic sensor on ptys."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.config import load_trial_config
+from bench.emulation import EmulatedRig
+from bench.log import TrialLog
+from bench.trial import make_dynamixel_backend, prepare, run_trial
+from drivers import CommunicationError, ConfigurationError, HardwareFault, NotEnabledError
+
+REPO = Path(__file__).resolve().parent.parent
+LAB = REPO / "hil_configs" / "lab_real.yaml"
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+
+
+@pytest.fixture
+def rig():
+    cfg = load_trial_config(LAB)
+    with EmulatedRig(cfg) as r:
+        yield r, r.retarget(cfg)
+
+
+@pytest.fixture
+def cold_rig():
+    """A rig whose servos power up with torque off, to see that a refused start never enables it."""
+    cfg = load_trial_config(LAB)
+    cfg = cfg.model_copy(update={"emulator": cfg.emulator.model_copy(update={"start_torque_on": False})})
+    with EmulatedRig(cfg) as r:
+        yield r, r.retarget(cfg)
+
+
+def backend_for(cfg):
+    return make_dynamixel_backend(prepare(cfg))
+
+
+def test_reads_home_in_si_and_refuses_commands_before_enable(rig):
+    r, cfg = rig
+    with backend_for(cfg) as act:
+        st = act.read()
+        with r.bus.lock:
+            truth = r.plant.joint_position()
+        tick = 2 * np.pi / 4096
+        ratio = np.array([cfg.backend.servos[n].ratio for n in r.robot.joint_names])
+        # servo joints: the plant's pose to within two ticks through each transmission
+        assert np.all(np.abs(st.position[1:] - truth[1:]) <= 2 * tick * np.abs(ratio[1:]))
+        # the train's position comes from the ultrasonic d2 (1 mm noise, median of 5)
+        assert abs(st.position[0] - truth[0]) < 0.01
+        goals = [r.bus.servo(i).get("Goal Position") for i in range(1, 10)]
+        with pytest.raises(NotEnabledError):
+            act.command(r.robot.chain.home)
+        assert [r.bus.servo(i).get("Goal Position") for i in range(1, 10)] == goals
+        info = act.servo_info()
+        assert [s["id"] for s in info] == list(range(1, 10))
+        assert all(s["model_name"] == "XM430-W350" and s["firmware"] for s in info)
+        # EEPROM already right: the servos that were holding the arm kept holding it
+        assert all(r.bus.servo(i).torque_enabled for i in range(1, 10))
+    # the Return Delay Time was written (0) while torque was off
+    assert all(r.bus.servo(i).get("Return Delay Time") == 0 for i in range(1, 10))
+
+
+def test_moves_a_joint_and_leaves_torque_off(rig):
+    r, cfg = rig
+    with backend_for(cfg) as act:
+        act.enable()
+        assert all(r.bus.servo(i).torque_enabled for i in range(1, 10))
+        q = act.read().position
+        goal = q.copy()
+        goal[6] += np.radians(10)  # theta8, a light joint
+        t0 = act.now()
+        for k in range(1, 101):
+            s = k / 100
+            act.command(q + s * (goal - q))
+            act.wait_until(t0 + 0.01 * k)
+        act.wait_until(t0 + 1.5)
+        assert act.read().position[6] == pytest.approx(goal[6], abs=np.radians(0.5))
+    assert not any(r.bus.servo(i).torque_enabled for i in range(1, 10))
+
+
+def test_missing_id_stops_before_torque(cold_rig):
+    r, cfg = cold_rig
+    servos = dict(cfg.backend.servos)
+    servos["theta5"] = servos["theta5"].model_copy(update={"id": 42})
+    bad = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"servos": servos})})
+    with pytest.raises(ConfigurationError, match=r"42 \(theta5\) did not answer"):
+        backend_for(bad)
+    assert not any(s.torque_enabled for s in r.bus.servos.values())
+
+
+def test_wrong_model_stops_before_torque(cold_rig):
+    r, cfg = cold_rig
+    servos = dict(cfg.backend.servos)
+    servos["theta7"] = servos["theta7"].model_copy(update={"model": "XM540-W270"})
+    bad = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"servos": servos})})
+    with pytest.raises(ConfigurationError, match="ID 6 .theta7. is model 1020 .XM430-W350."):
+        backend_for(bad)
+    assert not any(s.torque_enabled for s in r.bus.servos.values())
+
+
+def test_hardware_error_refused_unless_reboot_allowed(cold_rig):
+    r, cfg = cold_rig
+    r.bus.servo(4).raise_hardware_error("overload")
+    with pytest.raises(HardwareFault, match="ID 4: .*overload") as e:
+        backend_for(cfg)
+    assert 4 in e.value.faults
+    assert not any(s.torque_enabled for s in r.bus.servos.values())
+    ok = cfg.model_copy(update={"backend": cfg.backend.model_copy(
+        update={"reboot_on_hardware_error": True})})
+    with backend_for(ok) as act:
+        act.enable()
+        assert r.bus.servo(4).hardware_error_status == 0
+
+
+def test_values_that_need_stuffing_reach_the_servo(rig):
+    r, cfg = rig
+    with backend_for(cfg) as act:
+        ticks = np.full(9, 2048, dtype=np.int64)
+        ticks[0] = -131073  # FF FF FD FF on the wire: must be stuffed
+        act._send_goals(ticks)
+        time.sleep(0.05)
+        assert r.bus.servo(1).get("Goal Position") == -131073
+        assert r.bus.stats.crc_errors == 0
+
+
+def test_unplug_mid_trial_aborts_within_a_second_and_keeps_the_log(tmp_path):
+    cfg = load_trial_config(LAB)
+    # plain Sync Read: one status packet per servo, so two servos can go silent alone
+    cfg = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"fast_sync_read": False})})
+    with EmulatedRig(cfg) as r:
+        res_box = {}
+        t = threading.Thread(target=lambda: res_box.update(res=run_trial(r.retarget(cfg), tmp_path)))
+        t.start()
+        time.sleep(3.0)
+        # silence two servos first: the others must still get torque off
+        r.bus.faults.silent_ids = {4, 5}
+        t_cut = time.monotonic()
+        t.join(timeout=20)
+        elapsed = time.monotonic() - t_cut
+        res = res_box["res"]
+        assert not res.completed and not res.passed
+        assert "CommunicationError" in res.reason and "did not answer" in res.reason
+        assert elapsed < 1.0 + 3.0  # abort within a second (the report takes the rest)
+        answering = [i for i in range(1, 10) if i not in (4, 5)]
+        assert not any(r.bus.servo(i).torque_enabled for i in answering)
+        log = TrialLog.load(res.log_path)
+        assert len(log) > 100
+        aborts = [e for e in log.events if e.kind == "abort"]
+        assert aborts and aborts[0].time - log.time[-1] < 1.0
+        assert (res.run_dir / "report.md").read_text().count("stopped early") == 1
+
+
+def test_full_unplug_ends_within_one_second(tmp_path):
+    cfg = load_trial_config(LAB)
+    with EmulatedRig(cfg) as r:
+        cfg2 = r.retarget(cfg)
+        prep = prepare(cfg2)
+        act = make_dynamixel_backend(prep)
+        with act:
+            act.enable()
+            r.bus.unplug()
+            t0 = time.monotonic()
+            with pytest.raises(CommunicationError, match="did not answer"):
+                for _ in range(1000):
+                    act.read()
+            assert time.monotonic() - t0 < 1.0
+
+
+def test_emulated_lab_trial_passes_like_a_sim_trial(tmp_path):
+    out = subprocess.run([HILBENCH, "trial", str(LAB), "--emulate", "--out", str(tmp_path), "--json"],
+                         capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert res["passed"] is True
+    assert max(abs(v) for v in res["tip_deviation_mm"]) < 5.0
+    assert abs(res["angle_deviation_deg"]) < 1.0
+    run = Path(res["run_dir"])
+    md = (run / "report.md").read_text()
+    assert "backend: dynamixel" in md and "| input target |" in md and "joints.png" in md
+    log = TrialLog.load(run / "trial.npz")
+    assert [s["model_name"] for s in log.metadata["servos"]] == ["XM430-W350"] * 9
+
+
+def test_emulate_prints_ports_as_soon_as_they_accept_bytes():
+    proc = subprocess.Popen([HILBENCH, "emulate", str(LAB), "--json"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        ports = json.loads(line)
+        assert set(ports) == {"dynamixel_port", "ultrasonic_port"}
+        import dynamixel_sdk as sdk
+
+        from drivers.dxl_io import BlockingPortHandler, StuffingPacketHandler
+
+        port = BlockingPortHandler(ports["dynamixel_port"])
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        model, result, _ = StuffingPacketHandler().ping(port, 5)
+        port.closePort()
+        assert result == sdk.COMM_SUCCESS and model == 1020
+    finally:
+        proc.terminate()
+        assert proc.wait(10) == 0 or proc.returncode in (-15, 0)

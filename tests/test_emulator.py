@@ -1,0 +1,547 @@
+"""The servo-bus emulator driven by the unmodified dynamixel-sdk over a pty."""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, Iterator
+
+import numpy as np
+import pytest
+from dynamixel_sdk import (
+    GroupBulkRead,
+    GroupBulkWrite,
+    GroupSyncRead,
+    GroupSyncWrite,
+    PacketHandler,
+    Protocol2PacketHandler,
+)
+from dynamixel_sdk.robotis_def import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
+
+from drivers.dxl_io import BlockingPortHandler, StuffingPacketHandler
+from drivers.dxl_protocol import (
+    ALERT_BIT,
+    BROADCAST_ID,
+    Instruction,
+    StatusError,
+    build_instruction,
+)
+from drivers.emulator import (
+    XL430_W250,
+    XM430_W350,
+    XM540_W270,
+    DynamixelBusEmulator,
+    InertiaPlant,
+    OperatingMode,
+    ServoModel,
+    model_spec,
+    supported_models,
+)
+from drivers.emulator.control_table import _sdk_layout
+
+pytestmark = pytest.mark.timeout(30)
+
+BAUD = 1_000_000
+FAST = {"Baud Rate": 3, "Return Delay Time": 0}  # 1 Mbps like the bench's bus
+
+# Control-table addresses (X-series)
+OPERATING_MODE, HOMING_OFFSET, MAX_POS, TORQUE, LED = 11, 20, 48, 64, 65
+STATUS_RETURN_LEVEL, HW_ERROR, GOAL_POS, PROFILE_VEL = 68, 70, 116, 112
+MOVING, PRESENT_CURRENT, PRESENT_VEL, PRESENT_POS = 122, 126, 128, 132
+
+
+def u32(value: int) -> int:
+    return value & 0xFFFFFFFF
+
+
+def s32(value: int) -> int:
+    return value - (1 << 32) if value & 0x80000000 else value
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 3.0, period: float = 0.02) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(period)
+    return condition()
+
+
+def make_bus(
+    ids=(1, 2), *, plant: InertiaPlant | None = None, servo_kwargs=None, registers=None, **bus_kwargs
+) -> DynamixelBusEmulator:
+    servos = {
+        i: ServoModel(XM430_W350, registers={**FAST, **(registers or {})}, **(servo_kwargs or {}))
+        for i in ids
+    }
+    if plant is None:
+        plant = InertiaPlant(len(ids), inertia=0.01, viscous=0.02)
+    return DynamixelBusEmulator(servos, plant, **bus_kwargs)
+
+
+@pytest.fixture
+def bus() -> Iterator[DynamixelBusEmulator]:
+    with make_bus() as b:
+        yield b
+    assert not b.errors, b.errors
+
+
+def open_port(bus: DynamixelBusEmulator, baud: int = BAUD) -> BlockingPortHandler:
+    port = BlockingPortHandler(bus.port)
+    assert port.openPort()
+    assert port.setBaudRate(baud)
+    return port
+
+
+@pytest.fixture
+def port(bus) -> Iterator[BlockingPortHandler]:
+    p = open_port(bus)
+    yield p
+    p.closePort()
+
+
+@pytest.fixture
+def ph() -> StuffingPacketHandler:
+    return StuffingPacketHandler()
+
+
+@pytest.fixture
+def stock() -> Protocol2PacketHandler:
+    return PacketHandler(2.0)
+
+
+@pytest.fixture(params=["stock", "stuffing"])
+def any_ph(request) -> Protocol2PacketHandler:
+    """Both handlers, for traffic that never needs stuffing."""
+    return PacketHandler(2.0) if request.param == "stock" else StuffingPacketHandler()
+
+
+def ok(result_error: tuple[int, int]) -> None:
+    result, error = result_error
+    assert (result, error) == (COMM_SUCCESS, 0), f"result={result} error={error:#04x}"
+
+
+def raw_transaction(port, packet: bytes, timeout_ms: float = 50.0):
+    """Send raw bytes; return (status packet list, result) as the SDK's rxPacket would."""
+    port.clearPort()
+    port.writePort(packet)
+    port.setPacketTimeoutMillis(timeout_ms)
+    port.is_using = True
+    return StuffingPacketHandler().rxPacket(port, False)
+
+
+# -- tables --------------------------------------------------------------------------
+
+
+def test_control_tables_follow_the_sdk_model_files() -> None:
+    assert supported_models() == {
+        1020: "XM430-W350",
+        1060: "XL430-W250",
+        1070: "XC430-W150",
+        1120: "XM540-W270",
+    }
+    for number in supported_models():
+        spec = model_spec(number)
+        layout = {name: (a, s) for a, s, name in _sdk_layout(spec.name.lower().replace("-", "_") + ".model")}
+        for register in spec.table:
+            assert layout[register.name] == (register.address, register.size)
+    xm = model_spec(XM430_W350)
+    assert xm.table["Model Number"].default == 1020
+    assert xm.table["Goal Position"].address == 116 and xm.table["Goal Position"].signed
+    assert xm.table["Current Limit"].default == 1193
+    assert abs(xm.motor.kt - 1.78) < 0.01
+    assert "Current Limit" not in model_spec(XL430_W250).table
+    assert model_spec(XM540_W270).table["Current Limit"].default == 2047
+
+
+# -- instructions through the unmodified SDK --------------------------------------------
+
+
+def test_ping_with_stock_and_stuffing_handlers(bus, port, ph, stock) -> None:
+    for handler in (stock, ph):
+        assert handler.ping(port, 1) == (1020, COMM_SUCCESS, 0)
+        assert handler.ping(port, 2) == (1020, COMM_SUCCESS, 0)
+
+
+def test_broadcast_ping_finds_every_servo(bus, port, ph) -> None:
+    found, result = ph.broadcastPing(port)
+    assert result == COMM_SUCCESS
+    assert found == {1: [1020, 48], 2: [1020, 48]}
+
+
+def test_read_write(bus, port, stock) -> None:
+    assert stock.read2ByteTxRx(port, 1, 0) == (1020, COMM_SUCCESS, 0)
+    ok(stock.write1ByteTxRx(port, 1, LED, 1))
+    assert stock.read1ByteTxRx(port, 1, LED) == (1, COMM_SUCCESS, 0)
+    assert bus.servo(1).get("LED") == 1
+    assert stock.read4ByteTxRx(port, 2, PRESENT_POS)[0] == 2048
+
+
+def test_reg_write_then_action(bus, port, ph) -> None:
+    ok(ph.regWriteTxRx(port, 1, PROFILE_VEL, 4, [100, 0, 0, 0]))
+    assert ph.read4ByteTxRx(port, 1, PROFILE_VEL)[0] == 0
+    assert ph.read1ByteTxRx(port, 1, 69)[0] == 1  # Registered Instruction
+    assert ph.action(port, 1) == COMM_SUCCESS
+    time.sleep(0.05)  # the SDK does not read ACTION's status; let it arrive and be flushed
+    assert ph.read4ByteTxRx(port, 1, PROFILE_VEL)[0] == 100
+    # ACTION with nothing registered: Instruction Error.
+    rx, result = raw_transaction(port, build_instruction(1, Instruction.ACTION))
+    assert result == COMM_SUCCESS and rx[8] == StatusError.INSTRUCTION
+
+
+def test_sync_write_and_sync_read(bus, port, any_ph) -> None:
+    ok(any_ph.write1ByteTxRx(port, 1, TORQUE, 1))
+    ok(any_ph.write1ByteTxRx(port, 2, TORQUE, 1))
+    writer = GroupSyncWrite(port, any_ph, GOAL_POS, 4)
+    assert writer.addParam(1, list((2048 + 200).to_bytes(4, "little")))
+    assert writer.addParam(2, list((2048 - 300).to_bytes(4, "little")))
+    assert writer.txPacket() == COMM_SUCCESS
+    reader = GroupSyncRead(port, any_ph, PRESENT_POS, 4)
+    reader.addParam(1)
+    reader.addParam(2)
+
+    def settled() -> bool:
+        if reader.txRxPacket() != COMM_SUCCESS:
+            return False
+        p1, p2 = s32(reader.getData(1, PRESENT_POS, 4)), s32(reader.getData(2, PRESENT_POS, 4))
+        return abs(p1 - 2248) <= 3 and abs(p2 - 1748) <= 3
+
+    assert wait_for(settled)
+
+
+def test_fast_sync_read(bus, port, any_ph) -> None:
+    bus.servo(1).force("Present Position", 1111)
+    bus.servo(2).force("Present Position", -2222)
+    reader = GroupSyncRead(port, any_ph, PRESENT_POS, 4)
+    reader.addParam(1)
+    reader.addParam(2)
+    assert reader.fastSyncRead() == COMM_SUCCESS
+    assert s32(reader.getData(1, PRESENT_POS, 4)) == 1111
+    assert s32(reader.getData(2, PRESENT_POS, 4)) == -2222
+
+
+def test_bulk_write_and_bulk_read(bus, port, any_ph) -> None:
+    writer = GroupBulkWrite(port, any_ph)
+    assert writer.addParam(1, LED, 1, [1])
+    assert writer.addParam(2, PROFILE_VEL, 4, [77, 0, 0, 0])
+    assert writer.txPacket() == COMM_SUCCESS
+    reader = GroupBulkRead(port, any_ph)
+    assert reader.addParam(1, LED, 1)
+    assert reader.addParam(2, PROFILE_VEL, 4)
+    assert wait_for(lambda: reader.txRxPacket() == COMM_SUCCESS and reader.getData(2, PROFILE_VEL, 4) == 77)
+    assert reader.getData(1, LED, 1) == 1
+    assert reader.fastBulkRead() == COMM_SUCCESS
+    assert reader.getData(1, LED, 1) == 1 and reader.getData(2, PROFILE_VEL, 4) == 77
+
+
+def test_reboot_and_factory_reset(bus, port, any_ph) -> None:
+    ok(any_ph.write1ByteTxRx(port, 1, TORQUE, 1))
+    ok(any_ph.write1ByteTxRx(port, 1, LED, 1))
+    ok(any_ph.reboot(port, 1))
+    assert any_ph.read1ByteTxRx(port, 1, TORQUE) == (0, COMM_SUCCESS, 0)
+    assert any_ph.read1ByteTxRx(port, 1, LED)[0] == 0
+    ok(any_ph.write4ByteTxRx(port, 2, HOMING_OFFSET, 5))
+    ok(any_ph.factoryReset(port, 2, 0x02))  # all but ID and baud rate
+    assert any_ph.read4ByteTxRx(port, 2, HOMING_OFFSET) == (0, COMM_SUCCESS, 0)
+
+
+def test_clear_multi_turn(bus, port, ph) -> None:
+    ok(ph.write1ByteTxRx(port, 1, OPERATING_MODE, OperatingMode.EXTENDED_POSITION))
+    with bus.lock:
+        bus.plant.set_state([2 * 2 * np.pi + 0.1, 0.0])  # two turns and a bit
+        bus.advance(0.002)
+    assert ph.read4ByteTxRx(port, 1, PRESENT_POS)[0] > 2 * 4096
+    ok(ph.clearMultiTurn(port, 1))
+    assert 0 <= ph.read4ByteTxRx(port, 1, PRESENT_POS)[0] < 4096
+
+
+# -- error handling ------------------------------------------------------------------------
+
+
+def test_undefined_or_misaddressed_instruction_gets_instruction_error(bus, port) -> None:
+    rx, result = raw_transaction(port, build_instruction(1, 0x42))
+    assert result == COMM_SUCCESS and rx[8] == StatusError.INSTRUCTION
+    sync_read_to_one = build_instruction(2, Instruction.SYNC_READ, bytes((PRESENT_POS, 0, 4, 0, 2)))
+    rx, result = raw_transaction(port, sync_read_to_one)
+    assert result == COMM_SUCCESS and rx[4] == 2 and rx[8] == StatusError.INSTRUCTION
+    rx, result = raw_transaction(port, build_instruction(BROADCAST_ID, 0x42))
+    assert result == COMM_RX_TIMEOUT
+
+
+def test_corrupted_crc_gets_crc_error_status(bus, port) -> None:
+    packet = bytearray(build_instruction(1, Instruction.READ, bytes((PRESENT_POS, 0, 4, 0))))
+    packet[-1] ^= 0x5A
+    rx, result = raw_transaction(port, bytes(packet))
+    assert result == COMM_SUCCESS
+    assert rx[4] == 1 and rx[8] == StatusError.CRC
+    assert bus.stats.crc_errors == 1
+
+
+def test_unstuffed_header_is_dropped_and_next_packet_answered(bus, port, ph, stock) -> None:
+    ok(stock.write1ByteTxRx(port, 1, OPERATING_MODE, OperatingMode.EXTENDED_POSITION))
+    goal = -131073  # FF FF FD FF on the wire
+    assert list(u32(goal).to_bytes(4, "little")) == [0xFF, 0xFF, 0xFD, 0xFF]
+    # dynamixel-sdk 4.1.0 sends it unstuffed: the servo resyncs on the header and stays silent.
+    assert stock.write4ByteTxRx(port, 1, GOAL_POS, u32(goal)) == (COMM_RX_TIMEOUT, 0)
+    assert stock.ping(port, 1) == (1020, COMM_SUCCESS, 0)
+    assert s32(stock.read4ByteTxRx(port, 1, GOAL_POS)[0]) != goal
+    # Stuffed correctly it arrives intact, both ways.
+    ok(ph.write4ByteTxRx(port, 1, GOAL_POS, u32(goal)))
+    value, result, error = ph.read4ByteTxRx(port, 1, GOAL_POS)
+    assert (s32(value), result, error) == (goal, COMM_SUCCESS, 0)
+    assert bus.servo(1).get("Goal Position") == goal
+
+
+def test_values_needing_stuffing_survive_sync_reads(bus, port, ph) -> None:
+    servo = bus.servo(1)
+    servo.force("Present Current", -1)  # FF FF
+    servo.force("Present Velocity", -3)  # FD FF FF FF -> FF FF FD on the wire
+    bus.servo(2).force("Present Current", 5)
+    reader = GroupSyncRead(port, ph, PRESENT_CURRENT, 6)
+    reader.addParam(1)
+    reader.addParam(2)
+    for read in (reader.txRxPacket, reader.fastSyncRead):
+        assert read() == COMM_SUCCESS
+        assert reader.getData(1, PRESENT_CURRENT, 2) == 0xFFFF
+        assert s32(reader.getData(1, PRESENT_VEL, 4)) == -3
+        assert reader.getData(2, PRESENT_CURRENT, 2) == 5
+
+
+def test_goal_beyond_position_limits_gets_data_limit_error(bus, port, stock) -> None:
+    ok(stock.write4ByteTxRx(port, 1, MAX_POS, 3000))
+    ok(stock.write1ByteTxRx(port, 1, TORQUE, 1))
+    assert stock.write4ByteTxRx(port, 1, GOAL_POS, 3500) == (COMM_SUCCESS, StatusError.DATA_LIMIT)
+    ok(stock.write4ByteTxRx(port, 1, GOAL_POS, 2900))
+    # A fixed range is a range error: Operating Mode 2 does not exist.
+    ok(stock.write1ByteTxRx(port, 1, TORQUE, 0))
+    assert stock.write1ByteTxRx(port, 1, OPERATING_MODE, 2) == (COMM_SUCCESS, StatusError.DATA_RANGE)
+
+
+def test_eeprom_write_with_torque_on_gets_access_error(bus, port, stock) -> None:
+    ok(stock.write1ByteTxRx(port, 1, TORQUE, 1))
+    assert stock.write4ByteTxRx(port, 1, MAX_POS, 3000) == (COMM_SUCCESS, StatusError.ACCESS)
+    assert stock.write4ByteTxRx(port, 1, PRESENT_POS, 0) == (COMM_SUCCESS, StatusError.ACCESS)
+    assert stock.write2ByteTxRx(port, 1, GOAL_POS, 100) == (COMM_SUCCESS, StatusError.DATA_LENGTH)
+
+
+def test_unknown_id_and_broadcast_write_get_no_answer(bus, port, ph) -> None:
+    assert ph.ping(port, 99) == (0, COMM_RX_TIMEOUT, 0)
+    assert ph.read1ByteTxRx(port, 42, LED) == (0, COMM_RX_TIMEOUT, 0)
+    assert ph.write1ByteTxOnly(port, BROADCAST_ID, LED, 1) == COMM_SUCCESS
+    port.setPacketTimeoutMillis(60)
+    assert port.readPort(11) == b""
+    assert bus.servo(1).get("LED") == 1 and bus.servo(2).get("LED") == 1
+    assert ph.write1ByteTxRx(port, BROADCAST_ID, LED, 0) == (COMM_SUCCESS, 0)  # SDK does not wait
+
+
+def test_status_return_level_one_answers_reads_only(bus, port, ph) -> None:
+    ok(ph.write1ByteTxRx(port, 1, STATUS_RETURN_LEVEL, 1))
+    assert ph.write1ByteTxRx(port, 1, LED, 1)[0] == COMM_RX_TIMEOUT
+    assert ph.read1ByteTxRx(port, 1, LED) == (1, COMM_SUCCESS, 0)
+
+
+def test_overload_shuts_down_until_reboot() -> None:
+    plant = InertiaPlant(1, inertia=0.01, viscous=0.02)
+    plant.block(0)  # jammed joint
+    with make_bus((1,), plant=plant, servo_kwargs={"overload_time_s": 0.3}) as bus:
+        port = open_port(bus)
+        ph = StuffingPacketHandler()
+        ok(ph.write1ByteTxRx(port, 1, TORQUE, 1))
+        ok(ph.write4ByteTxRx(port, 1, GOAL_POS, 2048 + 600))
+        assert wait_for(lambda: ph.read1ByteTxRx(port, 1, HW_ERROR)[0] == 0x20, timeout=3.0)
+        value, result, error = ph.read1ByteTxRx(port, 1, TORQUE)
+        assert (value, result) == (0, COMM_SUCCESS)
+        assert error == ALERT_BIT  # the alert bit rides on every status packet
+        assert ph.ping(port, 1) == (1020, COMM_SUCCESS, ALERT_BIT)
+        assert ph.write1ByteTxRx(port, 1, TORQUE, 1) == (
+            COMM_SUCCESS,
+            StatusError.RESULT_FAIL | ALERT_BIT,
+        )
+        # REBOOT answers before it reboots, so its own status still carries the alert.
+        assert ph.reboot(port, 1) == (COMM_SUCCESS, ALERT_BIT)
+        assert ph.read1ByteTxRx(port, 1, HW_ERROR) == (0, COMM_SUCCESS, 0)
+        ok(ph.write1ByteTxRx(port, 1, TORQUE, 1))
+        port.closePort()
+
+
+def test_huge_gravity_load_overloads() -> None:
+    plant = InertiaPlant(1, inertia=0.01, viscous=0.02, gravity=-8.0)  # twice the stall torque
+    with make_bus((1,), plant=plant, servo_kwargs={"overload_time_s": 0.2}) as bus:
+        port = open_port(bus)
+        ph = StuffingPacketHandler()
+        ok(ph.write1ByteTxRx(port, 1, TORQUE, 1))
+        assert wait_for(lambda: ph.read1ByteTxRx(port, 1, HW_ERROR)[0] & 0x20 != 0, timeout=3.0)
+        assert not bus.servo(1).torque_enabled
+        port.closePort()
+
+
+def test_scan_at_several_bauds_finds_servos_at_their_own_rate() -> None:
+    servos = {
+        1: ServoModel(XM430_W350, registers=FAST),
+        7: ServoModel(XL430_W250, registers={"Baud Rate": 1}),  # 57600, the factory rate
+    }
+    with DynamixelBusEmulator(servos, InertiaPlant(2)) as bus:
+        ph = StuffingPacketHandler()
+        port = open_port(bus, 1_000_000)
+        assert bus.host_baud() == 1_000_000
+        assert ph.ping(port, 1)[1] == COMM_SUCCESS
+        assert ph.ping(port, 7)[1] == COMM_RX_TIMEOUT
+        assert port.setBaudRate(57_600)
+        assert ph.ping(port, 7) == (1060, COMM_SUCCESS, 0)
+        assert ph.ping(port, 1)[1] == COMM_RX_TIMEOUT
+        port.closePort()
+
+
+def test_all_servos_listen_when_the_port_speed_is_unknown() -> None:
+    servos = {3: ServoModel(XM430_W350, registers={"Baud Rate": 1})}
+    with DynamixelBusEmulator(servos, InertiaPlant(1)) as bus:
+        port = open_port(bus, 1_000_000)
+        ph = StuffingPacketHandler()
+        assert ph.ping(port, 3)[1] == COMM_RX_TIMEOUT
+        bus.host_baud = lambda: None  # e.g. a platform where the speed cannot be read back
+        assert ph.ping(port, 3)[1] == COMM_SUCCESS
+        port.closePort()
+
+
+def test_fast_sync_read_with_a_silent_servo_comes_out_short(bus, port, ph) -> None:
+    reader = GroupSyncRead(port, ph, PRESENT_POS, 4)
+    reader.addParam(1)
+    reader.addParam(2)
+    bus.faults.silent_ids = {2}
+    assert reader.fastSyncRead() == COMM_RX_CORRUPT  # LEN promised two blocks, one came
+    assert reader.txRxPacket() == COMM_RX_TIMEOUT  # plain sync read: ID 2 never answers
+    bus.faults.silent_ids = set()
+    assert reader.fastSyncRead() == COMM_SUCCESS
+
+
+# -- motion ------------------------------------------------------------------------------------
+
+
+def test_goal_reached_and_loaded_joint_lags() -> None:
+    plant = InertiaPlant(2, inertia=0.02, viscous=0.02, gravity=[0.0, -2.0])
+    with make_bus((1, 2), plant=plant) as bus:
+        port = open_port(bus)
+        ph = StuffingPacketHandler()
+        with bus.lock:
+            start = [bus.servo(1).get("Present Position"), bus.servo(2).get("Present Position")]
+        for i in (1, 2):
+            ok(ph.write1ByteTxRx(port, i, TORQUE, 1))
+        time.sleep(0.3)  # the loaded joint settles under its load first
+        hold = [s32(ph.read4ByteTxRx(port, i, PRESENT_POS)[0]) for i in (1, 2)]
+        goals = [h + 400 for h in hold]
+        for i, goal in zip((1, 2), goals):
+            ok(ph.write4ByteTxRx(port, i, GOAL_POS, goal))
+        time.sleep(0.12)
+        mid = [s32(ph.read4ByteTxRx(port, i, PRESENT_POS)[0]) for i in (1, 2)]
+        time.sleep(0.9)
+        final = [s32(ph.read4ByteTxRx(port, i, PRESENT_POS)[0]) for i in (1, 2)]
+        error = [goal - pos for goal, pos in zip(goals, final)]
+        assert abs(error[0]) <= 3, f"light joint ended {error[0]} ticks from its goal"
+        assert error[1] > abs(error[0]) + 20, f"loaded joint error {error[1]} ticks"
+        assert mid[0] - hold[0] > mid[1] - hold[1] + 20, f"progress after 0.12 s: {mid} from {hold}"
+        assert start[1] - hold[1] > 20  # it sagged under the load when torque came on
+        assert ph.read1ByteTxRx(port, 1, MOVING)[0] == 0
+        port.closePort()
+
+
+def test_profile_velocity_paces_the_move(bus, port, ph) -> None:
+    ok(ph.write4ByteTxRx(port, 1, PROFILE_VEL, 100))  # 22.9 rev/min = 2.40 rad/s
+    ok(ph.write1ByteTxRx(port, 1, TORQUE, 1))
+    t0 = time.monotonic()
+    ok(ph.write4ByteTxRx(port, 1, GOAL_POS, 2048 + 512))  # 0.785 rad -> ~0.33 s
+    time.sleep(0.15)
+    assert ph.read1ByteTxRx(port, 1, MOVING)[0] == 1
+    assert 2048 + 100 < ph.read4ByteTxRx(port, 1, 140)[0] < 2048 + 420  # Position Trajectory
+    assert wait_for(lambda: ph.read1ByteTxRx(port, 1, MOVING)[0] == 0, timeout=2.0)
+    assert time.monotonic() - t0 > 0.3
+    assert wait_for(lambda: abs(ph.read4ByteTxRx(port, 1, PRESENT_POS)[0] - 2560) <= 3, timeout=1.0)
+
+
+def test_id_change_answers_with_the_old_id(bus, port, ph) -> None:
+    ok(ph.write1ByteTxRx(port, 1, 7, 5))  # ID(7) = 5
+    assert ph.ping(port, 5) == (1020, COMM_SUCCESS, 0)
+    assert ph.ping(port, 1)[1] == COMM_RX_TIMEOUT
+    assert sorted(bus.servos) == [2, 5]
+
+
+def test_homing_offset_shifts_present_position(bus, port, ph) -> None:
+    before = s32(ph.read4ByteTxRx(port, 1, PRESENT_POS)[0])
+    ok(ph.write4ByteTxRx(port, 1, HOMING_OFFSET, u32(-1000)))
+    assert s32(ph.read4ByteTxRx(port, 1, PRESENT_POS)[0]) == before - 1000
+
+
+def test_deadband_stops_correcting_near_the_goal() -> None:
+    plant = InertiaPlant(1, inertia=0.01, viscous=0.02, coulomb=0.05)
+    with make_bus((1,), plant=plant, servo_kwargs={"deadband_ticks": 40}) as bus:
+        port = open_port(bus)
+        ph = StuffingPacketHandler()
+        ok(ph.write1ByteTxRx(port, 1, TORQUE, 1))
+        ok(ph.write4ByteTxRx(port, 1, GOAL_POS, 2048 + 400))
+        assert wait_for(lambda: ph.read1ByteTxRx(port, 1, MOVING)[0] == 0 and
+                        abs(ph.read4ByteTxRx(port, 1, PRESENT_POS)[0] - 2448) <= 40, timeout=3.0)
+        time.sleep(0.1)
+        error = 2448 - ph.read4ByteTxRx(port, 1, PRESENT_POS)[0]
+        assert 3 < abs(error) <= 41
+        assert ph.read2ByteTxRx(port, 1, 124)[0] == 0  # Present PWM: not correcting
+        port.closePort()
+
+
+# -- faults and timing ------------------------------------------------------------------------
+
+
+def test_fault_hooks(bus, port, ph) -> None:
+    bus.faults.drop_prob = 1.0
+    assert ph.ping(port, 1)[1] == COMM_RX_TIMEOUT
+    bus.faults.drop_prob = 0.0
+    bus.faults.corrupt_crc_prob = 1.0
+    assert ph.ping(port, 1)[1] == COMM_RX_CORRUPT
+    bus.faults.corrupt_crc_prob = 0.0
+    bus.faults.silent_ids = {2}
+    assert ph.ping(port, 1)[1] == COMM_SUCCESS and ph.ping(port, 2)[1] == COMM_RX_TIMEOUT
+    bus.faults.silent_ids = set()
+    bus.faults.delay_s = 0.01
+    t0 = time.monotonic()
+    assert ph.ping(port, 2)[1] == COMM_SUCCESS and time.monotonic() - t0 >= 0.01
+    bus.faults.delay_s = 0.0
+
+    bus.unplug()
+    assert ph.write1ByteTxRx(port, 1, LED, 1)[0] == COMM_RX_TIMEOUT
+    assert bus.servo(1).get("LED") == 0  # nothing heard, nothing done
+    bus.replug()
+    ok(ph.write1ByteTxRx(port, 1, LED, 1))
+    bus.faults.hook = lambda servo_id, packet: None if servo_id == 1 else packet
+    assert ph.ping(port, 1)[1] == COMM_RX_TIMEOUT and ph.ping(port, 2)[1] == COMM_SUCCESS
+
+
+def test_random_drops_are_seeded() -> None:
+    def run() -> list[int]:
+        with make_bus((1,), seed=42) as bus:
+            bus.faults.drop_prob = 0.5
+            port = open_port(bus)
+            ph = StuffingPacketHandler()
+            outcome = [ph.ping(port, 1)[1] for _ in range(12)]
+            port.closePort()
+            return outcome
+
+    first = run()
+    assert first == run()
+    assert COMM_SUCCESS in first and COMM_RX_TIMEOUT in first
+
+
+def test_wire_timing_adds_return_delay_and_transfer_time() -> None:
+    def round_trip(wire: bool) -> float:
+        with make_bus((1,), registers={"Return Delay Time": 250}, wire_timing=wire) as bus:
+            port = open_port(bus)
+            ph = StuffingPacketHandler()
+            ph.ping(port, 1)
+            times = []
+            for _ in range(10):
+                t0 = time.perf_counter()
+                assert ph.ping(port, 1)[1] == COMM_SUCCESS
+                times.append(time.perf_counter() - t0)
+            port.closePort()
+            return min(times)  # delays only add: the fastest round trip is the cleanest
+
+    delayed = round_trip(True)
+    # 500 us return delay + 14 bytes at 1 Mbps = 640 us on top of the pty round trip.
+    assert delayed >= 0.00064
+    assert delayed - round_trip(False) >= 0.0005

@@ -1,0 +1,119 @@
+"""The HR-MaxSonar emulator and the host-side UltrasonicSensor reader, over a pty."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from drivers import CommunicationError
+from drivers.emulator.ultrasonic import UltrasonicEmulator, format_reading, standoff_distance
+from drivers.ultrasonic import DEFAULT_STANDOFF_M, StaleReadingError, UltrasonicSensor
+
+pytestmark = pytest.mark.timeout(30)
+
+
+def wait_for(condition, timeout: float = 2.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return condition()
+
+
+def test_format_reading_clamps_like_the_sensor() -> None:
+    assert format_reading(0.48) == b"R0480\r"
+    assert format_reading(0.1) == b"R0300\r"  # closer than 300 mm reads 300
+    assert format_reading(7.5) == b"R5000\r"  # nothing in range reads 5000
+    assert format_reading(float("nan")) == b"R5000\r"
+
+
+def test_d2_travel_maps_into_the_sensor_range() -> None:
+    for d2 in (0.03, 0.2, 0.38):
+        distance = standoff_distance(lambda d2=d2: d2)()
+        assert 0.3 < distance < 5.0
+        assert distance == pytest.approx(DEFAULT_STANDOFF_M + d2)
+
+
+def test_reader_tracks_the_emulated_distance_within_noise() -> None:
+    d2 = {"value": 0.12}
+    with UltrasonicEmulator(standoff_distance(lambda: d2["value"]), rate_hz=50, noise_std_m=0.002, seed=3) as emu:
+        with UltrasonicSensor(emu.port, median_window=5, expected_rate_hz=50) as sensor:
+            assert wait_for(lambda: sensor.counters.readings >= 5)
+            distance, age = sensor.read()
+            assert distance == pytest.approx(0.42, abs=0.006)
+            assert 0.0 <= age < 0.1
+            d2["value"] = 0.30
+            assert wait_for(lambda: abs(sensor.read()[0] - 0.60) < 0.006)
+            assert sensor.counters.parse_errors == 0 and sensor.counters.out_of_range == 0
+
+
+def test_reader_counts_dropouts_against_the_expected_rate() -> None:
+    with UltrasonicEmulator(lambda: 1.0, rate_hz=50, dropout_prob=0.3, seed=11) as emu:
+        with UltrasonicSensor(emu.port, expected_rate_hz=50, stale_after_s=1.0) as sensor:
+            assert wait_for(lambda: sensor.counters.readings >= 1)
+            dropped_before = emu.lines_dropped
+            time.sleep(1.0)
+            emu.pause()
+            time.sleep(0.05)
+            dropped = emu.lines_dropped - dropped_before
+            counted = sensor.counters.dropouts
+            readings = sensor.counters.readings
+    assert dropped >= 5  # ~30 % of 50 lines
+    # Lines missed after the last line that arrived cannot be noticed yet.
+    assert dropped - 4 <= counted <= dropped + 1, (counted, dropped, readings)
+
+
+def test_reader_reports_staleness_when_the_emulator_stops() -> None:
+    emu = UltrasonicEmulator(lambda: 0.5, rate_hz=40)
+    emu.pause()
+    emu.start()
+    sensor = UltrasonicSensor(emu.port, stale_after_s=0.15, expected_rate_hz=40)
+    try:
+        with pytest.raises(StaleReadingError, match="no reading"):
+            sensor.read()
+        emu.resume()
+        assert wait_for(lambda: not sensor.is_stale)
+        emu.pause()
+        assert wait_for(lambda: sensor.is_stale, timeout=1.0)
+        with pytest.raises(StaleReadingError, match="old"):
+            sensor.read()
+        distance, age = sensor.read(allow_stale=True)
+        assert distance == pytest.approx(0.5) and age > 0.15
+        emu.resume()
+        assert wait_for(lambda: not sensor.is_stale)
+        emu.stop()  # the port disappears: stale again, and the reader survives it
+        assert wait_for(lambda: sensor.is_stale, timeout=1.0)
+        assert isinstance(StaleReadingError("x"), CommunicationError)
+    finally:
+        sensor.close()
+        emu.stop()
+    assert not sensor._thread.is_alive()
+
+
+def test_reader_counts_parse_errors_and_out_of_range() -> None:
+    with UltrasonicEmulator(lambda: 0.8, rate_hz=50) as emu:
+        with UltrasonicSensor(emu.port, range_m=(0.3, 0.7), expected_rate_hz=50) as sensor:
+            assert wait_for(lambda: sensor.counters.out_of_range >= 3)
+            assert sensor.counters.readings == 0  # 0.8 m is outside this reader's range
+            emu.inject_raw(b"R12x4\r")
+            emu.inject_raw(b"\x00garbage\r")
+            assert wait_for(lambda: sensor.counters.parse_errors >= 2)
+        # The sensor saturates at its limits: 0.3 m is a valid, but saturated, reading.
+    with UltrasonicEmulator(lambda: 0.05, rate_hz=50) as emu:
+        with UltrasonicSensor(emu.port, expected_rate_hz=50) as sensor:
+            assert wait_for(lambda: sensor.counters.saturated >= 2)
+            assert sensor.read()[0] == pytest.approx(0.3)
+
+
+def test_close_is_clean_and_idempotent() -> None:
+    before = threading.active_count()
+    with UltrasonicEmulator(lambda: 1.0) as emu:
+        sensor = UltrasonicSensor(emu.port)
+        sensor.close()
+        sensor.close()
+    assert wait_for(lambda: threading.active_count() <= before)
+    with pytest.raises(CommunicationError, match="cannot open"):
+        UltrasonicSensor("/dev/does-not-exist")
