@@ -146,8 +146,16 @@ def _make_crc_table(polynomial: int = 0x8005) -> tuple[int, ...]:
 CRC_TABLE: tuple[int, ...] = _make_crc_table()
 
 
+try:  # CRC-16/UMTS (BUYPASS) is the ROBOTIS CRC; fastcrc computes it in native code.
+    from fastcrc.crc16 import umts as _native_crc16
+except ImportError:  # pragma: no cover - fastcrc is a dependency; the table is the fallback
+    _native_crc16 = None
+
+
 def crc16(data: bytes | bytearray | Sequence[int], crc: int = 0) -> int:
     """ROBOTIS CRC-16 of ``data``, continuing from ``crc`` (0 starts a packet)."""
+    if crc == 0 and _native_crc16 is not None and isinstance(data, (bytes, bytearray)):
+        return _native_crc16(bytes(data))
     table = CRC_TABLE
     for byte in data:
         crc = ((crc << 8) ^ table[((crc >> 8) ^ byte) & 0xFF]) & 0xFFFF

@@ -57,6 +57,8 @@ ADDR = {
 }
 STATE_ADDR, STATE_LEN = 126, 10  # Present Current, Velocity, Position in one block
 
+FAST_SYNC_READ_FIRMWARE = 45  # X-series firmware that answers Fast Sync Read
+
 MODES = {"current": 0, "velocity": 1, "position": 3, "extended_position": 4,
          "current_based_position": 5, "pwm": 16}
 
@@ -133,6 +135,13 @@ class DynamixelActuators(ActuatorsBase):
         self._ratio = np.array([sv.ratio for sv in s.servos])
         self._offset = np.array([sv.offset for sv in s.servos])
         self._zero = np.array([sv.zero_tick for sv in s.servos], dtype=float)
+        # Unit conversions per servo, precomputed for the control cycle.
+        self._q_per_tick = self._ratio * RAD_PER_TICK
+        self._qd_per_unit = self._ratio * RAD_S_PER_VEL_UNIT
+        self._effort_per_unit = np.array(
+            [_kt(sv.model) * _current_unit(sv.model) for sv in s.servos]) / self._ratio
+        self._in_joint_order = self._index == list(range(len(names)))
+        self._servo_of_joint = np.argsort(self._index)
         self._limits = JointLimits(np.asarray(s.lower, float), np.asarray(s.upper, float),
                                    np.asarray(s.velocity, float), np.asarray(s.effort, float))
         self._t0 = time.monotonic()
@@ -265,12 +274,15 @@ class DynamixelActuators(ActuatorsBase):
             self._warn("Return Delay Time is 250 (500 µs per status packet): it caps the loop rate")
 
     def _setup_groups(self) -> None:
-        sdk = self._sdk
-        self._sync_write = sdk.GroupSyncWrite(self.port, self.ph, ADDR["Goal Position"][0], 4)
-        self._sync_read = sdk.GroupSyncRead(self.port, self.ph, STATE_ADDR, STATE_LEN)
-        for sid in self._ids:
-            self._sync_read.addParam(sid)
-        self._fast = self.settings.fast_sync_read and hasattr(self._sync_read, "fastSyncRead")
+        from drivers.dxl_cycle import SyncCycle
+
+        fw_ok = all(self.firmware.get(sid, 0) >= FAST_SYNC_READ_FIRMWARE for sid in self._ids)
+        self._fast = self.settings.fast_sync_read and fw_ok
+        if self.settings.fast_sync_read and not fw_ok:
+            self._warn(f"Fast Sync Read needs firmware {FAST_SYNC_READ_FIRMWARE}+; using Sync Read")
+        self._cycle = SyncCycle(self.port.ser.fileno(), self.settings.baud, self._ids,
+                                read_address=STATE_ADDR, read_length=STATE_LEN,
+                                write_address=ADDR["Goal Position"][0], fast=self._fast)
 
     # -- register access with retries ----------------------------------------
     def _read(self, sid: int, name: str) -> int:
@@ -322,33 +334,24 @@ class DynamixelActuators(ActuatorsBase):
         return st
 
     def _read_bus(self) -> JointState:
-        sdk = self._sdk
-        grp = self._sync_read
-        last_err = ""
-        for attempt in range(self.settings.retries + 1):
-            if attempt:
-                self.port.clearPort()  # late answers to the failed try must not pass for this one
-            result = grp.fastSyncRead() if self._fast else grp.txRxPacket()
-            if result == sdk.COMM_SUCCESS and all(
-                    len(grp.data_dict.get(sid, ())) >= STATE_LEN for sid in self._ids):
+        from drivers.dxl_cycle import unpack_state
+
+        cyc = self._cycle
+        for _ in range(self.settings.retries + 1):
+            blocks = cyc.read_state()
+            if blocks is not None:
                 break
-            last_err = (self.ph.getTxRxResult(result) if result != sdk.COMM_SUCCESS
-                        else "short status packet")
         else:
             raise CommunicationError(
-                f"servos {self._ids} did not answer the sync read after "
-                f"{self.settings.retries + 1} tries ({last_err}); bus lost?")
-        n = len(self.settings.joint_names)
-        q = np.empty(n)
-        qd = np.empty(n)
-        eff = np.empty(n)
-        cur = np.array([_signed(grp.getData(sid, 126, 2), 2) for sid in self._ids], float)
-        vel = np.array([_signed(grp.getData(sid, 128, 4), 4) for sid in self._ids], float)
-        pos = np.array([_signed(grp.getData(sid, 132, 4), 4) for sid in self._ids], float)
-        shaft = (pos - self._zero) * RAD_PER_TICK
-        q[self._index] = self._offset + self._ratio * shaft
-        qd[self._index] = self._ratio * vel * RAD_S_PER_VEL_UNIT
-        eff[self._index] = np.array([self._kt[i] * c * self._cu[i] for i, c in enumerate(cur)]) / self._ratio
+                f"servos {self._ids} did not answer the {'fast ' if self._fast else ''}sync read "
+                f"after {self.settings.retries + 1} tries ({cyc.last_error}); bus lost?")
+        cur, vel, pos = unpack_state(blocks)
+        raw = np.array((pos, vel, cur), dtype=float)  # servo order
+        q = self._offset + self._q_per_tick * (raw[0] - self._zero)
+        qd = self._qd_per_unit * raw[1]
+        eff = self._effort_per_unit * raw[2]
+        if not self._in_joint_order:
+            q, qd, eff = q[self._servo_of_joint], qd[self._servo_of_joint], eff[self._servo_of_joint]
         flags: tuple[str, ...] = ()
         if self._sensor is not None:
             u = self.settings.ultrasonic
@@ -356,26 +359,12 @@ class DynamixelActuators(ActuatorsBase):
                 distance, age = self._sensor.read(allow_stale=True)
             except CommunicationError:
                 distance, age = float("nan"), float("inf")
+            self._encoder_train = q[self._train]
             if age > u.stale_after_s or not math.isfinite(distance):
                 flags = (f"stale:{u.joint}",)
             else:
-                self._encoder_train = q[self._train]
                 q[self._train] = u.to_joint(distance)
         return JointState(self.now(), q, qd, eff, flags)
-
-    @property
-    def _kt(self) -> list[float]:
-        kt = self.__dict__.get("_kt_cache")
-        if kt is None:
-            kt = self.__dict__["_kt_cache"] = [_kt(sv.model) for sv in self.settings.servos]
-        return kt
-
-    @property
-    def _cu(self) -> list[float]:
-        cu = self.__dict__.get("_cu_cache")
-        if cu is None:
-            cu = self.__dict__["_cu_cache"] = [_current_unit(sv.model) for sv in self.settings.servos]
-        return cu
 
     def _enable(self) -> None:
         st = self._read_bus()
@@ -410,18 +399,11 @@ class DynamixelActuators(ActuatorsBase):
         self._send_goals(self._goal_ticks(q))
 
     def _goal_ticks(self, q: np.ndarray) -> np.ndarray:
-        shaft = (q[self._index] - self._offset) / self._ratio
-        return np.rint(self._zero + shaft / RAD_PER_TICK).astype(np.int64)
+        qs = q if self._in_joint_order else q[self._index]
+        return np.rint(self._zero + (qs - self._offset) / self._q_per_tick).astype(np.int64)
 
     def _send_goals(self, ticks: np.ndarray) -> None:
-        grp = self._sync_write
-        grp.clearParam()
-        for sid, t in zip(self._ids, ticks):
-            grp.addParam(sid, list(int(t & 0xFFFFFFFF).to_bytes(4, "little")))
-        result = grp.txPacket()
-        if result != self._sdk.COMM_SUCCESS:
-            raise CommunicationError(f"sync write of goal positions failed: "
-                                     f"{self.ph.getTxRxResult(result)}")
+        self._cycle.write_goals(ticks.tolist())
 
     def _disable(self) -> None:
         if self.settings.safe_stop == "hold":

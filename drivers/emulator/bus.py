@@ -175,6 +175,7 @@ class DynamixelBusEmulator:
         self._sim_wall = 0.0
         self._last_rx = 0.0
         self._outbox: list[tuple[float, int, bytes]] = []
+        self._wire_free = 0.0  # perf_counter time the wire is idle again (wire-time model)
         self._levels: dict[int, int] = {}
         self._ids: dict[int, int] = {}
         #: Exceptions raised while serving (the thread keeps serving); empty in a healthy run.
@@ -304,15 +305,33 @@ class DynamixelBusEmulator:
                     self._outbox.clear()
 
     def _serve(self, data: bytes) -> None:
+        # Answer first, then catch the physics up: the idle loop steps the physics
+        # every millisecond, so an answer's state is at most about that old, and
+        # the host does not wait for the emulator's arithmetic as it would not for
+        # a servo's.
         now = time.perf_counter()
-        if self.realtime:
-            self._catch_up(now)
+        try:
+            self._answer(data, now)
+        finally:
+            if self.realtime:
+                self._catch_up(time.perf_counter())
+
+    def _answer(self, data: bytes, now: float) -> None:
         if data:
             self._last_rx = now
             if self._unplugged:
                 return
             for event in self._parser.feed(data):
-                self._handle(event)
+                if self.wire_timing and isinstance(event, Packet):
+                    # The pty delivers at once; a real wire carries the instruction
+                    # first, one at a time: answers start after it has arrived.
+                    baud = self.host_baud() or 1_000_000
+                    start = max(now, self._wire_free) + len(event.raw) * 10.0 / baud
+                    self._handle(event)
+                    self._flush(start)
+                    self._wire_free = max(time.perf_counter(), start)
+                else:
+                    self._handle(event)
             self._flush(now)
         elif self._parser.pending and now - self._last_rx > self.frame_timeout_s:
             self._parser.reset()  # inter-byte timeout: drop the partial frame
