@@ -243,6 +243,22 @@ def emulate(config: Path = typer.Argument(..., help="A config with backend.kind:
         fail(str(e))
 
 
+@app.command()
+def report(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
+           as_json: bool = typer.Option(False, "--json")) -> None:
+    """Rebuild a trial's report (Markdown, HTML, figures) from its record alone."""
+    from bench.trial import TrialError, rebuild_report
+
+    try:
+        res = rebuild_report(run_dir)
+    except (TrialError, FileNotFoundError) as e:
+        fail(str(e))
+    if as_json:
+        emit_json(res.summary())
+    else:
+        console.print(f"rebuilt {res.run_dir / 'report.md'} and {res.run_dir / 'report.html'}")
+
+
 @urdf_app.command("build")
 def urdf_build(check: bool = typer.Option(False, "--check", help="Fail if the files differ instead of writing.")) -> None:
     """Write urdf/ from the parameter sets in bench/kinematics and bench/scene.py."""

@@ -227,8 +227,7 @@ def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTria
     (d / "report.md").write_text(md)
     images = {v: d / v for v in figures.values()}
     (d / "report.html").write_text(markdown_to_html(md, images, f"Trial {prep.config.name}"))
-    summary = result.summary()
-    summary.update({"completed": result.completed, "reason": result.reason,
-                    "outcome": result.outcome.as_dict() if result.outcome else None})
-    (d / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+    from bench.trial import write_result_json
+
+    write_result_json(result)
     return {k: d / v for k, v in figures.items()}

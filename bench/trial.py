@@ -21,7 +21,7 @@ from bench.config import ConfigError, TrialConfig
 from bench.kinematics.needle import NeedleTarget, UnreachableError
 from bench.log import TrialLog
 from bench.outcome import NeedleOutcome, needle_outcome, settled_position
-from bench.runner import RunResult, Runner, Segment
+from bench.runner import Runner, Segment
 from drivers import Actuators, ActuatorError
 
 PACKAGES = ("needle-hil-bench", "numpy", "pybullet", "ruckig", "dynamixel-sdk", "pyserial", "pydantic")
@@ -236,39 +236,111 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
         log.metadata["servos"] = backend.servo_info()
     if getattr(getattr(backend, "settings", None), "warnings", None):
         log.metadata["warnings"] = list(backend.settings.warnings)
-    result: Optional[RunResult] = None
-    reason = ""
     try:
         with act:
             q_start = act.read().position
             segments = plan(prep, q_start, act.limits.velocity)
             runner = Runner(act, config.control_period, progress=progress)
-            result = runner.run(segments, log)
-            reason = result.reason
-    except ActuatorError as e:
-        reason = f"{type(e).__name__}: {e}"
+            runner.run(segments, log)
+    except ActuatorError:
+        pass  # the runner recorded the abort; the log and report say why
     except KeyboardInterrupt:
-        reason = "interrupted (Ctrl-C)"
+        if not any(e.kind == "abort" for e in log.events):
+            log.event(log.time[-1] if len(log) else 0.0, "abort", "interrupted (Ctrl-C)")
         log.save(log_path)
+        write_record(run_dir, log_path)
         raise
     finally:
         log.save(log_path)
-    outcome = None
-    try:
-        q_final = settled_position(log, "insert")
-        outcome = needle_outcome(prep.robot, q_final, prep.target,
-                                 config.acceptance.position_mm, config.acceptance.angle_deg)
-    except (KeyError, ValueError):
-        pass
-    completed = result is not None and result.completed
-    res = TrialResult(run_dir, log_path, completed, reason, outcome)
+    write_record(run_dir, log_path)
+    res = result_from_log(run_dir, log, prep)
     if report:
         from bench.report import write_trial_report
 
         write_trial_report(res, log, prep)
     else:
-        summary = res.summary()
-        summary.update({"completed": completed, "reason": reason,
-                        "outcome": outcome.as_dict() if outcome else None})
-        (run_dir / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+        write_result_json(res)
+    return res
+
+
+def status_from_log(log: TrialLog) -> tuple[bool, str]:
+    """(completed, why it stopped early) from the log's events alone."""
+    kinds = [e.kind for e in log.events]
+    if "done" in kinds:
+        return True, ""
+    for e in reversed(log.events):
+        if e.kind == "abort":
+            return False, e.message
+        if e.kind == "interlock":
+            return False, f"interlock {e.message}"
+    return False, "the log ends before the plan did"
+
+
+def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialResult:
+    """The trial's result computed from its log, identically at the end of a trial and later."""
+    cfg = prep.config
+    outcome = None
+    try:
+        q_final = settled_position(log, "insert")
+        outcome = needle_outcome(prep.robot, q_final, prep.target,
+                                 cfg.acceptance.position_mm, cfg.acceptance.angle_deg)
+    except (KeyError, ValueError):
+        pass
+    completed, reason = status_from_log(log)
+    return TrialResult(Path(run_dir), Path(run_dir) / "trial.npz", completed, reason, outcome)
+
+
+def write_result_json(res: TrialResult) -> None:
+    summary = res.summary()
+    summary.update({"completed": res.completed, "reason": res.reason,
+                    "outcome": res.outcome.as_dict() if res.outcome else None})
+    (res.run_dir / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+
+
+def sha256_of(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def write_record(run_dir: Path, log_path: Path) -> Path:
+    """record.json: the log's checksum, so a report is only ever rebuilt from the true log."""
+    rec = {"log": log_path.name, "sha256": sha256_of(log_path), "bytes": log_path.stat().st_size}
+    path = Path(run_dir) / "record.json"
+    path.write_text(json.dumps(rec, indent=2) + "\n")
+    return path
+
+
+def load_record(run_dir: Path) -> tuple[TrialLog, PreparedTrial]:
+    """The log and the prepared trial of a run directory, after checking the log's checksum."""
+    run_dir = Path(run_dir)
+    rec_path = run_dir / "record.json"
+    if not rec_path.is_file():
+        raise TrialError(f"{run_dir} has no record.json: not a trial run directory")
+    rec = json.loads(rec_path.read_text())
+    log_path = run_dir / rec["log"]
+    if not log_path.is_file():
+        raise TrialError(f"{log_path} is missing")
+    if sha256_of(log_path) != rec["sha256"]:
+        raise TrialError(f"{log_path.name} does not match the checksum in record.json: "
+                         f"the log was modified after the trial")
+    log = TrialLog.load(log_path)
+    try:
+        config = TrialConfig.model_validate(log.metadata["config"])
+    except Exception as e:  # a record written by an incompatible version
+        raise TrialError(f"the config stored in {log_path.name} is not readable: {e}") from None
+    return log, prepare(config)
+
+
+def rebuild_report(run_dir: Path) -> TrialResult:
+    """Write the report of a run directory again, from its record alone."""
+    from bench.report import write_trial_report
+
+    log, prep = load_record(run_dir)
+    res = result_from_log(run_dir, log, prep)
+    write_trial_report(res, log, prep)
     return res

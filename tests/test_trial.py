@@ -98,3 +98,33 @@ def test_library_errors_are_typed(tmp_path):
     cfg = load_trial_config(write_config(tmp_path, **{"target.y_mm": 900.0}))
     with pytest.raises(TrialError, match="target"):
         prepare(cfg)
+
+
+def test_report_rebuilt_from_the_record_equals_the_original(tmp_path):
+    cfg = load_trial_config(SIM)
+    res = run_trial(cfg, tmp_path, note="rebuild check")
+    d = res.run_dir
+    originals = {name: (d / name).read_bytes() for name in ("report.md", "report.html", "joints.png",
+                                                            "result.json")}
+    for name in originals:
+        (d / name).unlink()
+    out = subprocess.run([HILBENCH, "report", str(d), "--json"], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    for name, content in originals.items():
+        assert (d / name).read_bytes() == content, f"{name} differs after the rebuild"
+    record = json.loads((d / "record.json").read_text())
+    assert len(record["sha256"]) == 64
+    log = TrialLog.load(res.log_path)
+    assert log.metadata["note"] == "rebuild check" and log.metadata["seed"] == cfg.seed
+    assert log.metadata["start_time"] and log.metadata["versions"]["needle-hil-bench"]
+
+
+def test_report_refuses_a_modified_log(tmp_path):
+    res = run_trial(load_trial_config(SIM), tmp_path)
+    with open(res.log_path, "ab") as f:
+        f.write(b"tampered")
+    out = subprocess.run([HILBENCH, "report", str(res.run_dir)], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 2
+    assert "checksum" in out.stderr
