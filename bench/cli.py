@@ -275,7 +275,10 @@ def urdf_build(check: bool = typer.Option(False, "--check", help="Fail if the fi
         console.print(f"wrote {p}")
 
 
+from bench.cli_accuracy import accuracy, workspace  # noqa: E402  (kept in its own module)
 
+app.command()(accuracy)
+app.command()(workspace)
 
 from bench.cli_contact import contact_protocol  # noqa: E402  (kept in its own module)
 
@@ -284,6 +287,7 @@ app.command("contact-protocol")(contact_protocol)
 from bench.cli_campaign import campaign_app  # noqa: E402  (kept in its own module)
 
 app.add_typer(campaign_app, name="campaign")
+
 
 
 def main() -> None:  # pragma: no cover - console entry point

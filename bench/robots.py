@@ -5,9 +5,11 @@ from __future__ import annotations
 from typing import Callable
 
 from bench.kinematics.arc_train import ArcTrainRobot
+from bench.kinematics.zerobot import ZerobotRobot
 
 ROBOTS: dict[str, Callable[[], object]] = {
     "arc-train": ArcTrainRobot,
+    "zerobot": ZerobotRobot,
 }
 
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from bench.kinematics.arc_train import TARGET_1, ArcTrainParams, build_chain
 from bench.kinematics.urdf_writer import LinkSpec, Shape, chain_to_urdf, next_joint_offsets, segment
+from bench.kinematics.zerobot_urdf import zerobot_urdf
 
 URDF_DIR = Path(__file__).resolve().parent.parent / "urdf"
 
@@ -178,6 +179,7 @@ def generated_files(p: ArcTrainParams = ArcTrainParams(),
         "meshes/ct_gantry.obj": obj_text(*gantry_mesh(s, p.bed_width)),
         "ct_bed.urdf": bed_urdf(p, s),
         "phantom.urdf": phantom_urdf(s),
+        "zerobot.urdf": zerobot_urdf(),
     }
 
 

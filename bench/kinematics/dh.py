@@ -1,10 +1,14 @@
-"""Standard Denavit–Hartenberg chains, vectorised over batches of joint vectors.
+"""Denavit–Hartenberg chains, vectorised over batches of joint vectors.
 
-One row per joint, in the convention of seed 000 eq 1:
-``T = Rz(theta) · Tz(d) · Tx(a) · Rx(alpha)``. A revolute row adds its joint
-value to ``theta``, a prismatic row adds it to ``d``. The same rows feed the
-URDF writer (:mod:`bench.kinematics.urdf_writer`), so the analytic model and
-the physics scene cannot drift apart.
+One row per joint. By default a row is *standard* DH, the convention of
+seed 000 eq 1: ``T = Rz(theta) · Tz(d) · Tx(a) · Rx(alpha)``. A row built with
+``convention="modified"`` is modified (Craig) DH, the convention of seed 001
+eq 1: ``T = Rx(alpha) · Tx(a) · Rz(theta) · Tz(d)``, where ``a`` and ``alpha``
+are the printed ``a_{i-1}`` and ``alpha_{i-1}`` of the row, so a paper's table
+is copied row by row. A revolute row adds its joint value to ``theta``, a
+prismatic row adds it to ``d``. The same rows feed the URDF writer
+(:mod:`bench.kinematics.urdf_writer`), so the analytic model and the physics
+scene cannot drift apart.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from typing import Literal, Sequence
 import numpy as np
 
 JointKind = Literal["revolute", "prismatic"]
+Convention = Literal["standard", "modified"]
 
 
 @dataclass(frozen=True)
@@ -32,6 +37,14 @@ class DHRow:
     home: float
     velocity: float  # rad/s or m/s
     effort: float  # N·m or N
+    # "standard": Rz(theta)·Tz(d)·Tx(a)·Rx(alpha); "modified" (Craig):
+    # Rx(alpha)·Tx(a)·Rz(theta)·Tz(d) with a, alpha the row's a_{i-1}, alpha_{i-1}.
+    convention: Convention = "standard"
+
+    def __post_init__(self) -> None:
+        if self.convention not in ("standard", "modified"):
+            raise ValueError(f"joint {self.name}: unknown DH convention {self.convention!r}; "
+                             "use 'standard' or 'modified'")
 
 
 def dh_transform(theta: np.ndarray, d: np.ndarray, a: float, alpha: float) -> np.ndarray:
@@ -54,6 +67,34 @@ def dh_transform(theta: np.ndarray, d: np.ndarray, a: float, alpha: float) -> np
     T[..., 2, 3] = d
     T[..., 3, 3] = 1.0
     return T
+
+
+def mdh_transform(theta: np.ndarray, d: np.ndarray, a: float, alpha: float) -> np.ndarray:
+    """Modified (Craig) DH ``Rx(alpha) Tx(a) Rz(theta) Tz(d)`` (seed 001 eq 1), shape (..., 4, 4)."""
+    theta = np.asarray(theta, dtype=float)
+    d = np.broadcast_to(np.asarray(d, dtype=float), theta.shape)
+    ct, st = np.cos(theta), np.sin(theta)
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    T = np.zeros(theta.shape + (4, 4))
+    T[..., 0, 0] = ct
+    T[..., 0, 1] = -st
+    T[..., 0, 3] = a
+    T[..., 1, 0] = st * ca
+    T[..., 1, 1] = ct * ca
+    T[..., 1, 2] = -sa
+    T[..., 1, 3] = -d * sa
+    T[..., 2, 0] = st * sa
+    T[..., 2, 1] = ct * sa
+    T[..., 2, 2] = ca
+    T[..., 2, 3] = d * ca
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def row_matrix(row: DHRow, theta: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The row's transform for given theta and d arrays, in the row's own convention."""
+    f = mdh_transform if row.convention == "modified" else dh_transform
+    return f(theta, d, row.a, row.alpha)
 
 
 def translation(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> np.ndarray:
@@ -90,8 +131,8 @@ class DHChain:
         r = self.rows[i]
         q = np.asarray(q, dtype=float)
         if r.kind == "revolute":
-            return dh_transform(r.theta + q, np.full(q.shape, r.d), r.a, r.alpha)
-        return dh_transform(np.full(q.shape, r.theta), r.d + q, r.a, r.alpha)
+            return row_matrix(r, r.theta + q, np.full(q.shape, r.d))
+        return row_matrix(r, np.full(q.shape, r.theta), r.d + q)
 
     def frames(self, q: np.ndarray) -> np.ndarray:
         """World poses of DH frames 0..n, shape (..., n+1, 4, 4) for q of shape (..., n)."""
@@ -116,10 +157,14 @@ def joint_split(row: DHRow) -> tuple[np.ndarray, np.ndarray]:
     """Split a row's transform at q = 0 into (before the motion, after the motion).
 
     ``T(q) = lead · M(q) · trail`` with ``M`` a rotation about or translation
-    along z. Rz and Tz commute, so both kinds share ``lead = Rz(theta)·Tz(d)``
-    and ``trail = Tx(a)·Rx(alpha)``. The URDF writer places each joint at
-    ``lead`` and carries ``trail`` into the next joint's origin.
+    along z. Rz and Tz commute, so both kinds share, for a standard row,
+    ``lead = Rz(theta)·Tz(d)`` and ``trail = Tx(a)·Rx(alpha)``; a modified row
+    moves last, so ``lead`` is its whole transform at q = 0 and ``trail`` is
+    the identity. The URDF writer places each joint at ``lead`` and carries
+    ``trail`` into the next joint's origin.
     """
+    if row.convention == "modified":
+        return mdh_transform(np.array(row.theta), np.array(row.d), row.a, row.alpha), np.eye(4)
     lead = dh_transform(np.array(row.theta), np.array(row.d), 0.0, 0.0)
     trail = dh_transform(np.array(0.0), np.array(0.0), row.a, row.alpha)
     return lead, trail

@@ -1,0 +1,147 @@
+"""The seed-003 parallel robot behind the bench's common robot interface.
+
+:mod:`bench.kinematics.para_brachy` speaks the paper's language (poses
+``[X_E, Y_E, Z_E, ψ, θ]``, two assembly modes, strokes). Code that studies
+every robot alike (the accuracy budget, the CLI) wants what the serial models
+offer: ``chain.rows`` with (name, kind, lower, upper, home), ``joint_names``,
+``needle(q) -> NeedlePose`` and ``ik(NeedleTarget) -> q``. This adapter gives
+that and nothing else; the kinematics stay in ``para_brachy``.
+
+Choices the common interface forces:
+
+* Frame: the robot base frame of ``para_brachy`` (OZ up), not the bed frame.
+* Home: the IGM of :data:`~bench.kinematics.para_brachy.WORKSPACE_CENTRE`.
+* Assembly mode: the DGM has two solutions; solution 0 always puts A2 on the
+  left of A1'→G', so one index names one assembly mode everywhere off the
+  type-2 case-6 singularity. The adapter keeps the index the home pose is in.
+* The robot has no insertion joint: the needle's free length below the lower
+  universal joint C2 is the fixed ``h``. ``NeedlePose.entry`` is C2 and
+  ``depth`` is ``h``, so ``tip = entry + depth·direction`` still holds;
+  :meth:`ParaBrachyRobot.ik` uses the target's tip and direction only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from bench.kinematics import para_brachy as pb
+from bench.kinematics.dh import JointKind
+from bench.kinematics.needle import NeedlePose, NeedleTarget, UnreachableError, angles_of
+
+__all__ = ["JointRow", "JointTable", "ParaBrachyRobot"]
+
+
+@dataclass(frozen=True)
+class JointRow:
+    """One actuated joint: its kind and stroke (SI units)."""
+
+    name: str
+    kind: JointKind
+    lower: float
+    upper: float
+    home: float
+
+
+@dataclass(frozen=True)
+class JointTable:
+    """The part of a serial chain's interface a parallel robot can honestly offer."""
+
+    rows: tuple[JointRow, ...]
+
+    @property
+    def joint_names(self) -> list[str]:
+        return [r.name for r in self.rows]
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([r.lower for r in self.rows])
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([r.upper for r in self.rows])
+
+    @property
+    def home(self) -> np.ndarray:
+        return np.array([r.home for r in self.rows])
+
+
+class ParaBrachyRobot:
+    """The 5-DOF parallel needle robot with the serial robots' interface."""
+
+    name = "para-brachy"
+
+    def __init__(self, params: pb.ParaBrachyParams = pb.DEFAULT_PARAMS,
+                 home_pose: ArrayLike = pb.WORKSPACE_CENTRE) -> None:
+        self.params = params
+        self.home_pose = np.asarray(home_pose, dtype=float)
+        home = pb.igm(self.home_pose, params)
+        sols = pb.dgm(home, params)
+        dist = np.linalg.norm(sols[:, :3] - self.home_pose[:3], axis=-1) + np.abs(
+            pb.wrap_angle(sols[:, 3] - self.home_pose[3]))
+        self.assembly = int(np.argmin(dist))
+        kinds: tuple[JointKind, ...] = ("prismatic", "prismatic", "revolute", "prismatic", "prismatic")
+        self.chain = JointTable(tuple(
+            JointRow(n, k, float(lo), float(hi), float(h))
+            for n, k, lo, hi, h in zip(pb.JOINT_NAMES, kinds, params.q_min, params.q_max, home)))
+
+    @property
+    def joint_names(self) -> list[str]:
+        return list(pb.JOINT_NAMES)
+
+    def joint_vector(self, values: Mapping[str, float]) -> np.ndarray:
+        """Joint dict → vector, missing joints at home; unknown names refused."""
+        unknown = sorted(set(values) - set(pb.JOINT_NAMES))
+        if unknown:
+            raise KeyError(f"unknown joint(s) {unknown}; para-brachy joints are {list(pb.JOINT_NAMES)}")
+        q = self.chain.home.copy()
+        for i, n in enumerate(pb.JOINT_NAMES):
+            if n in values:
+                q[i] = float(values[n])
+        return q
+
+    def pose(self, q: ArrayLike) -> np.ndarray:
+        """The paper's pose ``[X_E, Y_E, Z_E, ψ, θ]`` (…, 5) in this robot's assembly mode."""
+        try:
+            return pb.dgm(q, self.params)[..., self.assembly, :]
+        except pb.UnreachableError as e:
+            raise UnreachableError(str(e)) from None
+
+    def needle_vectors(self, q: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Batch FK: (entry = C2, tip, direction), each (…, 3), for q of shape (…, 5)."""
+        x = self.pose(q)
+        psi, th = x[..., 3], x[..., 4]
+        w = np.stack([np.sin(th) * np.cos(psi), np.sin(th) * np.sin(psi), -np.cos(th)], axis=-1)
+        tip = x[..., :3]
+        return tip - self.params.h * w, tip, w
+
+    def needle(self, q: ArrayLike) -> NeedlePose:
+        """Forward kinematics of one configuration to the needle."""
+        q = np.asarray(q, dtype=float)
+        if q.shape != (5,):
+            raise ValueError(f"expected 5 joint values (q1..q5), got shape {q.shape}")
+        entry, tip, w = self.needle_vectors(q)
+        angle, tilt = angles_of(w)
+        return NeedlePose(entry=entry, tip=tip, direction=w, angle=angle, depth=self.params.h,
+                          out_of_plane=tilt)
+
+    def ik(self, target: NeedleTarget) -> np.ndarray:
+        """Joint values putting the tip on ``target.tip`` along its direction (eq 1)."""
+        w = np.asarray(target.direction, dtype=float)
+        w = w / np.linalg.norm(w)
+        theta = float(np.arccos(np.clip(-w[2], -1.0, 1.0)))
+        psi = float(np.arctan2(w[1], w[0]))
+        pose = np.array([*target.tip, psi, theta])
+        try:
+            q = pb.igm(pose, self.params)
+        except pb.UnreachableError as e:
+            raise UnreachableError(str(e)) from None
+        back = self.needle(q)
+        if np.max(np.abs(back.tip - target.tip)) > 1e-9 or np.linalg.norm(back.direction - w) > 1e-9:
+            raise UnreachableError(
+                f"pose {np.array2string(pose, precision=6)} is reached only in the other assembly "
+                f"mode (DGM solution {1 - self.assembly}); this robot works in solution {self.assembly}")
+        return q

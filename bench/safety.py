@@ -1,0 +1,239 @@
+"""Interlocks the trial runner checks every control cycle, on every backend.
+
+Each interlock looks at one cycle — the time, the measured :class:`drivers.JointState`
+and the commanded positions — and either passes (``None``) or returns a
+:class:`Trip` saying which interlock, why, and (where one joint is to blame)
+the joint and the offending value in SI units. :class:`Interlocks` checks a
+list in order and returns the first trip, so cheap checks go first and the
+reported cause is deterministic. Interlocks keep no state between cycles
+and never move anything: stopping is the runner's job.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+from drivers import JointState
+
+__all__ = ["Trip", "Interlock", "Interlocks", "GantryClearanceInterlock", "JointLimitInterlock",
+           "VelocityLimitInterlock", "TrackingErrorInterlock", "StaleDataInterlock"]
+
+
+@dataclass(frozen=True)
+class Trip:
+    """Why a cycle must stop: the interlock's name, a one-line cause, and when."""
+
+    interlock: str
+    cause: str
+    time: float
+    joint: str | None = None
+    value: float | None = None
+
+
+@runtime_checkable
+class Interlock(Protocol):
+    name: str
+
+    def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None: ...
+
+
+class Interlocks:
+    """Interlocks checked in order; the first trip wins."""
+
+    def __init__(self, interlocks: Sequence[Interlock]) -> None:
+        self.interlocks = list(interlocks)
+        for i in self.interlocks:
+            if not isinstance(i, Interlock):
+                raise TypeError(f"{i!r} is not an interlock (needs .name and .check)")
+        names = [i.name for i in self.interlocks]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise ValueError(f"interlock names must be unique, repeated: {dupes}")
+
+    def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
+        for interlock in self.interlocks:
+            trip = interlock.check(t, measured, commanded)
+            if trip is not None:
+                return trip
+        return None
+
+    def __iter__(self):
+        return iter(self.interlocks)
+
+    def __len__(self) -> int:
+        return len(self.interlocks)
+
+
+def _per_joint(values, names: Sequence[str], what: str) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(len(names), float(arr))
+    if arr.shape != (len(names),):
+        raise ValueError(f"{what} needs one value per joint ({len(names)}: {list(names)}), "
+                         f"got shape {arr.shape}")
+    if np.any(np.isnan(arr)):
+        raise ValueError(f"{what} has NaN entries: {arr}")
+    return arr
+
+
+def _check_shape(name: str, names: Sequence[str], arr: np.ndarray, what: str) -> None:
+    if np.shape(arr) != (len(names),):
+        raise ValueError(f"{name}: {what} has shape {np.shape(arr)}, expected ({len(names)},) "
+                         f"for joints {list(names)}")
+
+
+class JointLimitInterlock:
+    """Measured (and commanded) positions must stay within [lower − tol, upper + tol]."""
+
+    name = "joint_limits"
+
+    def __init__(self, lower: Sequence[float], upper: Sequence[float], names: Sequence[str],
+                 tolerance: float | Sequence[float] = 0.0, check_commanded: bool = True) -> None:
+        self.names = list(names)
+        self.lower = _per_joint(lower, self.names, "lower")
+        self.upper = _per_joint(upper, self.names, "upper")
+        self.tolerance = _per_joint(tolerance, self.names, "tolerance")
+        if np.any(self.lower > self.upper):
+            bad = [n for n, lo, hi in zip(self.names, self.lower, self.upper) if lo > hi]
+            raise ValueError(f"lower limit above upper limit for joints {bad}")
+        if np.any(self.tolerance < 0):
+            raise ValueError(f"tolerance must be non-negative, got {self.tolerance}")
+        self.check_commanded = check_commanded
+
+    def _first_out(self, q: np.ndarray) -> int | None:
+        bad = ~((q >= self.lower - self.tolerance) & (q <= self.upper + self.tolerance))
+        return int(np.argmax(bad)) if bad.any() else None  # NaN counts as outside
+
+    def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
+        _check_shape(self.name, self.names, measured.position, "measured position")
+        sources = [("measured", np.asarray(measured.position, dtype=float))]
+        if self.check_commanded:
+            _check_shape(self.name, self.names, commanded, "commanded position")
+            sources.append(("commanded", np.asarray(commanded, dtype=float)))
+        for label, q in sources:
+            i = self._first_out(q)
+            if i is not None:
+                return Trip(self.name, f"{label} {self.names[i]} = {q[i]:.6g} is outside "
+                            f"[{self.lower[i]:.6g}, {self.upper[i]:.6g}] "
+                            f"(tolerance {self.tolerance[i]:.3g})", t, self.names[i], float(q[i]))
+        return None
+
+
+class VelocityLimitInterlock:
+    """|measured velocity| must stay within ``factor`` × the joint's limit (rad/s or m/s)."""
+
+    name = "velocity_limits"
+
+    def __init__(self, limits: Sequence[float], names: Sequence[str], factor: float = 1.2) -> None:
+        self.names = list(names)
+        self.limits = _per_joint(limits, self.names, "velocity limits")
+        if np.any(self.limits <= 0):
+            raise ValueError(f"velocity limits must be positive, got {self.limits}")
+        if not factor > 0:
+            raise ValueError(f"factor must be positive, got {factor}")
+        self.factor = float(factor)
+
+    def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
+        _check_shape(self.name, self.names, measured.velocity, "measured velocity")
+        v = np.asarray(measured.velocity, dtype=float)
+        bad = ~(np.abs(v) <= self.factor * self.limits)
+        if not bad.any():
+            return None
+        i = int(np.argmax(bad))
+        return Trip(self.name, f"{self.names[i]} moves at {v[i]:.6g}, beyond {self.factor:g} × its "
+                    f"limit {self.limits[i]:.6g}", t, self.names[i], float(v[i]))
+
+
+class TrackingErrorInterlock:
+    """|commanded − measured position| must stay within each joint's bound (rad or m)."""
+
+    name = "tracking_error"
+
+    def __init__(self, bound: float | Sequence[float], names: Sequence[str]) -> None:
+        self.names = list(names)
+        self.bound = _per_joint(bound, self.names, "tracking-error bound")
+        if np.any(self.bound <= 0):
+            raise ValueError(f"tracking-error bounds must be positive, got {self.bound}")
+
+    def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
+        _check_shape(self.name, self.names, measured.position, "measured position")
+        _check_shape(self.name, self.names, commanded, "commanded position")
+        err = np.asarray(commanded, dtype=float) - np.asarray(measured.position, dtype=float)
+        bad = ~(np.abs(err) <= self.bound)
+        if not bad.any():
+            return None
+        i = int(np.argmax(bad))
+        return Trip(self.name, f"{self.names[i]} lags its command by {err[i]:.6g} "
+                    f"(bound {self.bound[i]:.6g})", t, self.names[i], float(err[i]))
+
+
+class StaleDataInterlock:
+    """Trips when the backend flags a reading as stale (``measured.flags`` entry ``stale:…``)."""
+
+    name = "stale_data"
+
+    def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
+        for flag in measured.flags:
+            if flag.startswith("stale:"):
+                what = flag[len("stale:"):] or None
+                return Trip(self.name, f"stale data from {what or 'the backend'} ({flag})", t,
+                            what)
+        return None
+
+
+class GantryClearanceInterlock:
+    """Trips when any link comes closer to the CT gantry than the margin (seed 001: 20 mm).
+
+    Uses the per-cycle :class:`bench.contact.GantryClearance` (a certified
+    lower bound of the exact mesh distance, about 0.1-0.3 ms) at the measured
+    positions and, unless ``check_commanded`` is False, at the commanded
+    ones too, so a command into the margin stops before the robot gets there.
+    With ``reuse`` the last full result is carried forward while it provably
+    still clears the margin: no point of the robot moves farther than
+    ``sum(levers · |Δq|)`` (:attr:`RobotGeometry.levers`), so the check costs
+    a few microseconds until the robot has moved that close.
+    """
+
+    name = "gantry_clearance"
+
+    def __init__(self, model, margin: float = 0.020, clearance=None,
+                 check_commanded: bool = True, reuse: bool = True) -> None:
+        from bench.contact import GantryClearance
+
+        self.margin = float(margin)
+        self.clearance = clearance if clearance is not None else GantryClearance(model, self.margin)
+        self.names = list(model.joint_names)
+        self.check_commanded = check_commanded
+        self.reuse = reuse
+        self._levers = self.clearance.geometry.levers
+        self._last_q: np.ndarray | None = None
+        self._last_d = -np.inf
+
+    def _distance(self, q: np.ndarray) -> tuple[float, str | None]:
+        """A lower bound of the clearance at q, and the closest link when computed afresh."""
+        if self.reuse and self._last_q is not None:
+            d = self._last_d - float(self._levers @ np.abs(q - self._last_q))
+            if d >= self.margin:
+                return d, None
+        c = self.clearance.check(q)
+        self._last_q, self._last_d = q.copy(), c.distance
+        return c.distance, c.link
+
+    def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
+        _check_shape(self.name, self.names, measured.position, "measured position")
+        sources = [("measured", measured.position)]
+        if self.check_commanded:
+            _check_shape(self.name, self.names, commanded, "commanded position")
+            sources.append(("commanded", commanded))
+        for label, q in sources:
+            q = np.asarray(q, dtype=float)
+            if not np.all(np.isfinite(q)):
+                return Trip(self.name, f"{label} position is not finite: {q}", t)
+            d, link = self._distance(q)
+            if d < self.margin:
+                return Trip(self.name, f"{link} is {d * 1e3:.1f} mm from the gantry at the "
+                            f"{label} position (margin {self.margin * 1e3:.1f} mm)", t, None, d)
+        return None

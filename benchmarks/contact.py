@@ -1,0 +1,178 @@
+"""Robot-vs-gantry contact checks timed against each other, in one run.
+
+For each robot, at poses 15-25 mm from the gantry (where pruning helps least)
+and at home:
+
+* the exact test (``GantryContact.check``: AABB tree + triangle distances),
+* the per-cycle interlock (``GantryClearance.check``, all links; target
+  <= 0.5 ms for the arc robot, to fit a 1 kHz loop), and the safety
+  interlock built on it along a path from home to a near pose,
+* the paper's all-pairs method on the same meshes, both with the triangle
+  distance (needed for a margin) and with the paper's own yes/no test of
+  eqs 4-6. All pairs take seconds to minutes, so a random subset of pairs is
+  timed and the time scaled to the full count (said so in the output).
+
+Then PyBullet's step cost with the concave gantry mesh in the arc robot's
+contact pairs against filtered out (``SceneObject(collide=False)``), at
+Target 1 and at a pose near the gantry.
+
+Times are CPU seconds of this process (``time.process_time``), the best of a
+few repeats, so other load on the machine disturbs them little.
+
+    python benchmarks/contact.py [--pairs 200000] [--steps 3000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from bench.contact import GantryClearance, GantryContact, default_gantry
+from bench.kinematics.arc_train import TARGET_1
+from bench.geometry.tri_distance import paper_intersects, triangle_distance
+from bench.robots import get_robot
+
+
+def best_time(fn, repeats: int = 5, number: int = 10) -> float:
+    """Best per-call CPU time of ``fn`` over ``repeats`` runs of ``number`` calls."""
+    fn()
+    out = []
+    for _ in range(repeats):
+        t = time.process_time()
+        for _ in range(number):
+            fn()
+        out.append((time.process_time() - t) / number)
+    return min(out)
+
+
+def all_pairs_time(robot_tris: np.ndarray, gantry_tris: np.ndarray, pairs: int,
+                   rng: np.random.Generator) -> tuple[float, float, int]:
+    """Extrapolated CPU time of every robot × gantry pair: (distance, paper's test, total)."""
+    total = len(robot_tris) * len(gantry_tris)
+    k = min(pairs, total)
+    idx = rng.choice(total, size=k, replace=False)
+    ia, ib = np.divmod(idx, len(gantry_tris))
+    A, B = robot_tris[ia], gantry_tris[ib]
+    chunk = 50_000
+
+    def run(kernel) -> float:
+        t = time.process_time()
+        for s in range(0, k, chunk):
+            kernel(A[s:s + chunk], B[s:s + chunk])
+        return (time.process_time() - t) / k * total
+
+    return run(triangle_distance), run(paper_intersects), total
+
+
+def interlock_along_path(model, cycle: GantryClearance, q_from: np.ndarray, q_to: np.ndarray,
+                         steps: int = 2000) -> tuple[float, float, int]:
+    """The safety interlock (measured and commanded, last result carried forward while it
+    provably clears the margin) along a straight joint path: median and worst CPU time per
+    control cycle, and how many cycles tripped."""
+    from bench.safety import GantryClearanceInterlock
+    from drivers import JointState
+
+    il = GantryClearanceInterlock(model, cycle.margin, cycle)
+    n = len(q_from)
+    times, trips = [], 0
+    for s in np.linspace(0.0, 1.0, steps):
+        q = q_from + s * (q_to - q_from)
+        st = JointState(0.0, q, np.zeros(n), np.zeros(n))
+        t = time.process_time()
+        trips += il.check(0.0, st, q) is not None
+        times.append(time.process_time() - t)
+    return float(np.median(times)), float(np.max(times)), trips
+
+
+def near_poses(model, clearance: GantryClearance, exact: GantryContact, n: int,
+               rng: np.random.Generator) -> np.ndarray:
+    """Poses whose exact distance to the gantry lies between 15 and 25 mm."""
+    Q = rng.uniform(model.chain.lower, model.chain.upper, (20_000, len(model.joint_names)))
+    d = clearance.distances_batch(Q).min(axis=1)
+    keep = [q for q in Q[(d > 0.010) & (d < 0.025)] if 0.015 <= exact.check(q).distance <= 0.025]
+    if len(keep) < n:
+        raise RuntimeError(f"only {len(keep)} random poses lie 15-25 mm from the gantry")
+    return np.array(keep[:n])
+
+
+def pybullet_step_cost(q: np.ndarray, steps: int) -> tuple[float, float]:
+    """CPU seconds per physics step of the arc robot held at ``q``, with the gantry in the
+    contact pairs and filtered out."""
+    from bench.scene import URDF_DIR
+    from drivers.pybullet_backend import PyBulletActuators, PyBulletSettings, SceneObject
+
+    model = get_robot("arc-train")
+    out = []
+    for collide in (True, False):
+        scene = [SceneObject(URDF_DIR / "ct_gantry.urdf", collide=collide),
+                 SceneObject(URDF_DIR / "ct_bed.urdf"), SceneObject(URDF_DIR / "phantom.urdf")]
+        settings = PyBulletSettings(URDF_DIR / "arc_train.urdf", model.joint_names, scene,
+                                    physics_hz=1000.0, control_period=0.001,
+                                    initial_position=q)
+        with PyBulletActuators(settings) as sim:
+            sim.enable()
+            sim.command(q)
+            sim.wait_until(0.05)
+            t0 = sim.now()
+            t = time.process_time()
+            sim.wait_until(t0 + steps * sim.physics_dt)
+            out.append((time.process_time() - t) / steps)
+    return out[0], out[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pairs", type=int, default=200_000, help="pairs timed for all-pairs")
+    ap.add_argument("--poses", type=int, default=5, help="near poses per robot")
+    ap.add_argument("--steps", type=int, default=3000, help="PyBullet steps timed")
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args()
+    rng = np.random.default_rng(args.seed)
+    gantry = default_gantry()
+    print(f"gantry mesh: {len(gantry.tris)} triangles (torus, 70 cm bore); margin 20 mm; "
+          "CPU time per check, best of 5")
+    near_arc = None
+    for name in ("arc-train", "zerobot"):
+        model = get_robot(name)
+        exact = GantryContact(model, gantry=gantry)
+        cycle = GantryClearance(model, gantry=gantry)
+        g = exact.geometry
+        poses = near_poses(model, cycle, exact, args.poses, rng)
+        if near_arc is None:
+            near_arc = poses[0]
+        t_exact = [best_time(lambda q=q: exact.check(q)) for q in poses]
+        t_cycle = [best_time(lambda q=q: cycle.check(q), number=50) for q in poses]
+        home = model.chain.home
+        t_exact_home = best_time(lambda: exact.check(home))
+        t_cycle_home = best_time(lambda: cycle.check(home), number=50)
+        robot_tris = g.world_triangles(g.link_frames(poses[0]))[0]
+        t_all, t_paper, total = all_pairs_time(robot_tris, gantry.tris, args.pairs, rng)
+        worst_exact, worst_cycle = max(t_exact), max(t_cycle)
+        print(f"\n{name}: {len(g.links)} links, {len(robot_tris)} robot triangles; "
+              f"{len(poses)} poses 15-25 mm from the gantry")
+        print(f"  exact test (pruned)        {worst_exact * 1e3:9.3f} ms worst near, "
+              f"{np.median(t_exact) * 1e3:.3f} ms median, {t_exact_home * 1e3:.3f} ms at home")
+        print(f"  per-cycle interlock        {worst_cycle * 1e3:9.3f} ms worst near, "
+              f"{np.median(t_cycle) * 1e3:.3f} ms median, {t_cycle_home * 1e3:.3f} ms at home"
+              + ("   (target <= 0.5 ms)" if name == "arc-train" else ""))
+        med, worst, trips = interlock_along_path(model, cycle, home, poses[0])
+        print(f"  safety interlock per cycle {med * 1e3:9.3f} ms median, {worst * 1e3:.3f} ms worst "
+              f"(measured + commanded; 2000 cycles straight in joint space from home to a near "
+              f"pose, {trips} of them inside the margin)")
+        print(f"  all pairs, distance        {t_all:9.3f} s   ({total:,} pairs; {args.pairs:,} "
+              f"timed and scaled)")
+        print(f"  all pairs, paper eqs 4-6   {t_paper:9.3f} s   (yes/no only; same extrapolation)")
+        print(f"  ratios: all-pairs distance / exact = {t_all / worst_exact:,.0f}x, "
+              f"paper's test / exact = {t_paper / worst_exact:,.0f}x (target >= 1000x); "
+              f"exact / interlock = {worst_exact / worst_cycle:,.1f}x")
+    arc = get_robot("arc-train")
+    print("\nPyBullet step of the arc robot (1 kHz, position control, bed and phantom colliding):")
+    for label, q in (("at Target 1", arc.ik(TARGET_1)), ("15-25 mm from the gantry", near_arc)):
+        with_g, without = pybullet_step_cost(q, args.steps)
+        print(f"  {label:26s} gantry in the contact pairs {with_g * 1e6:6.1f} us, filtered out "
+              f"{without * 1e6:6.1f} us (ratio {with_g / without:.2f}x)")
+
+if __name__ == "__main__":
+    main()
