@@ -179,8 +179,16 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
         except (TrialError, RuntimeError) as e:
             fail(str(e))
         cfg = rig.retarget(cfg)
+    factory = None
+    if rig is not None:
+        from bench.trial import make_backend
+
+        def factory(prep):  # the backend reaches the emulator's bus faults through .emulator
+            backend = make_backend(prep)
+            backend.emulator = rig
+            return backend
     try:
-        res = _run_with_progress(cfg, out, gui, note)
+        res = _run_with_progress(cfg, out, gui, note, factory)
     finally:
         if rig is not None:
             rig.close()
@@ -199,7 +207,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
     raise typer.Exit(0 if res.passed else 1)
 
 
-def _run_with_progress(cfg, out: Path, gui: bool, note: str):
+def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=None):
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from bench.config import ConfigError
@@ -210,7 +218,7 @@ def _run_with_progress(cfg, out: Path, gui: bool, note: str):
                   TimeRemainingColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task(f"trial {cfg.name}", total=1.0)
         try:
-            return run_trial(cfg, out, gui=gui, note=note,
+            return run_trial(cfg, out, gui=gui, note=note, backend_factory=backend_factory,
                              progress=lambda f: bar.update(task, completed=f))
         except (TrialError, ConfigError, ActuatorError) as e:
             fail(str(e))
@@ -288,6 +296,16 @@ from bench.cli_campaign import campaign_app  # noqa: E402  (kept in its own modu
 
 app.add_typer(campaign_app, name="campaign")
 
+from bench.cli_lab import calibrate, doctor, jog, scan  # noqa: E402  (kept in its own module)
+
+app.command()(scan)
+app.command()(doctor)
+app.command()(calibrate)
+app.command()(jog)
+
+from bench.cli_compare import compare  # noqa: E402  (kept in its own module)
+
+app.command()(compare)
 
 
 def main() -> None:  # pragma: no cover - console entry point

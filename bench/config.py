@@ -105,6 +105,8 @@ class DynamixelBackendConfig(Strict):
     return_delay_us: int = Field(default=0, ge=0, le=508)
     fast_sync_read: bool = True
     retries: int = Field(default=3, ge=0, le=20)
+    timeout_ms: Optional[float] = Field(default=None, gt=0, le=1000,
+                                        description="per transaction; default from the wire time")
     safe_stop: Literal["torque_off", "hold"] = "torque_off"
     reboot_on_hardware_error: bool = False
     servos: dict[str, ServoConfig]
@@ -151,6 +153,20 @@ class AcceptanceConfig(Strict):
     angle_deg: float = Field(default=1.0, gt=0)
 
 
+class SafetyConfig(Strict):
+    """Interlocks checked every control cycle (bench/safety.py); a trip fails the trial."""
+
+    enabled: bool = True
+    on_trip: Literal["hold", "stop"] = "hold"
+    gantry_margin_mm: float = Field(default=20.0, ge=0, description="seed 001's margin")
+    gantry_lookahead_s: float = Field(default=0.03, ge=0, description="braking time checked ahead")
+    joint_limit_tolerance: float = Field(default=0.01, ge=0, description="rad or m beyond a limit")
+    velocity_factor: float = Field(default=1.5, gt=0, description="× each joint's velocity limit")
+    tracking_error_deg: float = Field(default=20.0, gt=0)
+    tracking_error_mm: float = Field(default=20.0, gt=0)
+    stale_data: bool = True
+
+
 class TrialConfig(Strict):
     name: str
     robot: Literal["arc-train"] = "arc-train"
@@ -160,12 +176,17 @@ class TrialConfig(Strict):
     target: TargetConfig
     plan: PlanConfig = PlanConfig()
     acceptance: AcceptanceConfig = AcceptanceConfig()
+    safety: SafetyConfig = SafetyConfig()
     backend: Annotated[Union[PyBulletBackendConfig, DynamixelBackendConfig],
                        Field(discriminator="kind")] = PyBulletBackendConfig()
     emulator: EmulatorConfig = EmulatorConfig()
     # Faults injected around the backend, by name with parameters and target
     # joints; validated by bench.faults (unknown names and parameters refused).
     faults: list[dict[str, Any]] = Field(default_factory=list)
+    # A calibration file written by `hilbench calibrate` (joint zero offsets that replace
+    # the servos' `offset`, the ultrasonic sensor's offset and scale); relative paths are
+    # resolved like urdf_dir. Applied when the Dynamixel backend is built, kept in the log.
+    calibration: Optional[Path] = None
 
     # Where the file came from, to resolve relative paths; not part of the file.
     source: Optional[Path] = Field(default=None, exclude=True)
@@ -231,6 +252,11 @@ def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialC
         raise ConfigError(f"{path}: expected a mapping of fields at the top level")
     data.update(overrides or {})
     try:
-        return TrialConfig.model_validate({**data, "source": path})
+        config = TrialConfig.model_validate({**data, "source": path})
     except ValidationError as e:
         raise ConfigError(_format_error(path, e)) from None
+    if config.calibration is not None:
+        from bench.lab.calibration import check_calibration
+
+        check_calibration(config)  # raises ConfigError naming the problem
+    return config

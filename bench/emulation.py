@@ -16,9 +16,9 @@ import signal
 import subprocess
 import sys
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Mapping, Optional
 
 import numpy as np
 
@@ -31,11 +31,33 @@ class RigPorts:
     ultrasonic_port: Optional[str]
 
 
+@dataclass(frozen=True)
+class Planted:
+    """What the emulated rig has that its config does not say, to rehearse the lab tools.
+
+    ``servo_registers``: register presets per joint (e.g. ``{"theta5": {"Baud Rate": 1}}``
+    puts that servo at 57600 bps); ``servo_models``: a different model than configured;
+    ``zero_errors``: mechanical zero errors (joint units): the true joint value at the
+    servo's tick 2048 is the configured ``offset`` plus this; ``ultrasonic_offset_m`` and
+    ``ultrasonic_scale``: the sensor reports ``scale · true distance + offset``.
+    """
+
+    servo_registers: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
+    servo_models: Mapping[str, str] = field(default_factory=dict)
+    zero_errors: Mapping[str, float] = field(default_factory=dict)
+    ultrasonic_offset_m: float = 0.0
+    ultrasonic_scale: float = 1.0
+
+
 class EmulatedRig:
     """Both emulators for one config; a context manager that serves until closed."""
 
     def __init__(self, config: TrialConfig, initial_position: Optional[np.ndarray] = None,
-                 realtime: bool = True) -> None:
+                 realtime: bool = True, planted: Optional[Planted] = None,
+                 warm_start_s: float = 0.0) -> None:
+        """``warm_start_s`` > 0 starts the rig as a previous session left it: the servos
+        hold their pose with the config's PID gains written, and the physics has run that
+        long (integrators charged, gravity sag gone) before the ports open."""
         from bench.robots import get_robot
         from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
         from drivers.emulator.pybullet_plant import PyBulletPlant
@@ -44,16 +66,19 @@ class EmulatedRig:
             raise ValueError(f"{config.source}: --emulate needs backend.kind: dynamixel")
         b: DynamixelBackendConfig = config.backend
         e = config.emulator
+        planted = planted or Planted()
         self.config = config
+        self.planted = planted
         self.robot = get_robot(config.robot)
         names = self.robot.joint_names
         q0 = self.robot.chain.home if initial_position is None else np.asarray(initial_position)
         ratio = [b.servos[n].ratio for n in names]
-        offset = [b.servos[n].offset for n in names]
+        offset = [b.servos[n].offset + planted.zero_errors.get(n, 0.0) for n in names]
         friction = [e.joint_friction.get(n, 0.0) for n in names]
         from drivers.emulator.control_table import model_spec
 
-        motors = [model_spec(model_number(b.servos[n].model)).motor for n in names]
+        models = {n: model_number(planted.servo_models.get(n, b.servos[n].model)) for n in names}
+        motors = [model_spec(models[n]).motor for n in names]
         self.plant = PyBulletPlant(config.robot_urdf, names, ratio, offset, q0,
                                    motor_damping=[m.kt * m.ke / m.resistance for m in motors],
                                    physics_dt=1.0 / e.physics_hz, friction=friction)
@@ -68,7 +93,12 @@ class EmulatedRig:
             # The rig as the lab keeps it: EEPROM already set up, servos holding their pose.
             registers = {"Baud Rate": baud_index, "Operating Mode": MODES[sc.mode],
                          "Return Delay Time": int(round(b.return_delay_us / 2))}
-            servos[sc.id] = ServoModel(model_number(sc.model), id=sc.id, registers=registers,
+            if warm_start_s > 0:
+                gains = zip(("Position P Gain", "Position I Gain", "Position D Gain"),
+                            (sc.position_p, sc.position_i, sc.position_d))
+                registers.update({k: v for k, v in gains if v is not None})
+            registers.update(planted.servo_registers.get(n, {}))
+            servos[sc.id] = ServoModel(models[n], id=sc.id, registers=registers,
                                        deadband_ticks=deadband)
             joints[sc.id] = j
         self.bus = DynamixelBusEmulator(servos, self.plant, joints=joints,
@@ -77,6 +107,8 @@ class EmulatedRig:
         if e.start_torque_on:
             for servo in servos.values():
                 servo.set("Torque Enable", 1)
+        if warm_start_s > 0:
+            self.bus.advance(warm_start_s)
         self.ultrasonic = None
         if b.ultrasonic is not None:
             u = b.ultrasonic
@@ -91,7 +123,9 @@ class EmulatedRig:
 
             self.ultrasonic = UltrasonicEmulator(distance, rate_hz=e.ultrasonic_rate_hz,
                                                  noise_std_m=e.ultrasonic_noise_mm * 1e-3,
-                                                 dropout_prob=e.ultrasonic_dropout, seed=e.seed + 1)
+                                                 dropout_prob=e.ultrasonic_dropout, seed=e.seed + 1,
+                                                 offset_m=planted.ultrasonic_offset_m,
+                                                 scale=planted.ultrasonic_scale)
 
     def _d2_function(self):
         from bench.kinematics.arc_train import train_pose
@@ -148,6 +182,8 @@ def serve(config: TrialConfig, announce) -> None:
             previous[sig] = signal.signal(sig, on_stop)
         signal.signal(signal.SIGUSR1, lambda *a: rig.bus.unplug())
         signal.signal(signal.SIGUSR2, lambda *a: rig.bus.replug())
+        if not sys.stdin.isatty():  # a parent process drives the bus faults through our stdin
+            threading.Thread(target=_follow_commands, args=(rig, sys.stdin), daemon=True).start()
         announce(rig.ports)
         try:
             while not stop.wait(0.2):
@@ -157,21 +193,73 @@ def serve(config: TrialConfig, announce) -> None:
                 signal.signal(sig, handler)
 
 
+EMULATOR_TIMEOUT_MS = 50.0
+
+BUS_FAULT_FIELDS = ("drop_prob", "corrupt_crc_prob", "delay_s", "silent")
+
+
+def _follow_commands(rig: "EmulatedRig", stream) -> None:
+    """Apply JSON lines such as ``{"faults": {"drop_prob": 0.05}}`` to the running bus."""
+    for line in stream:
+        try:
+            cmd = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        with rig.bus.lock:
+            for field_name, value in cmd.get("faults", {}).items():
+                if field_name in BUS_FAULT_FIELDS:
+                    setattr(rig.bus.faults, field_name, value)
+        if cmd.get("unplug"):
+            rig.bus.unplug()
+        if cmd.get("replug"):
+            rig.bus.replug()
+
+
+class RemoteBusFaults:
+    """The bus faults of an emulator in another process: setting a field sends it there."""
+
+    def __init__(self, send) -> None:
+        object.__setattr__(self, "_send", send)
+        object.__setattr__(self, "_values", {"drop_prob": 0.0, "corrupt_crc_prob": 0.0,
+                                             "delay_s": 0.0, "silent": False})
+
+    def __getattr__(self, name: str):
+        try:
+            return self.__dict__["_values"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def __setattr__(self, name: str, value) -> None:
+        if name not in BUS_FAULT_FIELDS:
+            raise AttributeError(f"unknown bus fault {name!r}; known: {BUS_FAULT_FIELDS}")
+        self._values[name] = value
+        self._send({"faults": {name: value}})
+
+
 class EmulatorProcess:
-    """`hilbench emulate CONFIG --json` in a child process (its own core, its own GIL)."""
+    """`hilbench emulate CONFIG --json` in a child process (its own core, its own GIL).
+
+    ``faults`` changes the bus faults of the running emulator (dropped, late or
+    corrupted status packets), so fault wrappers reach the wire through it.
+    """
 
     def __init__(self, config_path: Path, start_timeout: float = 30.0) -> None:
         exe = Path(sys.executable).with_name("hilbench")
         cmd = ([str(exe)] if exe.exists() else [sys.executable, "-m", "bench.cli"])
         env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+        import tempfile
+
+        self._stderr = tempfile.TemporaryFile(mode="w+")
         self.proc = subprocess.Popen(cmd + ["emulate", str(config_path), "--json"],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                     env=env)
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=self._stderr, text=True, env=env)
+        self.faults = RemoteBusFaults(self._send)
         line = self._first_line(start_timeout)
         try:
             ports = json.loads(line)
         except json.JSONDecodeError:
-            err = self.proc.stderr.read() if self.proc.poll() is not None else ""
+            self._stderr.seek(0)
+            err = self._stderr.read() if self.proc.poll() is not None else ""
             self.close()
             raise RuntimeError(f"the emulator did not start: {(line + err).strip()}") from None
         self.ports = RigPorts(ports["dynamixel_port"], ports.get("ultrasonic_port"))
@@ -185,6 +273,11 @@ class EmulatorProcess:
             self.close()
             raise RuntimeError(f"the emulator did not announce its ports within {timeout:.0f} s")
         return out[0]
+
+    def _send(self, cmd: dict) -> None:
+        if self.proc.poll() is None:
+            self.proc.stdin.write(json.dumps(cmd) + "\n")
+            self.proc.stdin.flush()
 
     def unplug(self) -> None:
         self.proc.send_signal(signal.SIGUSR1)
@@ -200,6 +293,11 @@ class EmulatorProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        for stream in (self.proc.stdin, self.proc.stdout, self._stderr):
+            try:
+                stream.close()
+            except (OSError, ValueError, AttributeError):
+                pass
 
     def retarget(self, config: TrialConfig) -> TrialConfig:
         return retarget(config, self.ports)
@@ -217,5 +315,8 @@ def retarget(config: TrialConfig, ports: RigPorts) -> TrialConfig:
     u = b.ultrasonic
     backend = b.model_copy(update={
         "port": ports.dynamixel_port,
+        # The emulator is a Python process sharing the CPU: its answers can come
+        # milliseconds late where a servo's come in microseconds.
+        "timeout_ms": max(b.timeout_ms or 0.0, EMULATOR_TIMEOUT_MS),
         "ultrasonic": u.model_copy(update={"port": ports.ultrasonic_port}) if u else None})
     return config.model_copy(update={"backend": backend})

@@ -195,12 +195,20 @@ class GantryClearanceInterlock:
     still clears the margin: no point of the robot moves farther than
     ``sum(levers · |Δq|)`` (:attr:`RobotGeometry.levers`), so the check costs
     a few microseconds until the robot has moved that close.
+
+    ``lookahead_s`` also checks where the measured motion leads within that
+    time (position + velocity · lookahead): a robot cannot stop in zero time,
+    so the trip comes early enough for the hold to halt it outside the margin.
     """
 
     name = "gantry_clearance"
 
     def __init__(self, model, margin: float = 0.020, clearance=None,
-                 check_commanded: bool = True, reuse: bool = True) -> None:
+                 check_commanded: bool = True, reuse: bool = True,
+                 lookahead_s: float = 0.0) -> None:
+        if lookahead_s < 0:
+            raise ValueError(f"lookahead_s must be >= 0, got {lookahead_s}")
+        self.lookahead_s = float(lookahead_s)
         from bench.contact import GantryClearance
 
         self.margin = float(margin)
@@ -225,6 +233,9 @@ class GantryClearanceInterlock:
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
         _check_shape(self.name, self.names, measured.position, "measured position")
         sources = [("measured", measured.position)]
+        if self.lookahead_s > 0 and np.all(np.isfinite(measured.velocity)):
+            ahead = measured.position + measured.velocity * self.lookahead_s
+            sources.append((f"predicted ({self.lookahead_s * 1e3:.0f} ms ahead)", ahead))
         if self.check_commanded:
             _check_shape(self.name, self.names, commanded, "commanded position")
             sources.append(("commanded", commanded))

@@ -19,6 +19,7 @@ import numpy as np
 
 from bench.config import ConfigError, TrialConfig
 from bench.kinematics.needle import NeedleTarget, UnreachableError
+from bench.lab.calibration import calibration_of, calibration_record
 from bench.log import TrialLog
 from bench.outcome import NeedleOutcome, needle_outcome, settled_position
 from bench.runner import Runner, Segment
@@ -128,9 +129,11 @@ def make_dynamixel_backend(prep: PreparedTrial) -> Actuators:
     )
 
     b = prep.config.backend
+    cal = calibration_of(prep.config)  # zero offsets and ultrasonic mapping, if the config names one
     rows = prep.robot.chain.rows
     servos = [ServoSettings(joint=n, id=sc.id, model=model_number(sc.model), mode=sc.mode,
-                            ratio=sc.ratio, offset=sc.offset, current_limit_a=sc.current_limit_a,
+                            ratio=sc.ratio, offset=cal.offset(n, sc.offset) if cal else sc.offset,
+                            current_limit_a=sc.current_limit_a,
                             gains=(sc.position_p, sc.position_i, sc.position_d))
               for n, sc in b.servos.items()]
     ultra = None
@@ -142,12 +145,14 @@ def make_dynamixel_backend(prep: PreparedTrial) -> Actuators:
         params = prep.robot.params
         ultra = UltrasonicSettings(port=u.port, joint=u.joint, baud=u.baud,
                                    median_window=u.median_window, stale_after_s=u.stale_after_s,
-                                   to_joint=lambda d: float(epsilon_from_d2(d - standoff, params)))
+                                   to_joint=lambda d: float(epsilon_from_d2(
+                                       cal.d2(d, standoff) if cal else d - standoff, params)))
     settings = DynamixelSettings(
         port=b.port, baud=b.baud, servos=servos, joint_names=prep.robot.joint_names,
         lower=[r.lower for r in rows], upper=[r.upper for r in rows],
         velocity=[r.velocity for r in rows], effort=[r.effort for r in rows],
         return_delay_us=b.return_delay_us, fast_sync_read=b.fast_sync_read, retries=b.retries,
+        timeout_s=b.timeout_ms * 1e-3 if b.timeout_ms else None,
         safe_stop=b.safe_stop, reboot_on_hardware_error=b.reboot_on_hardware_error,
         ultrasonic=ultra)
     return DynamixelActuators(settings)
@@ -175,6 +180,33 @@ def plan(prep: PreparedTrial, q_start: np.ndarray, limits_velocity: np.ndarray) 
     if p.retract:
         segs.append(Segment("retract", traj(prep.q_insert, prep.q_entry), 0.0))
     return segs
+
+
+def interlocks_for(prep: PreparedTrial, act: Actuators):
+    """The configured interlocks for this robot and backend (None when disabled)."""
+    from bench.safety import (
+        GantryClearanceInterlock, Interlocks, JointLimitInterlock, StaleDataInterlock,
+        TrackingErrorInterlock, VelocityLimitInterlock,
+    )
+
+    s = prep.config.safety
+    if not s.enabled:
+        return None
+    names = list(prep.robot.joint_names)
+    kinds = [r.kind for r in prep.robot.chain.rows]
+    lim = act.limits
+    tol = s.joint_limit_tolerance
+    bound = [np.radians(s.tracking_error_deg) if k == "revolute" else s.tracking_error_mm * 1e-3
+             for k in kinds]
+    checks = [JointLimitInterlock(lim.lower - tol, lim.upper + tol, names),
+              VelocityLimitInterlock(lim.velocity, names, s.velocity_factor),
+              TrackingErrorInterlock(bound, names)]
+    if s.stale_data:
+        checks.append(StaleDataInterlock())
+    if s.gantry_margin_mm > 0:
+        checks.append(GantryClearanceInterlock(prep.robot, s.gantry_margin_mm * 1e-3,
+                                               lookahead_s=s.gantry_lookahead_s))
+    return Interlocks(checks)
 
 
 def package_versions() -> dict[str, str]:
@@ -210,20 +242,25 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
     """
     prep = prepare(config)
     backend = (backend_factory or (lambda p: make_backend(p, gui)))(prep)
+    act = backend
+    try:  # a refused fault (e.g. one the backend cannot host) leaves nothing behind
+        if config.faults:
+            from bench.faults import apply_faults, parse_faults
+
+            specs = parse_faults(config.faults, prep.robot.joint_names)
+            act = apply_faults(act, specs, np.random.default_rng(config.seed))
+        if wrap:
+            act = wrap(act)
+    except BaseException:
+        backend.close()
+        raise
     run_dir = new_run_dir(out, config.name)
     log_path = run_dir / "trial.npz"
-    act = backend
-    if config.faults:
-        from bench.faults import apply_faults, parse_faults
-
-        specs = parse_faults(config.faults, prep.robot.joint_names)
-        act = apply_faults(act, specs, np.random.default_rng(config.seed))
-    if wrap:
-        act = wrap(act)
     log = TrialLog(list(prep.robot.joint_names))
     log.metadata.update({
         "config": json.loads(config.model_dump_json()),
         "config_file": str(config.source) if config.source else None,
+        "calibration": calibration_record(config),  # path and content, or None
         "robot": config.robot, "backend": config.backend.kind, "seed": config.seed,
         "start_time": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(), "note": note,
@@ -240,10 +277,12 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
         with act:
             q_start = act.read().position
             segments = plan(prep, q_start, act.limits.velocity)
-            runner = Runner(act, config.control_period, progress=progress)
+            runner = Runner(act, config.control_period, interlocks=interlocks_for(prep, act),
+                            on_trip=config.safety.on_trip, progress=progress)
             runner.run(segments, log)
-    except ActuatorError:
-        pass  # the runner recorded the abort; the log and report say why
+    except ActuatorError as e:
+        if not any(ev.kind == "abort" for ev in log.events):  # failed before the runner started
+            log.event(log.time[-1] if len(log) else 0.0, "abort", f"{type(e).__name__}: {e}")
     except KeyboardInterrupt:
         if not any(e.kind == "abort" for e in log.events):
             log.event(log.time[-1] if len(log) else 0.0, "abort", "interrupted (Ctrl-C)")

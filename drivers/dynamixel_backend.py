@@ -101,6 +101,7 @@ class DynamixelSettings:
     return_delay_us: int = 0
     fast_sync_read: bool = True
     retries: int = 3
+    timeout_s: Optional[float] = None  # per cycle transaction; default: 3 × wire time + latency
     safe_stop: Literal["torque_off", "hold"] = "torque_off"
     reboot_on_hardware_error: bool = False
     ultrasonic: Optional[UltrasonicSettings] = None
@@ -155,8 +156,13 @@ class DynamixelActuators(ActuatorsBase):
         self._correction = 0.0
         self._train = names.index(s.ultrasonic.joint) if s.ultrasonic else None
         try:
-            if not self.port.openPort():
-                raise ConfigurationError(f"cannot open servo port {s.port}")
+            try:
+                opened = self.port.openPort()
+            except Exception as e:  # pyserial's SerialException: no such device, permissions
+                raise ConfigurationError(
+                    f"cannot open servo port {s.port}: {e}" + _port_hint(s.port)) from None
+            if not opened:
+                raise ConfigurationError(f"cannot open servo port {s.port}" + _port_hint(s.port))
             if not self.port.setBaudRate(s.baud):
                 raise ConfigurationError(f"cannot set {s.baud} bps on {s.port}")
             self._check_latency()
@@ -210,10 +216,11 @@ class DynamixelActuators(ActuatorsBase):
         s = self.settings
         missing = []
         for sv in s.servos:
-            for _ in range(s.retries + 1):
+            for attempt in range(max(s.retries, 3) + 1):  # a bus just plugged in may be slow
                 model, result, err = self.ph.ping(self.port, sv.id)
                 if result == self._sdk.COMM_SUCCESS:
                     break
+                time.sleep(0.01 * attempt)
             if result != self._sdk.COMM_SUCCESS:
                 missing.append(f"{sv.id} ({sv.joint})")
                 continue
@@ -283,6 +290,8 @@ class DynamixelActuators(ActuatorsBase):
         self._cycle = SyncCycle(self.port.ser.fileno(), self.settings.baud, self._ids,
                                 read_address=STATE_ADDR, read_length=STATE_LEN,
                                 write_address=ADDR["Goal Position"][0], fast=self._fast)
+        if self.settings.timeout_s:
+            self._cycle.timeout_s = self.settings.timeout_s
 
     # -- register access with retries ----------------------------------------
     def _read(self, sid: int, name: str) -> int:
@@ -459,6 +468,14 @@ class DynamixelActuators(ActuatorsBase):
         return [{"joint": sv.joint, "id": sv.id, "model": self.models.get(sv.id),
                  "model_name": _model_name(self.models.get(sv.id, 0)),
                  "firmware": self.firmware.get(sv.id)} for sv in self.settings.servos]
+
+
+def _port_hint(port: str) -> str:
+    if not os.path.exists(port):
+        return " (is the adapter plugged in? rehearse without hardware with --emulate)"
+    if not os.access(port, os.R_OK | os.W_OK):
+        return " (no permission: add yourself to the dialout group, `sudo usermod -aG dialout $USER`)"
+    return ""
 
 
 def _signed(value: int, size: int) -> int:

@@ -209,3 +209,45 @@ def test_emulate_prints_ports_as_soon_as_they_accept_bytes():
     finally:
         proc.terminate()
         assert proc.wait(10) == 0 or proc.returncode in (-15, 0)
+
+
+def test_wire_faults_reach_the_driver_and_it_rides_them_out(tmp_path):
+    """Corrupted and dropped status packets on the emulated bus: retried, the trial still passes."""
+    import yaml
+
+    data = yaml.safe_load(LAB.read_text())
+    data["name"] = "lab-wire-faults"
+    data["faults"] = [{"name": "corrupt_crc", "prob": 0.05},
+                      {"name": "dropped_status", "prob": 0.05, "level": "bus"}]
+    cfg = tmp_path / "lab_faults.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = subprocess.run([HILBENCH, "trial", str(cfg), "--emulate", "--out", str(tmp_path), "--json"],
+                         capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["passed"] is True
+
+
+def test_wire_fault_on_the_sim_backend_is_refused_before_anything_runs(tmp_path):
+    import yaml
+
+    data = yaml.safe_load((REPO / "hil_configs" / "sim_target1.yaml").read_text())
+    data["faults"] = [{"name": "corrupt_crc", "prob": 0.05}]
+    cfg = tmp_path / "sim_faults.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    runs = tmp_path / "runs"
+    out = subprocess.run([HILBENCH, "trial", str(cfg), "--out", str(runs)], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 2
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "corrupt_crc" in lines[0] and "emulat" in lines[0]
+    assert not runs.exists()
+
+
+def test_real_trial_without_hardware_names_the_port_and_starts_nothing(tmp_path):
+    runs = tmp_path / "runs"
+    out = subprocess.run([HILBENCH, "trial", str(LAB), "--out", str(runs)], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 2
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "/dev/ttyUSB0" in lines[0] and "--emulate" in lines[0]
+    assert not runs.exists()

@@ -136,6 +136,7 @@ class DynamixelBusEmulator:
         boot_time_s: float = 0.0,
         realtime: bool = True,
         max_catchup_s: float = 0.5,
+        max_batch_s: float | None = None,
     ) -> None:
         if not servos:
             raise ValueError("a bus needs at least one servo")
@@ -161,6 +162,10 @@ class DynamixelBusEmulator:
         self.boot_time_s = boot_time_s
         self.realtime = realtime
         self.max_catchup_s = max_catchup_s
+        #: Physics run at most this much simulated time between two looks at the
+        #: port (None: all that is due), so the servos keep answering while the
+        #: physics catches up after the host was busy.
+        self.max_batch_s = max_batch_s
         self.faults = BusFaults()
         self.stats = BusStats()
         self.rng = np.random.default_rng(seed)
@@ -345,6 +350,8 @@ class DynamixelBusEmulator:
             self.stats.physics_skipped_s += (steps - limit) * self.physics_dt
             self._sim_wall += (steps - limit) * self.physics_dt
             steps = limit
+        if self.max_batch_s is not None:  # the rest is due at the next pass
+            steps = min(steps, max(1, int(self.max_batch_s / self.physics_dt)))
         self._physics(steps)
         self._sim_wall += steps * self.physics_dt
 

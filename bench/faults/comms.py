@@ -1,0 +1,132 @@
+"""Communication faults: status packets dropped, late or corrupted.
+
+Two levels. When the backend talks to the bench's servo-bus emulator it
+exposes ``emulator`` (the bus, or an object holding its ``faults``), and the
+fault is injected on the wire — the real driver then meets the lost,
+delayed or corrupted packets itself (:class:`EmulatorStatusFault`). On any
+other backend the wrapper-level versions stand in: a dropped joint status
+returns that joint's last sample flagged ``stale:<joint>``; a late one
+returns an older sample flagged ``late:<joint>``. CRC corruption exists only
+on the wire, so it needs the emulator.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from drivers import Actuators, ConfigurationError, JointState
+
+from bench.faults.base import FaultWrapper
+
+__all__ = ["DroppedStatus", "EmulatorStatusFault", "LateStatus", "emulator_fault_target"]
+
+
+def emulator_fault_target(actuators: Actuators, field: str) -> Any | None:
+    """The object whose ``field`` injects a bus fault (e.g. ``BusFaults.drop_prob``), if any.
+
+    Accepts ``backend.emulator`` being the bus emulator (``.faults``), a rig
+    holding it (``.bus.faults``), or the fault settings themselves.
+    """
+    backend = actuators.unwrapped if isinstance(actuators, FaultWrapper) else actuators
+    em = getattr(backend, "emulator", None)
+    if em is None:
+        return None
+    for candidate in (getattr(em, "faults", None), getattr(getattr(em, "bus", None), "faults", None), em):
+        if candidate is not None and hasattr(candidate, field):
+            return candidate
+    return None
+
+
+class EmulatorStatusFault(FaultWrapper):
+    """Sets one bus-fault field of the emulator while the stack lives; restores it on close."""
+
+    def __init__(self, actuators: Actuators, field: str, value: float) -> None:
+        super().__init__(actuators)
+        target = emulator_fault_target(actuators, field)
+        if target is None:
+            raise ConfigurationError(
+                f"{type(self.unwrapped).__name__} has no emulator hook {field!r}: status-packet "
+                "faults at the bus level need the emulated Dynamixel backend (--emulate)")
+        self.field = field
+        self._target = target
+        self._saved = getattr(target, field)
+        setattr(target, field, value)
+
+    def close(self) -> None:
+        try:
+            setattr(self._target, self.field, self._saved)
+        finally:
+            super().close()
+
+
+class DroppedStatus(FaultWrapper):
+    """Each read, each targeted joint's status is lost with probability ``prob``:
+    the joint keeps its last value (position, velocity, effort), flagged stale."""
+
+    def __init__(self, actuators: Actuators, joints: np.ndarray, prob: float,
+                 rng: np.random.Generator) -> None:
+        super().__init__(actuators)
+        self.joints = np.asarray(joints, dtype=int)
+        self.prob = float(prob)
+        self._rng = rng
+        self._last: JointState | None = None
+        self.dropped = 0
+
+    def read(self) -> JointState:
+        st = self.actuators.read()
+        lost = self.joints[self._rng.random(self.joints.size) < self.prob]
+        if self._last is not None and lost.size:
+            for arr, old in ((st.position, self._last.position), (st.velocity, self._last.velocity),
+                             (st.effort, self._last.effort)):
+                arr[lost] = old[lost]
+            names = self.joint_names
+            st = JointState(st.time, st.position, st.velocity, st.effort,
+                            st.flags + tuple(f"stale:{names[j]}" for j in lost))
+            self.dropped += lost.size
+        self._last = st.copy()
+        return st
+
+
+class LateStatus(FaultWrapper):
+    """Each read, each targeted joint's status arrives late with probability ``prob``:
+    its values are those of the newest sample at least ``delay`` s old, flagged late."""
+
+    def __init__(self, actuators: Actuators, joints: np.ndarray, prob: float, delay: float,
+                 rng: np.random.Generator) -> None:
+        super().__init__(actuators)
+        self.joints = np.asarray(joints, dtype=int)
+        self.prob = float(prob)
+        self.delay = float(delay)
+        self._rng = rng
+        self._history: deque[JointState] = deque()
+
+    def _old_sample(self, now: float) -> JointState | None:
+        old = None
+        for s in self._history:  # oldest first
+            if s.time <= now - self.delay + 1e-12:
+                old = s
+            else:
+                break
+        if old is None and self._history:
+            old = self._history[0]
+        return old
+
+    def read(self) -> JointState:
+        fresh = self.actuators.read()
+        late = self.joints[self._rng.random(self.joints.size) < self.prob]
+        old = self._old_sample(fresh.time)
+        self._history.append(fresh.copy())
+        while len(self._history) > 1 and self._history[1].time <= fresh.time - self.delay:
+            self._history.popleft()
+        if old is None or not late.size:
+            return fresh
+        st = fresh.copy()
+        for arr, src in ((st.position, old.position), (st.velocity, old.velocity),
+                         (st.effort, old.effort)):
+            arr[late] = src[late]
+        names = self.joint_names
+        return JointState(st.time, st.position, st.velocity, st.effort,
+                          st.flags + tuple(f"late:{names[j]}" for j in late))

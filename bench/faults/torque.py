@@ -1,0 +1,46 @@
+"""Weak joints: a joint's available torque or force scaled down.
+
+Seed 000 saw its torque-heavy joints lag the trajectory; with less torque
+than the gravity load a joint stalls. The backend does the limiting —
+PyBullet through the motor's maximum force, a Dynamixel through Goal Current
+— behind one extra method, ``set_effort_limit(joint_index, effort)``.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from drivers import Actuators, ConfigurationError
+
+from bench.faults.base import FaultWrapper
+
+__all__ = ["TorqueLimit", "check_effort_limit"]
+
+
+def check_effort_limit(actuators: Actuators) -> None:
+    """Refuse, naming the backend, when it cannot limit a joint's effort."""
+    backend = actuators.unwrapped if isinstance(actuators, FaultWrapper) else actuators
+    if not callable(getattr(backend, "set_effort_limit", None)):
+        raise ConfigurationError(
+            f"torque_limit needs a backend with set_effort_limit(joint_index, effort); "
+            f"{type(backend).__name__} has none")
+
+
+class TorqueLimit(FaultWrapper):
+    """Scales the effort limit of ``joints`` by ``scale`` when the stack is built."""
+
+    def __init__(self, actuators: Actuators, joints: Sequence[str], scale: float) -> None:
+        super().__init__(actuators)
+        check_effort_limit(actuators)
+        if not 0 < scale <= 1:
+            raise ConfigurationError(f"torque_limit scale must be in (0, 1], got {scale}")
+        self.scale = float(scale)
+        backend = self.unwrapped
+        effort = np.asarray(backend.limits.effort, dtype=float)
+        self.joints = list(joints)
+        self.effort = {}
+        for j in self._index(joints):
+            backend.set_effort_limit(int(j), float(effort[j] * scale))
+            self.effort[self.joint_names[j]] = float(effort[j] * scale)

@@ -1,0 +1,358 @@
+"""Sim vs real comparison: metrics recovered from logs of known offset, delay and noise; logs of
+different plans refused; the emulated rig against the paper's acceptance limits and observations."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from bench.compare import (
+    PlanMismatchError, align_logs, check_same_plan, compare_logs, joint_tracking, profile_difference,
+)
+from bench.config import load_trial_config
+from bench.log import TrialLog
+
+REPO = Path(__file__).resolve().parent.parent
+LAB = REPO / "hil_configs" / "lab_real.yaml"
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+HEAVY = ("train", "theta4", "theta5", "theta6")  # gravity-loaded at Target 1
+LIGHT = ("theta7", "theta8", "d9", "d10")
+
+
+# ---------------------------------------------------------------------------
+# Synthetic logs of the lab plan
+# ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def prep():
+    from bench.trial import prepare
+
+    return prepare(load_trial_config(LAB))
+
+
+def _segments(prep):
+    from bench.trial import plan
+
+    rows = prep.robot.chain.rows
+    return plan(prep, prep.robot.chain.home, np.array([r.velocity for r in rows]))
+
+
+def synthetic_log(prep, dt: float = 0.01, offset=0.0, delay: float = 0.0, noise=0.0, seed: int = 0,
+                  t0: float = 0.0, drop: float = 0.0, nan_rows: int = 0, gap: tuple | None = None,
+                  placement_error=None, target_shift_mm: float = 0.0) -> TrialLog:
+    """The lab plan on a fixed timeline (each segment's trajectory plus its settle time),
+    sampled every ``dt``; measured = command(t − delay) + offset + noise."""
+    segs = _segments(prep)
+    lengths = [s.trajectory.duration + s.settle for s in segs]
+    starts = list(np.concatenate([[0.0], np.cumsum(lengths)[:-1]]))
+    t = np.arange(int(round(sum(lengths) / dt)) + 1) * dt
+    seg = np.clip(np.searchsorted(np.array(starts), t, side="right") - 1, 0, len(segs) - 1)
+
+    def command(times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = np.empty((times.size, 9))
+        qd = np.zeros((times.size, 9))
+        k = np.clip(np.searchsorted(np.array(starts), times, side="right") - 1, 0, len(segs) - 1)
+        for i, s in enumerate(segs):
+            m = k == i
+            if m.any():
+                local = np.clip(times[m] - starts[i], 0.0, s.trajectory.duration)
+                q[m], qd[m], _ = s.trajectory.sample(local)
+        return q, qd
+
+    q_cmd, qd_cmd = command(t)
+    q, _ = command(np.maximum(t - delay, 0.0))
+    rng = np.random.default_rng(seed)
+    q = q + np.asarray(offset) + rng.normal(size=q.shape) * np.asarray(noise)
+    if placement_error is not None:  # an error that appears during the insertion's hold
+        si = 1
+        hold = (seg == si) & (t >= starts[si] + segs[si].trajectory.duration)
+        q[hold] += np.asarray(placement_error)
+    keep = np.ones(t.size, dtype=bool)
+    if drop:
+        keep &= rng.random(t.size) > drop
+        keep[[0, -1]] = True
+    if gap is not None:
+        keep &= ~((t >= gap[0]) & (t < gap[1]))
+    log = TrialLog(list(prep.robot.joint_names), [s.name for s in segs])
+    for k in np.flatnonzero(keep):
+        log.append(t0 + t[k], seg[k], q_cmd[k], qd_cmd[k], q[k], np.zeros(9), np.zeros(9))
+    if nan_rows:
+        for k in rng.choice(len(log), nan_rows, replace=False):
+            log._arr["q"][k] = np.nan
+    target = prep.target
+    entry = np.asarray(target.entry) + np.array([0.0, target_shift_mm * 1e-3, 0.0])
+    cfg = json.loads(prep.config.model_dump_json())
+    log.metadata.update({
+        "config": cfg, "robot": prep.config.robot, "backend": "synthetic",
+        "target": {"entry_m": entry.tolist(), "depth_m": target.depth, "angle_rad": target.angle,
+                   "tilt_rad": target.tilt},
+        "q_entry": prep.q_entry.tolist(), "q_insert": prep.q_insert.tolist(), "control_period": dt})
+    log.event(t0 + t[-1], "done", "all segments completed")
+    return log
+
+
+OFFSET = np.array([0.008, -0.006, 0.012, -0.007, 0.009, -0.011, 0.006, 0.0004, -0.0006])  # rad or m
+
+
+def _by_name(tracking):
+    return {jt.name: jt for jt in tracking}
+
+
+# ---------------------------------------------------------------------------
+# Metrics of one log
+# ---------------------------------------------------------------------------
+
+
+def test_constant_offset_is_recovered_exactly(prep):
+    tr = _by_name(joint_tracking(synthetic_log(prep, offset=OFFSET)))
+    for j, name in enumerate(prep.robot.joint_names):
+        jt = tr[name]
+        assert jt.rms == pytest.approx(abs(OFFSET[j]), abs=1e-9)
+        assert jt.max_abs == pytest.approx(abs(OFFSET[j]), abs=1e-9)
+        assert jt.final == pytest.approx(OFFSET[j], abs=1e-9)
+        assert jt.placement == pytest.approx(OFFSET[j], abs=1e-9)
+        if name == "theta3":  # never commanded to move: no timing to measure
+            assert math.isnan(jt.lag_s) and math.isnan(jt.settling_s)
+            continue
+        assert jt.lag_s == pytest.approx(0.0, abs=1e-9)  # an offset is not a delay
+        assert math.isnan(jt.settling_s)  # every offset is outside the ±0.29° / ±0.05 mm band
+
+
+def test_known_delay_is_recovered_within_a_control_period(prep):
+    dt, delay = 0.01, 0.037
+    tr = _by_name(joint_tracking(synthetic_log(prep, dt=dt, delay=delay)))
+    for name in ("train", "theta4", "theta5", "theta6", "theta7", "theta8", "d9", "d10"):
+        assert abs(tr[name].lag_s - delay) < dt, (name, tr[name].lag_s)
+        assert abs(tr[name].lag_s - delay) < 0.3 * dt, (name, tr[name].lag_s)  # sub-sample
+        assert 0.0 <= tr[name].settling_s <= delay + dt  # a pure delay ends soon after the move
+
+
+def test_noise_rms_is_recovered(prep):
+    sigma = np.array([2e-3] * 7 + [2e-4] * 2)
+    tr = joint_tracking(synthetic_log(prep, dt=0.002, noise=sigma, seed=3))
+    for jt, s in zip(tr, sigma):
+        assert jt.rms == pytest.approx(s, rel=0.04), jt.name
+
+
+def test_delay_under_quantisation_noise_within_a_control_period(prep):
+    dt, delay = 0.01, 0.037
+    tick = 2 * np.pi / 4096  # a servo's position step; uniform quantisation noise has σ = tick/√12
+    sigma = np.array([tick / np.sqrt(12)] * 7 + [tick * 0.01 / np.sqrt(12)] * 2)
+    for seed in (1, 2):
+        tr = joint_tracking(synthetic_log(prep, dt=dt, delay=delay, noise=sigma, seed=seed))
+        for jt in tr:
+            if jt.name != "theta3":
+                assert abs(jt.lag_s - delay) < dt, (jt.name, jt.lag_s)
+
+
+def test_dropped_samples_gaps_and_nans_change_nothing(prep):
+    log = synthetic_log(prep, dt=0.002, offset=OFFSET, delay=0.02, drop=0.1, nan_rows=25,
+                        gap=(1.0, 1.2), t0=123.4)
+    ref = synthetic_log(prep, dt=0.002, offset=OFFSET, delay=0.02)
+    assert len(log) < 0.92 * len(ref)
+    a, b = _by_name(joint_tracking(ref)), _by_name(joint_tracking(log))
+    for name in prep.robot.joint_names:
+        assert b[name].placement == pytest.approx(a[name].placement, abs=1e-9)
+        if name != "theta3":
+            assert abs(b[name].lag_s - 0.02) < 0.002, name
+
+
+def test_profiles_at_different_rates_and_clocks_align(prep):
+    a = synthetic_log(prep, dt=0.01)  # 100 Hz, clock from 0
+    b = synthetic_log(prep, dt=0.002, offset=OFFSET, drop=0.1, nan_rows=10, gap=(2.0, 2.3),
+                      t0=5000.0)  # 500 Hz, another clock, missing samples
+    diffs, al = profile_difference(a, b)
+    assert al.dt == pytest.approx(0.01)
+    assert al.offset_s == pytest.approx(5000.0, abs=1e-9)
+    assert np.isnan(al.b_q[(al.time >= 2.05) & (al.time <= 2.25)]).all()  # the gap is not invented
+    for d, off in zip(diffs, OFFSET):
+        assert d.rms == pytest.approx(abs(off), abs=1e-6), d.name
+        assert d.max_abs == pytest.approx(abs(off), abs=1e-5), d.name
+        assert d.cmd_rms == pytest.approx(0.0, abs=1e-6)  # interpolated over the dropped samples
+    # aligning by cross-correlation finds the same offset to within a sample
+    assert align_logs(a, b, "xcorr").offset_s == pytest.approx(5000.0, abs=0.002)
+    # a real delay between the two shows as a profile difference, not a misalignment
+    late, _ = profile_difference(a, synthetic_log(prep, dt=0.002, delay=0.05, t0=7.0))
+    assert {d.name: d.rms for d in late}["theta8"] > 1e-3
+
+
+def test_needle_placement_error_is_explained_by_the_right_joint(prep):
+    err = np.zeros(9)
+    err[2] = np.radians(0.1)  # theta4 a tenth of a degree off at the placement
+    sim = synthetic_log(prep)
+    real = [synthetic_log(prep, placement_error=err * k, noise=np.full(9, 1e-6), seed=k) for k in (1, 2, 3)]
+    c = compare_logs([sim], real, labels=("sim", "real"))
+    assert c.worst_joint == "theta4"
+    ranking = c.subject.contribution_ranking()
+    assert ranking[0][0] == "theta4" and ranking[1][1] < 0.05 * ranking[0][1]
+    s = c.summary()
+    assert s["repeats"] == 3 and s["passed"] is True
+    assert set(s) == {"repeats", "tip_deviation_mm", "depth_deviation_mm", "angle_deviation_deg",
+                      "passed", "worst_joint"}
+    # the first-order sum of the contributions predicts the tip deviation
+    pred = np.mean([np.sum([x.tip_mm for x in rep], axis=0) for rep in c.subject.contributions], axis=0)
+    assert np.allclose(pred, s["tip_deviation_mm"]["mean"], atol=0.02)
+    tips = np.array([o.tip_deviation_mm for o in c.subject.outcomes])
+    assert s["tip_deviation_mm"]["max"] == pytest.approx(np.abs(tips).max(axis=0).tolist(), abs=1e-6)
+    # a far bigger error fails the 5 mm limit
+    bad = compare_logs([sim], [synthetic_log(prep, placement_error=err * 20)])
+    assert bad.passed is False and bad.summary()["passed"] is False
+
+
+def test_report_is_written_self_contained(prep, tmp_path):
+    from bench.compare_report import write_compare_report
+
+    c = compare_logs([synthetic_log(prep)], [synthetic_log(prep, delay=0.03, noise=np.full(9, 1e-4), seed=k)
+                                             for k in range(2)], labels=("sim", "emulated rig"))
+    paths = write_compare_report(c, tmp_path / "cmp", title="synthetic")
+    md = paths["markdown"].read_text()
+    for words in ("Table 3 layout", "Table 4 layout", "current research", "Fig. 12 layout", "Verdict",
+                  "What explains the deviation", "| 2.7 |", "| 1.51 |"):
+        assert words in md, words
+    html = paths["html"].read_text()
+    assert html.count("data:image/png;base64") == 3 and "src='profiles.png'" not in html
+    summary = json.loads(paths["summary"].read_text())
+    assert summary["summary"]["repeats"] == 2 and len(summary["subject"]["tracking"]) == 2
+
+
+# ---------------------------------------------------------------------------
+# Logs of different robots or plans are refused
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("change, words", [
+    ("robot", "robot (A: arc-train, B: zerobot)"),
+    ("joints", "joint names"),
+    ("target", "target.entry_m"),
+    ("q_insert", "q_insert"),
+    ("segments", "segments"),
+    ("plan", "plan.velocity_scale"),
+])
+def test_different_plans_are_refused(prep, change, words):
+    a, b = synthetic_log(prep), synthetic_log(prep)
+    if change == "robot":
+        b.metadata["robot"] = "zerobot"
+    elif change == "joints":
+        b.joint_names[3] = "elbow"
+    elif change == "target":
+        b = synthetic_log(prep, target_shift_mm=2.0)
+    elif change == "q_insert":
+        b.metadata["q_insert"] = (np.array(b.metadata["q_insert"]) + 0.01).tolist()
+    elif change == "segments":
+        b.segment_names = ["approach", "insert", "withdraw"]
+    elif change == "plan":
+        b.metadata["config"]["plan"]["velocity_scale"] = 0.25
+    with pytest.raises(PlanMismatchError) as e:
+        check_same_plan(a, b)
+    assert words in str(e.value) and "\n" not in str(e.value)
+    with pytest.raises(PlanMismatchError):
+        compare_logs([a], [b])
+
+
+def _save_run(log: TrialLog, d: Path) -> Path:
+    d.mkdir(parents=True)
+    log.save(d / "trial.npz")
+    return d
+
+
+def test_cli_refuses_runs_of_different_targets(prep, tmp_path):
+    a = _save_run(synthetic_log(prep), tmp_path / "a")
+    b = _save_run(synthetic_log(prep, target_shift_mm=3.0), tmp_path / "b")
+    out = subprocess.run([HILBENCH, "compare", str(a), str(b), "--out", str(tmp_path / "out"), "--json"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and out.stdout == ""
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "target.entry_m" in lines[0], out.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_without_hardware_stops_before_anything_moves_naming_the_port(tmp_path):
+    data = yaml.safe_load(LAB.read_text())
+    data["backend"]["port"] = "/dev/ttyHILBENCH-NONE"  # never a real adapter, whatever this host has
+    cfg = tmp_path / "lab.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = subprocess.run([HILBENCH, "compare", str(cfg), "--out", str(tmp_path / "out"), "--json"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and out.stdout == ""
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "/dev/ttyHILBENCH-NONE" in lines[0] and "backend.port" in lines[0], out.stderr
+    assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------------------
+# The emulated rig, as the paper ran it: five repeats of Target 1
+# ---------------------------------------------------------------------------
+
+
+def _gravity_loads(prep) -> dict[str, float]:
+    from drivers._quiet import quiet_pybullet
+
+    pb = quiet_pybullet()
+    c = pb.connect(pb.DIRECT)
+    try:
+        body = pb.loadURDF(str(REPO / "urdf" / "arc_train.urdf"), useFixedBase=True,
+                           flags=pb.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
+        pb.setGravity(0, 0, -9.81, physicsClientId=c)
+        tau = pb.calculateInverseDynamics(body, prep.q_insert.tolist(), [0.0] * 9, [0.0] * 9,
+                                          physicsClientId=c)
+    finally:
+        pb.disconnect(c)
+    return dict(zip(prep.robot.joint_names, np.abs(tau)))
+
+
+def test_emulated_rig_five_repeats_pass_and_heavy_joints_lag(prep, tmp_path):
+    out = subprocess.run([HILBENCH, "compare", str(LAB), "--emulate", "--repeats", "5", "--json",
+                          "--out", str(tmp_path)], capture_output=True, text=True, timeout=400)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert res["repeats"] == 5 and res["passed"] is True
+    assert max(res["tip_deviation_mm"]["max"]) < 5.0 and len(res["tip_deviation_mm"]["mean"]) == 3
+    assert res["depth_deviation_mm"]["max"] < 5.0 and res["angle_deviation_deg"]["max"] < 1.0
+    assert res["worst_joint"] in prep.robot.joint_names
+    run = Path(res["report"]).parent
+    summary = json.loads((run / "summary.json").read_text())
+    real, sim = summary["subject"], summary["reference"]
+    assert real["backend"] == "dynamixel" and sim["backend"] == "pybullet"
+    assert all(real["completed"]) and len(real["outcomes"]) == 5 and len(sim["outcomes"]) == 5
+
+    # which joints carry the arm at Target 1, by PyBullet's inverse dynamics
+    load = _gravity_loads(prep)
+    assert min(load[n] for n in HEAVY) > 3 * max(load["theta7"], load["theta8"])
+    assert max(load["d9"], load["d10"]) * 0.010 < 0.1 * min(load[n] for n in HEAVY)  # slides: 10 mm pinion
+
+    names = summary["joints"]
+    lag = dict(zip(names, real["mean_tracking"]["lag_s"]))
+    rms = dict(zip(names, real["mean_tracking"]["rms"]))
+    exc = {n: np.mean([rep[i]["excursion"] for rep in real["tracking"]]) for i, n in enumerate(names)}
+    rel = {n: rms[n] / exc[n] for n in names}
+    heavy_lag, light_lag = np.mean([lag[n] for n in HEAVY]), np.mean([lag[n] for n in LIGHT])
+    heavy_rel, light_rel = np.mean([rel[n] for n in HEAVY]), np.mean([rel[n] for n in LIGHT])
+    assert heavy_lag > light_lag, (lag, heavy_lag, light_lag)
+    assert heavy_rel > light_rel, (rel, heavy_rel, light_rel)
+    # the sim tracks within about a control period everywhere: the rig is what lags
+    assert all(abs(v) < 0.02 for n, v in zip(names, sim["mean_tracking"]["lag_s"]) if v is not None)
+    assert all(v is not None and v > 0 for v in summary["profile_mean"]["rms"])
+
+    md = (run / "report.md").read_text()
+    assert "Table 3 layout" in md and "current research" in md and "rank correlation" in md
+    html = (run / "report.html").read_text()
+    assert html.count("data:image/png;base64") == 3
+
+    # the same analysis from two saved runs (one sim, one emulated)
+    sim_run = sorted((run / "sim").iterdir())[0]
+    real_run = sorted((run / "real").iterdir())[0]
+    two = subprocess.run([HILBENCH, "compare", str(real_run), str(sim_run), "--json",
+                          "--out", str(tmp_path / "two")], capture_output=True, text=True, timeout=120)
+    assert two.returncode == 0, two.stderr
+    one = json.loads(two.stdout)
+    assert one["repeats"] == 1 and one["passed"] is True
+    two_summary = json.loads((Path(one["report"]).parent / "summary.json").read_text())
+    assert two_summary["subject"]["label"] == "emulated rig"  # the rig is judged, whatever the order
