@@ -1,0 +1,425 @@
+"""The lab-rig tools (scan, doctor, calibrate, jog) against the emulated rig on pseudo-terminals."""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import json
+import math
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from bench.config import ConfigError, load_trial_config
+from bench.emulation import EmulatedRig, Planted
+
+REPO = Path(__file__).resolve().parent.parent
+LAB = REPO / "hil_configs" / "lab_real.yaml"
+SIM = REPO / "hil_configs" / "sim_target1.yaml"
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+TICK = 2 * math.pi / 4096
+
+
+def hilbench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=timeout)
+
+
+def rig_config(path: Path, rig: EmulatedRig, base: dict, **top) -> Path:
+    """A config file like ``base`` with its ports pointed at the rig."""
+    data = json.loads(json.dumps(base))
+    data["backend"]["port"] = rig.ports.dynamixel_port
+    data["backend"]["ultrasonic"]["port"] = rig.ports.ultrasonic_port
+    data.update(top)
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+@contextlib.contextmanager
+def emulated(*args, **kwargs):
+    """An EmulatedRig serving from this process's threads, answering even when the host is busy.
+
+    The session's heap is frozen out of the garbage collector meanwhile (a full
+    collection over it holds the interpreter for ~0.1 s), and the physics catches
+    up in 20 ms slices between answers: the emulated servos never go silent for
+    long just because the machine is loaded.
+    """
+    gc.collect()
+    gc.freeze()
+    try:
+        with EmulatedRig(*args, **kwargs) as rig:
+            rig.bus.max_batch_s = 0.02
+            yield rig
+    finally:
+        gc.unfreeze()
+
+
+def lab_data(**servo_changes) -> dict:
+    data = yaml.safe_load(LAB.read_text())
+    for servo in data["backend"]["servos"].values():
+        servo.update(servo_changes)
+    return data
+
+
+# ---------------------------------------------------------------------------
+# scan and doctor: a bus with planted problems
+# ---------------------------------------------------------------------------
+
+# Two servos at 57600 bps (the config says 1 Mbps), a wrong model on ID 6, an overload on ID 3.
+FAULTS = Planted(servo_registers={"theta5": {"Baud Rate": 1}, "d9": {"Baud Rate": 1}},
+                 servo_models={"theta7": "XM540-W270"})
+
+
+@pytest.fixture(scope="module")
+def faulty_rig(tmp_path_factory):
+    cfg = load_trial_config(LAB)
+    with emulated(cfg, planted=FAULTS) as rig:
+        rig.bus.servo(3).raise_hardware_error("overload")
+        yield rig, rig_config(tmp_path_factory.mktemp("faulty") / "lab.yaml", rig, lab_data())
+
+
+def test_scan_all_bauds_finds_every_servo(faulty_rig):
+    rig, _ = faulty_rig
+    t0 = time.monotonic()
+    out = hilbench("scan", "--port", rig.ports.dynamixel_port, "--all-bauds", "--json")
+    elapsed = time.monotonic() - t0
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.count("\n") == 1
+    found = {s["id"]: s for s in json.loads(out.stdout)}
+    assert sorted(found) == list(range(1, 10))
+    assert {i: s["baud"] for i, s in found.items()} == {
+        i: 57_600 if i in (4, 8) else 1_000_000 for i in range(1, 10)}
+    assert found[6]["model"] == "XM540-W270" and found[6]["model_number"] == 1120
+    assert all(found[i]["model"] == "XM430-W350" for i in found if i != 6)
+    assert found[3]["hardware_error"] == ["overload"] and found[3]["torque"] is False
+    assert all(not found[i]["hardware_error"] and found[i]["torque"] for i in found if i != 3)
+    assert found[1]["operating_mode"] == "extended_position" and found[2]["operating_mode"] == "position"
+    assert all(s["firmware"] == 48 and s["voltage_v"] == 12.0 for s in found.values())
+    assert elapsed < 40  # 8 broadcast pings (about 11 s of waiting for IDs up to 252), not minutes
+
+
+def test_doctor_flags_exactly_the_planted_problems(faulty_rig):
+    _, path = faulty_rig
+    out = hilbench("doctor", str(path), "--json")
+    assert out.returncode == 1, out.stderr
+    report = json.loads(out.stdout)
+    assert report["ok"] is False
+    checks = {c["name"]: c for c in report["checks"]}
+    failed = {n for n, c in checks.items() if c["status"] == "fail"}
+    assert failed == {"theta5 (ID 4)", "d9 (ID 8)", "theta7 (ID 6)", "theta4 hardware error"}
+    assert not [n for n, c in checks.items() if c["status"] == "warn"]
+    assert "57600" in checks["theta5 (ID 4)"]["detail"] and "57600" in checks["d9 (ID 8)"]["detail"]
+    assert "XM540-W270" in checks["theta7 (ID 6)"]["detail"]
+    assert "overload" in checks["theta4 hardware error"]["detail"]
+    assert "pseudo-terminal" in checks["latency timer"]["detail"]
+    joints = ["train", "theta3", "theta4", "theta5", "theta6", "theta7", "theta8", "d9", "d10"]
+    for j in joints:  # every servo was found (at some rate) and its health read
+        for item in ("hardware error", "voltage", "temperature", "settings"):
+            assert f"{j} {item}" in checks
+    for name in ("servo port", "ultrasonic port", "ultrasonic stream", "ultrasonic range",
+                 "ultrasonic vs train servo", "calibration"):
+        assert checks[name]["status"] == "pass", checks[name]
+    assert len(checks) == len(report["checks"])  # one line per check, names unique
+
+
+def test_doctor_port_and_latency_lines(tmp_path, monkeypatch):
+    import bench.lab.doctor as doctor
+    import drivers.dynamixel_backend as backend
+
+    port = tmp_path / "ttyUSB0"
+    port.write_text("")
+    checks = []
+
+    def add(name, status, detail):
+        checks.append((name, status, detail))
+
+    monkeypatch.setattr(backend, "latency_timer_ms", lambda p: 16)
+    doctor._latency_check(add, str(port), True)
+    monkeypatch.setattr(backend, "latency_timer_ms", lambda p: 1)
+    doctor._latency_check(add, str(port), True)
+    monkeypatch.setattr(doctor.os, "access", lambda p, mode: False)
+    doctor._port_check(add, "servo port", str(port))
+    doctor._port_check(add, "servo port", str(tmp_path / "ttyUSB9"))
+    (n1, s1, d1), (_, s2, d2), (_, s3, d3), (_, s4, d4) = checks
+    assert (n1, s1) == ("latency timer", "warn") and "16 ms" in d1 and "FTDI default" in d1
+    assert "echo 1 | sudo tee /sys/bus/usb-serial/devices/ttyUSB0/latency_timer" in d1
+    assert (s2, d2) == ("pass", f"1 ms on {port}")
+    assert s3 == "fail" and "sudo usermod -aG dialout $USER" in d3
+    assert s4 == "fail" and "not found" in d4
+
+
+# ---------------------------------------------------------------------------
+# calibrate: planted zero errors and a miscalibrated ultrasonic sensor
+# ---------------------------------------------------------------------------
+
+ZERO_ERRORS = {"train": math.radians(-1.5), "theta5": math.radians(2.0), "d9": 1.2e-3, "d10": -0.8e-3}
+ULTRA_OFFSET_M, ULTRA_SCALE = 0.004, 1.02
+
+
+@pytest.fixture
+def miscalibrated_rig(tmp_path):
+    """The robot held at its reference (home): integral gain on every joint, physics settled."""
+    base = lab_data(position_i=300)
+    src = tmp_path / "base.yaml"
+    src.write_text(yaml.safe_dump(base, sort_keys=False))
+    planted = Planted(zero_errors=ZERO_ERRORS, ultrasonic_offset_m=ULTRA_OFFSET_M,
+                      ultrasonic_scale=ULTRA_SCALE)
+    with emulated(load_trial_config(src), planted=planted, warm_start_s=8.0) as rig:
+        yield rig, rig_config(tmp_path / "lab.yaml", rig, base), base
+
+
+def test_calibrate_recovers_planted_zero_offsets_and_ultrasonic(miscalibrated_rig, tmp_path):
+    rig, path, base = miscalibrated_rig
+    servos = base["backend"]["servos"]
+    ids = {j: s["id"] for j, s in servos.items()}
+
+    # 1. Joint zeros as a config override: the servos are only read.
+    out = hilbench("calibrate", str(path), "--yes", "--stops", "0", "--json",
+                   "--out", str(tmp_path / "zeros.yaml"))
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    cal = yaml.safe_load((tmp_path / "zeros.yaml").read_text())
+    assert res["write"] == "config" and cal["joint_offsets"] == "config" and not cal["homing_offsets"]
+    for joint, s in servos.items():
+        truth = s.get("offset", 0.0) + ZERO_ERRORS.get(joint, 0.0)
+        one_tick = TICK * abs(s.get("ratio", 1.0))
+        assert abs(cal["servos"][joint]["offset"] - truth) <= one_tick, joint
+        assert cal["servos"][joint]["offset"] == pytest.approx(res["joints"][joint]["offset"])
+    assert all(rig.bus.servo(i).torque_enabled for i in ids.values())
+    assert all(rig.bus.servo(i).get("Homing Offset") == 0 for i in ids.values())
+
+    # 2. Joint zeros into the Homing Offset registers, and the ultrasonic sensor over 4 stops.
+    out = hilbench("calibrate", str(path), "--yes", "--write", "homing", "--stops", "4",
+                   "--span-deg", "60", "--samples", "50", "--json", "--out", str(tmp_path / "cal.yaml"),
+                   timeout=180)
+    assert out.returncode == 0, out.stderr
+    cal_file = tmp_path / "cal.yaml"
+    cal = yaml.safe_load(cal_file.read_text())
+    assert cal["joint_offsets"] == "homing" and not cal["servos"]
+    for joint, s in servos.items():
+        ratio = s.get("ratio", 1.0)
+        written = rig.bus.servo(ids[joint]).get("Homing Offset") * TICK * ratio  # joint units
+        assert abs(written - ZERO_ERRORS.get(joint, 0.0)) <= TICK * abs(ratio) + 1e-12, joint
+    assert not any(s.torque_enabled for s in rig.bus.servos.values())  # torque off after driving
+    u = cal["ultrasonic"]
+    standoff = base["backend"]["ultrasonic"]["standoff_mm"]
+    true_offset_mm = ULTRA_SCALE * standoff + ULTRA_OFFSET_M * 1e3
+    assert abs(u["offset_mm"] - true_offset_mm) < 1.0
+    d2 = np.linspace(0.0, 380.0, 20)  # mm, the train's whole travel
+    assert np.max(np.abs((u["offset_mm"] + u["scale"] * d2) - (true_offset_mm + ULTRA_SCALE * d2))) < 1.0
+    assert len(u["stops"]) == 4 and u["residual_mm"] < 1.0
+
+    # 3. A trial config naming the file reads the true joint values (registers + sensor fit).
+    from bench.trial import make_dynamixel_backend, prepare
+
+    from bench.kinematics.arc_train import train_pose
+
+    cfg = load_trial_config(rig_config(tmp_path / "calibrated.yaml", rig, base,
+                                       calibration=str(cal_file)))
+    ratio = np.array([servos[n].get("ratio", 1.0) for n in rig.robot.joint_names])
+    p = rig.robot.params
+    with make_dynamixel_backend(prepare(cfg)) as act:
+        act.enable()  # the arm fell when the calibration let go of it: hold it where it is
+        deadline = time.monotonic() + 10.0
+        while True:  # (a wrong zero would never agree; a swinging arm agrees once it slows down)
+            time.sleep(0.3)
+            st = act.read()
+            with rig.bus.lock:
+                truth = rig.plant.joint_position()
+            joints_ok = np.all(np.abs(st.position[1:] - truth[1:]) <= 2 * TICK * np.abs(ratio[1:]))
+            d2_err = abs(train_pose(st.position[0], p).d2 - train_pose(truth[0], p).d2)
+            if (joints_ok and d2_err < 2e-3) or time.monotonic() > deadline:
+                break
+    assert joints_ok, (st.position - truth) / (TICK * np.abs(ratio))  # in ticks
+    assert d2_err < 2e-3
+
+
+def test_trial_record_names_its_calibration(tmp_path):
+    from bench.lab.calibration import CalibrationFile, ServoCalibration, save_calibration
+    from bench.log import TrialLog
+    from bench.trial import make_backend, prepare, run_trial
+
+    cal = save_calibration(CalibrationFile(
+        config_name="lab-target1", created="2026-01-01T00:00:00+00:00",
+        servos={"theta5": ServoCalibration(offset=0.01, change=0.01)}), tmp_path / "cal.yaml")
+    data = lab_data()
+    data.update(calibration=str(cal), plan={"velocity_scale": 1.0, "settle_s": 0.3, "retract": False})
+    (tmp_path / "lab.yaml").write_text(yaml.safe_dump(data))
+    cfg = load_trial_config(tmp_path / "lab.yaml")
+    sim = prepare(load_trial_config(REPO / "hil_configs" / "sim_target1_fast.yaml"))
+    res = run_trial(cfg, tmp_path / "runs", backend_factory=lambda prep: make_backend(sim), report=False)
+    meta = TrialLog.load(res.log_path).metadata
+    assert meta["calibration"]["path"] == str(cal)
+    assert meta["calibration"]["content"]["servos"]["theta5"]["offset"] == 0.01
+    assert meta["config"]["calibration"] == str(cal)
+
+
+def test_calibration_files_that_cannot_apply_are_refused(tmp_path):
+    data = lab_data()
+    data["calibration"] = str(tmp_path / "missing.yaml")
+    (tmp_path / "a.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=r"a\.yaml: calibration: calibration file not found: .*missing"):
+        load_trial_config(tmp_path / "a.yaml")
+    (tmp_path / "cal.yaml").write_text("config_name: x\ncreated: now\nservos: {elbow: {offset: 0}}\n")
+    data["calibration"] = str(tmp_path / "cal.yaml")
+    (tmp_path / "b.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=r"unknown joint\(s\) \['elbow'\]"):
+        load_trial_config(tmp_path / "b.yaml")
+
+
+def test_ultrasonic_fit_and_stops():
+    from bench.lab.calibrate import fit_ultrasonic, stop_angles
+
+    d2 = np.array([0.1, 0.17, 0.23, 0.3])
+    fit = fit_ultrasonic(d2, 0.31 + 1.02 * d2 + np.array([1e-4, -1e-4, -1e-4, 1e-4]))
+    assert fit.offset == pytest.approx(0.31, abs=2e-4) and fit.scale == pytest.approx(1.02, abs=2e-3)
+    assert fit.rms == pytest.approx(1e-4, rel=0.5)
+    stops = stop_angles(0.0, 2.0, 5)
+    assert stops[0] > 0.0 and stops[-1] < 2.0 and np.allclose(np.diff(stops), np.diff(stops)[0])
+    with pytest.raises(ValueError, match="at least 3"):
+        stop_angles(0.0, 2.0, 2)
+
+
+# ---------------------------------------------------------------------------
+# jog: keys in through a pseudo-terminal, screen out, torque off after
+# ---------------------------------------------------------------------------
+
+ANSI = re.compile(r"\x1b\[[0-9;?]*[ -/]*[@-~]|\x1b[()][0-9A-Za-z]|\x1b[=>]")
+
+
+class Screen:
+    """What a pexpect child has written, without terminal escapes, searched as it arrives."""
+
+    def __init__(self, child) -> None:
+        self.child = child
+        self.text = ""
+
+    def wait_for(self, pattern: str, timeout: float = 30.0) -> re.Match:
+        import pexpect
+
+        end = time.monotonic() + timeout
+        while True:
+            m = re.search(pattern, ANSI.sub("", self.text))
+            if m:
+                self.text = ""
+                return m
+            if time.monotonic() > end:
+                raise AssertionError(f"{pattern!r} not on screen: {ANSI.sub('', self.text)[-1500:]}")
+            try:
+                self.text += self.child.read_nonblocking(65536, timeout=0.2).decode(errors="replace")
+            except pexpect.TIMEOUT:
+                pass
+            except pexpect.EOF:
+                raise AssertionError(f"jog ended before {pattern!r}: "
+                                     f"{ANSI.sub('', self.text)[-1500:]}") from None
+
+
+@pytest.fixture
+def jog_rig(tmp_path):
+    cfg = load_trial_config(LAB)
+    with emulated(cfg) as rig:
+        yield rig, rig_config(tmp_path / "lab.yaml", rig, lab_data())
+
+
+def spawn_jog(path: Path):
+    import pexpect
+
+    child = pexpect.spawn(HILBENCH, ["jog", str(path)], dimensions=(40, 120), timeout=60,
+                          env={"TERM": "xterm-256color", "PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"})
+    return child, Screen(child)
+
+
+def test_jog_moves_one_joint_and_leaves_torque_off(jog_rig):
+    import pexpect
+
+    rig, path = jog_rig
+    child, screen = spawn_jog(path)
+    try:
+        screen.wait_for(r"torque ON")
+        assert all(s.torque_enabled for s in rig.bus.servos.values())
+        child.send("7")  # theta8
+        screen.wait_for(r"theta8 selected")
+        child.send("s")  # step 1° -> 5°
+        screen.wait_for(r"step 5°")
+        child.send("+")
+        child.send("\x1b[C")  # right arrow: one more step
+        screen.wait_for(r"theta8 → \+10\.00°")
+        screen.wait_for(r"7 │ theta8\s*│\s*\+(9\.9\d|10\.0\d)°")  # the servo got there
+        with rig.bus.lock:
+            theta8 = rig.plant.joint_position()[6]
+        assert math.degrees(theta8) == pytest.approx(10.0, abs=0.3)
+        child.send("8")
+        child.send("-")  # d9 is at its home stroke (49 mm): one 5 mm step down is within limits
+        screen.wait_for(r"d9 → \+(43\.9\d|44\.0\d) mm")
+        child.send("q")
+        screen.wait_for(r"jog ended \(q\): torque off")
+        child.expect(pexpect.EOF, timeout=30)
+    finally:
+        child.close(force=True)
+    assert child.exitstatus == 0
+    assert not any(s.torque_enabled for s in rig.bus.servos.values())
+
+
+def test_jog_ctrl_c_leaves_torque_off(jog_rig):
+    import pexpect
+
+    rig, path = jog_rig
+    child, screen = spawn_jog(path)
+    try:
+        screen.wait_for(r"torque ON")
+        child.send("1")
+        child.send("+")
+        screen.wait_for(r"train → \+\d+\.\d\d°")  # one step up from where the sensor puts it
+        child.send("\x03")  # raw mode: Ctrl-C arrives as a key
+        screen.wait_for(r"jog ended \(Ctrl-C\): torque off")
+        child.expect(pexpect.EOF, timeout=30)
+    finally:
+        child.close(force=True)
+    assert child.exitstatus == 0
+    assert not any(s.torque_enabled for s in rig.bus.servos.values())
+
+
+def test_jog_keys():
+    from bench.lab.jog import JogState, parse_keys
+
+    assert parse_keys(b"3\t+\x1b[A\x1b[Dsq\x03") == ["select:2", "next", "plus", "prev", "minus",
+                                                     "step", "quit", "interrupt"]
+    s = JogState(["a", "b"], [True, False], np.array([-0.1, 0.0]), np.array([0.1, 0.01]), np.zeros(2))
+    for _ in range(20):
+        s.handle("plus")
+    assert s.target[0] == pytest.approx(0.1) and "upper limit" in s.message
+    s.handle("next")
+    s.handle("step")
+    s.handle("plus")
+    assert s.target[1] == pytest.approx(0.005) and s.handle("quit") is False
+
+
+# ---------------------------------------------------------------------------
+# bad input: one line, exit 2, nothing opened
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("args, words", [
+    (["scan", "--port", "/dev/ttyNOPE0"], "servo port /dev/ttyNOPE0 not found"),
+    (["scan", "--port", "/dev/ttyNOPE0", "--baud", "12345"], "--baud 12345 is not an X-series rate"),
+    (["doctor", str(SIM)], "doctor needs backend.kind: dynamixel (this config is pybullet)"),
+    (["calibrate", str(SIM), "--yes"], "calibrate needs backend.kind: dynamixel"),
+    (["jog", str(SIM)], "jog needs backend.kind: dynamixel"),
+    (["jog", str(LAB)], "jog reads keys from a terminal"),
+    (["calibrate", str(LAB), "--yes"], "servo port /dev/ttyUSB0 not found"),
+])
+def test_bad_input_fails_with_one_line(args, words):
+    from typer.testing import CliRunner
+
+    from bench.cli import app
+
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2, res.output
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], res.stderr
+    assert res.stdout == ""
