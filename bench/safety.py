@@ -102,12 +102,19 @@ class JointLimitInterlock:
         if np.any(self.tolerance < 0):
             raise ValueError(f"tolerance must be non-negative, got {self.tolerance}")
         self.check_commanded = check_commanded
+        self._lo = self.lower - self.tolerance
+        self._hi = self.upper + self.tolerance
 
     def _first_out(self, q: np.ndarray) -> int | None:
-        bad = ~((q >= self.lower - self.tolerance) & (q <= self.upper + self.tolerance))
+        bad = ~((q >= self._lo) & (q <= self._hi))
         return int(np.argmax(bad)) if bad.any() else None  # NaN counts as outside
 
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
+        q = measured.position
+        if (self.check_commanded and q.shape == commanded.shape == self._lo.shape
+                and ((q >= self._lo) & (q <= self._hi) & (commanded >= self._lo)
+                     & (commanded <= self._hi)).all()):
+            return None  # the common case, in one pass
         _check_shape(self.name, self.names, measured.position, "measured position")
         sources = [("measured", np.asarray(measured.position, dtype=float))]
         if self.check_commanded:
@@ -231,6 +238,13 @@ class GantryClearanceInterlock:
         return c.distance, c.link
 
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
+        if self.reuse and self._last_q is not None and self.check_commanded \
+                and measured.position.shape == commanded.shape == self._last_q.shape:
+            # Every source at once against the carried-forward bound: the common case.
+            ahead = measured.position + measured.velocity * self.lookahead_s
+            stack = np.stack((measured.position, ahead, commanded))
+            if (self._last_d - np.abs(stack - self._last_q) @ self._levers >= self.margin).all():
+                return None
         _check_shape(self.name, self.names, measured.position, "measured position")
         sources = [("measured", measured.position)]
         if self.lookahead_s > 0 and np.all(np.isfinite(measured.velocity)):
