@@ -117,15 +117,10 @@ def resolve_base(spec: CampaignSpec) -> Path:
 
 def load_campaign_spec(path: Path | str) -> CampaignSpec:
     """Read and validate a spec and everything it implies (base config, faults, axes)."""
+    from bench.config import read_yaml_mapping
+
     path = Path(path)
-    if not path.is_file():
-        raise CampaignSpecError(f"campaign spec not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise CampaignSpecError(f"{path}: not valid YAML: {e}".replace("\n", " ")) from None
-    if not isinstance(data, dict):
-        raise CampaignSpecError(f"{path}: expected a mapping of fields at the top level")
+    data = read_yaml_mapping(path, "campaign spec", CampaignSpecError)
     try:
         spec = CampaignSpec.model_validate({**data, "source": path})
     except ValidationError as e:

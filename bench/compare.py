@@ -758,15 +758,10 @@ class Side:
 
 
 def _status(log: TrialLog) -> tuple[bool, str]:
-    """(completed, why it stopped early) from the log's events, as the trial record reads them."""
-    if any(e.kind == "done" for e in log.events):
-        return True, ""
-    for e in reversed(log.events):
-        if e.kind == "abort":
-            return False, e.message
-        if e.kind == "interlock":
-            return False, f"interlock {e.message}"
-    return False, "the log ends before the plan did"
+    """(completed, why it stopped early), as the trial record reads them."""
+    from bench.trial import status_from_log
+
+    return status_from_log(log)
 
 
 def _side(label: str, logs: Sequence[TrialLog], sources: Sequence[str], robot,

@@ -239,17 +239,25 @@ def _format_error(path: Path, err: ValidationError) -> str:
     return f"{path}: {where}: {msg}{extra}"
 
 
-def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialConfig:
-    """Read and validate a trial config; raise ConfigError with one clear line."""
+def read_yaml_mapping(path: Path | str, what: str = "config file",
+                      error: type[Exception] = ValueError) -> dict:
+    """A YAML file whose top level is a mapping, or ``error`` with one line saying why not."""
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"config file not found: {path}")
+        raise error(f"{what} not found: {path}")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: not valid YAML: {e}".replace("\n", " ")) from None
+        raise error(f"{path}: not valid YAML: {e}".replace("\n", " ")) from None
     if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a mapping of fields at the top level")
+        raise error(f"{path}: expected a mapping of fields at the top level")
+    return data
+
+
+def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialConfig:
+    """Read and validate a trial config; raise ConfigError with one clear line."""
+    path = Path(path)
+    data = read_yaml_mapping(path, "config file", ConfigError)
     data.update(overrides or {})
     try:
         config = TrialConfig.model_validate({**data, "source": path})

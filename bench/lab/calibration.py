@@ -89,15 +89,10 @@ class CalibrationFile(Strict):
 
 def load_calibration(path: Path | str) -> CalibrationFile:
     """Read and validate a calibration file; ConfigError with one line otherwise."""
+    from bench.config import read_yaml_mapping
+
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"calibration file not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: not valid YAML: {e}".replace("\n", " ")) from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a mapping of fields at the top level")
+    data = read_yaml_mapping(path, "calibration file", ConfigError)
     try:
         return CalibrationFile.model_validate(data)
     except ValidationError as e:
