@@ -126,6 +126,8 @@ class ControlTable:
         self._by_name = {r.name: r for r in registers}
         self._by_address = {r.address: r for r in registers}
         self.size = max(r.address + r.size for r in registers)
+        self._ordered = tuple(sorted(registers, key=lambda r: r.address))
+        self._covering: dict[tuple[int, int], list[Register]] = {}  # every access asks again
 
     def __getitem__(self, name: str) -> Register:
         try:
@@ -137,7 +139,7 @@ class ControlTable:
         return name in self._by_name
 
     def __iter__(self) -> Iterator[Register]:
-        return iter(sorted(self._by_name.values(), key=lambda r: r.address))
+        return iter(self._ordered)
 
     def __len__(self) -> int:
         return len(self._by_name)
@@ -148,8 +150,13 @@ class ControlTable:
 
     def covering(self, address: int, length: int) -> list[Register]:
         """Registers overlapping ``[address, address + length)``, in address order."""
-        end = address + length
-        return [r for r in self if r.address < end and r.address + r.size > address]
+        key = (address, length)
+        found = self._covering.get(key)
+        if found is None:
+            end = address + length
+            found = self._covering[key] = [r for r in self._ordered
+                                           if r.address < end and r.address + r.size > address]
+        return list(found)
 
 
 @dataclass(frozen=True)
