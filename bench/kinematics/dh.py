@@ -14,7 +14,7 @@ scene cannot drift apart.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, Sequence
+from typing import Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -103,13 +103,10 @@ def translation(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> np.ndarray:
     return T
 
 
-@dataclass(frozen=True)
-class DHChain:
-    """A serial chain: a fixed base pose, DH rows, and a fixed tool transform."""
+class JointRows:
+    """Names, limits and home of a robot's joints, read off its ``rows`` (name, lower, upper, home)."""
 
-    base: np.ndarray  # world <- DH frame 0
-    rows: tuple[DHRow, ...]
-    tool: np.ndarray  # last DH frame <- tool frame
+    rows: tuple
 
     @property
     def joint_names(self) -> list[str]:
@@ -126,6 +123,27 @@ class DHChain:
     @property
     def home(self) -> np.ndarray:
         return np.array([r.home for r in self.rows])
+
+    def vector_from(self, values: Mapping[str, float], robot: str) -> np.ndarray:
+        """Joint dict → vector, missing joints at home; unknown names refused."""
+        names = self.joint_names
+        unknown = sorted(set(values) - set(names))
+        if unknown:
+            raise KeyError(f"unknown joint(s) {unknown}; {robot} joints are {names}")
+        q = self.home.copy()
+        for i, n in enumerate(names):
+            if n in values:
+                q[i] = float(values[n])
+        return q
+
+
+@dataclass(frozen=True)
+class DHChain(JointRows):
+    """A serial chain: a fixed base pose, DH rows, and a fixed tool transform."""
+
+    base: np.ndarray  # world <- DH frame 0
+    rows: tuple[DHRow, ...]
+    tool: np.ndarray  # last DH frame <- tool frame
 
     def row_transform(self, i: int, q: np.ndarray) -> np.ndarray:
         r = self.rows[i]

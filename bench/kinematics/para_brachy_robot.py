@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from bench.kinematics import para_brachy as pb
-from bench.kinematics.dh import JointKind
+from bench.kinematics.dh import JointKind, JointRows
 from bench.kinematics.needle import NeedlePose, NeedleTarget, UnreachableError, angles_of
 
 __all__ = ["JointRow", "JointTable", "ParaBrachyRobot"]
@@ -47,26 +47,10 @@ class JointRow:
 
 
 @dataclass(frozen=True)
-class JointTable:
+class JointTable(JointRows):
     """The part of a serial chain's interface a parallel robot can honestly offer."""
 
     rows: tuple[JointRow, ...]
-
-    @property
-    def joint_names(self) -> list[str]:
-        return [r.name for r in self.rows]
-
-    @property
-    def lower(self) -> np.ndarray:
-        return np.array([r.lower for r in self.rows])
-
-    @property
-    def upper(self) -> np.ndarray:
-        return np.array([r.upper for r in self.rows])
-
-    @property
-    def home(self) -> np.ndarray:
-        return np.array([r.home for r in self.rows])
 
 
 class ParaBrachyRobot:
@@ -94,14 +78,7 @@ class ParaBrachyRobot:
 
     def joint_vector(self, values: Mapping[str, float]) -> np.ndarray:
         """Joint dict → vector, missing joints at home; unknown names refused."""
-        unknown = sorted(set(values) - set(pb.JOINT_NAMES))
-        if unknown:
-            raise KeyError(f"unknown joint(s) {unknown}; para-brachy joints are {list(pb.JOINT_NAMES)}")
-        q = self.chain.home.copy()
-        for i, n in enumerate(pb.JOINT_NAMES):
-            if n in values:
-                q[i] = float(values[n])
-        return q
+        return self.chain.vector_from(values, "para-brachy")
 
     def pose(self, q: ArrayLike) -> np.ndarray:
         """The paper's pose ``[X_E, Y_E, Z_E, ψ, θ]`` (…, 5) in this robot's assembly mode."""

@@ -183,14 +183,7 @@ class ZerobotRobot:
 
     def joint_vector(self, values: Mapping[str, float]) -> np.ndarray:
         """Joint dict → vector, missing joints at home; unknown names refused."""
-        unknown = sorted(set(values) - set(JOINTS))
-        if unknown:
-            raise KeyError(f"unknown joint(s) {unknown}; zerobot joints are {list(JOINTS)}")
-        q = self.chain.home.copy()
-        for i, n in enumerate(JOINTS):
-            if n in values:
-                q[i] = float(values[n])
-        return q
+        return self.chain.vector_from(values, "zerobot")
 
     # -- forward kinematics ------------------------------------------------
 
