@@ -134,13 +134,18 @@ def test_values_that_need_stuffing_reach_the_servo(rig):
 
 def test_unplug_mid_trial_aborts_within_a_second_and_keeps_the_log(tmp_path):
     cfg = load_trial_config(LAB)
-    # plain Sync Read: one status packet per servo, so two servos can go silent alone
-    cfg = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"fast_sync_read": False})})
+    # plain Sync Read: one status packet per servo, so two servos can go silent alone; the
+    # emulator runs in this process (sharing the GIL), so allow 200 ms a try: 4 tries < 1 s
+    cfg = cfg.model_copy(update={"backend": cfg.backend.model_copy(
+        update={"fast_sync_read": False, "timeout_ms": 200.0})})
     with EmulatedRig(cfg) as r:
         res_box = {}
         t = threading.Thread(target=lambda: res_box.update(res=run_trial(r.retarget(cfg), tmp_path)))
         t.start()
-        time.sleep(3.0)
+        start = r.bus.stats.packets
+        deadline = time.monotonic() + 30.0
+        while r.bus.stats.packets - start < 400 and time.monotonic() < deadline:
+            time.sleep(0.05)  # until the trial has run ~200 cycles, however slow its start-up
         # silence two servos first: the others must still get torque off
         r.bus.faults.silent_ids = {4, 5}
         t_cut = time.monotonic()
