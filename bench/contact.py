@@ -6,15 +6,17 @@ Three ways to answer "is any link closer to the gantry than the margin?":
   collision shapes, posed by the kinematic model) against the gantry's
   triangle mesh, with the exact triangle–triangle *distance* (the paper's
   eqs 4–6 generalised, :mod:`bench.geometry.tri_distance`), so a distance
-  below the margin is contact and the margin is honoured exactly. Pruned
-  three ways: links whose surface patches are all provably beyond reach of
-  the analytic torus are skipped; a two-level box index over the gantry's
-  triangles (:mod:`bench.geometry.bvh`) finds the triangle pairs within
-  reach; pairs are evaluated smallest lower bound first (box gap and plane
-  bounds) and dropped once that bound reaches the best distance found for
-  their link. A link wholly inside the gantry (no surface within reach) is
-  caught by a ray-parity test (distance 0). Distances are exact up to ``reach``
-  (default: margin + 10 mm); beyond it they are lower bounds.
+  below the margin is contact and the margin is honoured exactly. Pruned in
+  stages, each a handful of array operations: links whose bounding ball is
+  beyond reach of the analytic torus are skipped, then triangles (vertex
+  values of the torus' signed distance and a curvature bound); a box tree
+  over the gantry's triangles (:mod:`bench.geometry.bvh`) gives the pairs
+  within reach; plane-and-edge (prism) bounds both ways drop most of them
+  and order the rest, and a per-link branch and bound runs the exact kernel
+  on the few whose bound is below the best distance found. A link wholly
+  inside the gantry (no surface within reach) is caught by a ray-parity test
+  (distance 0). Distances are exact up to ``reach`` (default: margin +
+  10 mm); beyond it they are lower bounds.
 * :func:`all_pairs_distance` / :func:`all_pairs_contact` — the paper's
   brute force: every robot triangle against every gantry triangle (the
   distance kernel, or the paper's own yes/no test). For benchmarks and as
@@ -36,8 +38,8 @@ import numpy as np
 from bench.geometry.bvh import BoxIndex
 from bench.geometry.robot import RobotGeometry
 from bench.geometry.torus import Torus, mesh_slack
-from bench.geometry.tri_distance import (_dot, _Tris, _distance2, _soa, paper_intersects,
-                                         prepare, triangle_distance)
+from bench.geometry.tri_distance import (TriangleSet, pair_distance2, paper_intersects,
+                                         prism_bound, prism_bounds, triangle_distance)
 
 __all__ = ["Gantry", "GantryContact", "ContactReport", "GantryClearance", "Clearance",
            "RobotGeometry", "all_pairs_distance", "all_pairs_contact", "default_gantry",
@@ -59,14 +61,14 @@ class Gantry:
     slack_out: float = 0.0
     slack_in: float = 0.0
     index: BoxIndex = field(init=False)
-    prepared: object = field(init=False)  # the triangles laid out for the distance kernel
+    prepared: TriangleSet = field(init=False)  # the triangles packed for the kernels
 
     def __post_init__(self) -> None:
         self.tris = np.asarray(self.tris, dtype=float)
         if self.tris.ndim != 3 or self.tris.shape[1:] != (3, 3) or not len(self.tris):
             raise ValueError(f"gantry triangles must have shape (n, 3, 3), got {self.tris.shape}")
-        self.index = BoxIndex.build(self.tris.min(axis=1), self.tris.max(axis=1), cluster_size=32)
-        self.prepared = prepare(self.tris)
+        self.index = BoxIndex.build(self.tris.min(axis=1), self.tris.max(axis=1))
+        self.prepared = TriangleSet.from_triangles(self.tris)
 
     @classmethod
     def from_mesh(cls, vertices: np.ndarray, faces: np.ndarray, torus: Torus | None = None):
@@ -297,33 +299,53 @@ class GantryContact:
         self.chunk = chunk
         self._bound = (GantryClearance(self.geometry, margin, self.gantry)
                        if self.gantry.torus is not None else None)
+        g = self.geometry
+        t = g.tris_local
+        self._tri_radius = np.linalg.norm(t - t.mean(axis=1, keepdims=True), axis=2).max(axis=1)
+        self._link_centre = np.empty((len(g.links), 3))
+        self._link_radius = np.empty(len(g.links))
+        for k in range(len(g.links)):  # a ball around each link's mesh, in its frame
+            pts = t[g.tri_start[k]:g.tri_stop[k]].reshape(-1, 3)
+            self._link_centre[k] = (pts.min(axis=0) + pts.max(axis=0)) / 2
+            self._link_radius[k] = np.linalg.norm(pts - self._link_centre[k], axis=1).max()
 
     def check(self, q: np.ndarray) -> ContactReport:
         q = np.asarray(q, dtype=float)
         g = self.geometry
         L = len(g.links)
         frames = g.link_frames(q)
-        if self._bound is not None:  # cheap per-link lower bounds from the patch balls
-            lower = self._bound.link_bounds(frames[None], fine=False)[0]
+        if self.gantry.torus is None:
+            tris, tri_link = g.world_triangles(frames)
+            tb, lower, maybe_inside = None, np.zeros(L), np.ones(L, dtype=bool)
         else:
-            lower = np.zeros(L)
-        active = np.flatnonzero(lower <= self.reach)
+            # each link's bounding ball first: most links are far from the gantry
+            c = np.matmul(frames[:, :3, :3], self._link_centre[:, :, None])[:, :, 0] \
+                + frames[:, :3, 3]
+            f = self._bound._torus(c)[0]
+            r = self._link_radius
+            lower = np.maximum(f - r - self.gantry.slack_out, -f - r - self.gantry.slack_in)
+            # only a link with some surface not provably outside the mesh can be inside it
+            maybe_inside = f - r <= self.gantry.slack_out
+            links = np.flatnonzero(lower <= self.reach)
+            tris, tri_link = g.world_triangles(frames, links)
+            tb, f_low = self._triangle_bounds(tris, g.triangle_index(links))
+            if links.size:
+                start = np.searchsorted(tri_link, links)
+                lower[links] = np.minimum.reduceat(tb, start)
+                maybe_inside[links] = np.minimum.reduceat(f_low, start) <= self.gantry.slack_out
+            near = tb <= self.reach
+            tris, tri_link, tb = tris[near], tri_link[near], tb[near]
         best = np.full(L, np.inf)
-        pairs = 0
-        if active.size:
-            tris, tri_link = g.world_triangles(frames, active)
-            qi, gi, gap = self.gantry.index.query(tris.min(axis=1), tris.max(axis=1), self.reach)
-            pairs = self._evaluate(tris, tri_link, qi, gi, gap, best)
+        pairs = self._evaluate(tris, tri_link, best, tb) if len(tris) else 0
         exact = best <= self.reach
         distances = np.where(exact, best, np.maximum(lower, self.reach))
         # A link that touches no gantry surface could still lie wholly inside the gantry
         # (a surface distance alone cannot tell): test one vertex of each of its shapes.
         enclosed = np.zeros(L, dtype=bool)
-        probes = np.flatnonzero(np.isin(g.probe_link, np.flatnonzero((best > 0.0)
-                                                                    & (lower <= 0.0))))
+        probes = np.flatnonzero(((best > 0.0) & maybe_inside)[g.probe_link])
         if probes.size:
             pl = g.probe_link[probes]
-            pts = np.einsum("nij,nj->ni", frames[pl, :3, :3], g.probes_local[probes]) \
+            pts = np.matmul(frames[pl, :3, :3], g.probes_local[probes][:, :, None])[:, :, 0] \
                 + frames[pl, :3, 3]
             gantry = self.gantry
             if gantry.torus is not None:
@@ -342,40 +364,73 @@ class GantryContact:
         return ContactReport(tuple(g.links), distances, exact, enclosed, self.margin, self.reach,
                              pairs)
 
-    def _evaluate(self, tris, tri_link, qi, gi, gap, best) -> int:
-        """Exact distances of candidate pairs, smallest lower bound first, per-link branch and
-        bound. A pair's bound is the larger of its boxes' gap and the two plane bounds (the
-        distance from one triangle to the other's plane when it lies wholly on one side)."""
+    def _triangle_bounds(self, tris: np.ndarray,
+                         tri_index: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Lower bounds (m) of each robot triangle's distance to the gantry mesh, and of the
+        torus' signed distance over it (None: no torus).
+
+        The mesh lies in the shell ``-slack_in <= f <= slack_out`` of the torus'
+        signed distance ``f``, which is 1-Lipschitz, so a point where ``f = s``
+        is at least ``max(s - slack_out, -s - slack_in)`` from it. Over a
+        triangle of enclosing radius ``r``, ``f`` strays from its vertex values
+        by at most ``κr²/2`` (its Hessian is bounded by ``κ``, as in
+        :class:`GantryClearance`) or, to first order, ``2r``.
+        """
+        if self.gantry.torus is None:
+            return None
+        r = self._tri_radius[tri_index]
+        f, D, rho = (x.reshape(-1, 3) for x in self._bound._torus(tris.reshape(-1, 3)))
+        R2 = 2 * r
+        near = np.minimum(D.min(axis=1), rho.min(axis=1)) - R2  # to the core circle or axis
+        kappa = np.where(near > 0, 1.0 / np.maximum(near, 1e-300), np.inf)
+        slack = np.minimum(kappa * r * r / 2, R2)
+        f_low, f_high = f.min(axis=1) - slack, f.max(axis=1) + slack
+        return (np.maximum(f_low - self.gantry.slack_out, -f_high - self.gantry.slack_in),
+                f_low)
+
+    def _evaluate(self, tris: np.ndarray, tri_link: np.ndarray, best: np.ndarray,
+                  tri_bound: np.ndarray | None = None) -> int:
+        """Exact distances of the robot triangles' candidate pairs, smallest lower bound first,
+        per-link branch and bound; returns how many pairs were evaluated.
+
+        Candidates come from the gantry's box tree. A pair's lower bound is the
+        largest of its boxes' gap, the robot triangle's torus bound and the
+        prism bounds both ways (a triangle's plane and edge lines against the
+        other's vertices, :func:`~bench.geometry.tri_distance.prism_bound`);
+        robot vertices standing over a gantry face give realised distances that
+        start each link's best. Only pairs whose bound is below their link's best
+        reach the exact kernel, nearest first.
+        """
+        gantry, reach = self.gantry, self.reach
+        qi, gi, gap = gantry.index.query(tris.min(axis=1), tris.max(axis=1), reach)
         if not qi.size:
             return 0
-        robot = _Tris(_soa(tris))
-        G = self.gantry.prepared
-        # robot vertices against the gantry triangles' planes, and the reverse
-        rv = robot.v[..., qi]  # (3, 3, n)
-        gn = G.n[:, gi] / np.sqrt(G.nn[gi])
-        s1 = _dot(rv - G.v[:, :1, gi], gn[:, None])  # (3, n)
-        gv = G.v[..., gi]
-        rn = robot.n[:, qi] / np.sqrt(robot.nn[qi])
-        s2 = _dot(gv - rv[:, :1], rn[:, None])
-        bound = np.maximum(gap, np.maximum(np.maximum(s1.min(axis=0), -s1.max(axis=0)),
-                                           np.maximum(s2.min(axis=0), -s2.max(axis=0))))
-        keep = bound <= self.reach
+        robot = TriangleSet.from_triangles(tris)
+        G = gantry.prepared
+        bound = np.maximum(gap, tri_bound[qi]) if tri_bound is not None else gap
+        bound = np.maximum(bound, prism_bound(robot.planes(qi), G.vertices(gi)))
+        keep = bound <= reach
+        qi, gi, bound = qi[keep], gi[keep], bound[keep]
+        lower, upper = prism_bounds(G.planes(gi), robot.vertices(qi))
+        np.minimum.at(best, tri_link[qi], upper)  # robot vertices over a gantry face
+        bound = np.maximum(bound, lower)
+        keep = (bound <= reach) & (bound < best[tri_link[qi]])
         order = np.flatnonzero(keep)[np.argsort(bound[keep], kind="stable")]
         qi, gi, bound = qi[order], gi[order], bound[order]
         link = tri_link[qi]
         done = 0
         start = 0
         n = len(qi)
-        size = 256  # the nearest pairs first settle each link's distance; the rest mostly drop
+        size = 32  # the nearest pairs first settle each link's distance; the rest mostly drop
         while start < n:
             sel = np.arange(start, min(n, start + size))
             sel = sel[bound[sel] < best[link[sel]]]
             if sel.size:
-                d = np.sqrt(_distance2(robot.take(qi[sel]), G.take(gi[sel])))
+                d = np.sqrt(pair_distance2(robot.take(qi[sel]), G.take(gi[sel])))
                 np.minimum.at(best, link[sel], d)
                 done += sel.size
             start += size
-            size = min(self.chunk, size * 4)
+            size = min(self.chunk, size * 2)
         return done
 
 
@@ -387,14 +442,14 @@ class GantryContact:
 def all_pairs_distance(robot_tris: np.ndarray, gantry_tris: np.ndarray,
                        chunk: int = 50_000) -> float:
     """Minimum distance over every robot × gantry triangle pair (brute force, the oracle)."""
-    A = prepare(robot_tris)
-    B = prepare(gantry_tris)
+    A = TriangleSet.from_triangles(robot_tris)
+    B = TriangleSet.from_triangles(gantry_tris)
     m, k = len(robot_tris), len(gantry_tris)
     best = np.inf
     for start in range(0, m * k, chunk):
         idx = np.arange(start, min(m * k, start + chunk))
         ia, ib = np.divmod(idx, k)
-        best = min(best, float(np.sqrt(_distance2(A.take(ia), B.take(ib)).min())))
+        best = min(best, float(np.sqrt(pair_distance2(A.take(ia), B.take(ib)).min())))
     return best
 
 

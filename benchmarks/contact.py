@@ -10,7 +10,8 @@ and at home:
 * the paper's all-pairs method on the same meshes, both with the triangle
   distance (needed for a margin) and with the paper's own yes/no test of
   eqs 4-6. All pairs take seconds to minutes, so a random subset of pairs is
-  timed and the time scaled to the full count (said so in the output).
+  timed and the time scaled to the full count (said so in the output), each
+  kernel in the batch size (of a few tried) it runs fastest at.
 
 Then PyBullet's step cost with the concave gantry mesh in the arc robot's
 contact pairs against filtered out (``SceneObject(collide=False)``), at
@@ -35,6 +36,9 @@ from bench.geometry.tri_distance import paper_intersects, triangle_distance
 from bench.robots import get_robot
 
 
+ALL_PAIRS_CHUNKS = (1024, 4096, 16384, 65536)  # batch sizes tried for the brute force
+
+
 def best_time(fn, repeats: int = 5, number: int = 10) -> float:
     """Best per-call CPU time of ``fn`` over ``repeats`` runs of ``number`` calls."""
     fn()
@@ -48,22 +52,28 @@ def best_time(fn, repeats: int = 5, number: int = 10) -> float:
 
 
 def all_pairs_time(robot_tris: np.ndarray, gantry_tris: np.ndarray, pairs: int,
-                   rng: np.random.Generator) -> tuple[float, float, int]:
-    """Extrapolated CPU time of every robot × gantry pair: (distance, paper's test, total)."""
+                   rng: np.random.Generator) -> tuple[float, float, int, int, int]:
+    """Extrapolated CPU time of every robot × gantry pair: (distance, paper's test, total),
+    each kernel run in the batch size it is fastest at (and those sizes)."""
     total = len(robot_tris) * len(gantry_tris)
     k = min(pairs, total)
     idx = rng.choice(total, size=k, replace=False)
     ia, ib = np.divmod(idx, len(gantry_tris))
     A, B = robot_tris[ia], gantry_tris[ib]
-    chunk = 50_000
 
-    def run(kernel) -> float:
+    def run(kernel, chunk: int, n: int) -> float:
         t = time.process_time()
-        for s in range(0, k, chunk):
+        for s in range(0, n, chunk):
             kernel(A[s:s + chunk], B[s:s + chunk])
-        return (time.process_time() - t) / k * total
+        return (time.process_time() - t) / n
 
-    return run(triangle_distance), run(paper_intersects), total
+    out = []
+    for kernel in (triangle_distance, paper_intersects):
+        trial = min(k, 100_000)
+        chunk = min(ALL_PAIRS_CHUNKS, key=lambda c: min(run(kernel, c, trial) for _ in range(2)))
+        out.append((run(kernel, chunk, k) * total, chunk))
+    (t_dist, c_dist), (t_paper, c_paper) = out
+    return t_dist, t_paper, total, c_dist, c_paper
 
 
 def interlock_along_path(model, cycle: GantryClearance, q_from: np.ndarray, q_to: np.ndarray,
@@ -148,7 +158,8 @@ def main() -> None:
         t_exact_home = best_time(lambda: exact.check(home))
         t_cycle_home = best_time(lambda: cycle.check(home), number=50)
         robot_tris = g.world_triangles(g.link_frames(poses[0]))[0]
-        t_all, t_paper, total = all_pairs_time(robot_tris, gantry.tris, args.pairs, rng)
+        t_all, t_paper, total, c_all, c_paper = all_pairs_time(robot_tris, gantry.tris,
+                                                               args.pairs, rng)
         worst_exact, worst_cycle = max(t_exact), max(t_cycle)
         print(f"\n{name}: {len(g.links)} links, {len(robot_tris)} robot triangles; "
               f"{len(poses)} poses 15-25 mm from the gantry")
@@ -162,8 +173,9 @@ def main() -> None:
               f"(measured + commanded; 2000 cycles straight in joint space from home to a near "
               f"pose, {trips} of them inside the margin)")
         print(f"  all pairs, distance        {t_all:9.3f} s   ({total:,} pairs; {args.pairs:,} "
-              f"timed and scaled)")
-        print(f"  all pairs, paper eqs 4-6   {t_paper:9.3f} s   (yes/no only; same extrapolation)")
+              f"timed and scaled; batches of {c_all:,}, the fastest tried)")
+        print(f"  all pairs, paper eqs 4-6   {t_paper:9.3f} s   (yes/no only; same extrapolation; "
+              f"batches of {c_paper:,})")
         print(f"  ratios: all-pairs distance / exact = {t_all / worst_exact:,.0f}x, "
               f"paper's test / exact = {t_paper / worst_exact:,.0f}x (target >= 1000x); "
               f"exact / interlock = {worst_exact / worst_cycle:,.1f}x")

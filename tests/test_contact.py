@@ -16,8 +16,9 @@ from bench.geometry.bvh import BoxIndex, box_gap
 from bench.geometry.mesh_ops import enclosing_radius, refine
 from bench.geometry.robot import RobotGeometry
 from bench.geometry.torus import box_point_distance
-from bench.geometry.tri_distance import (paper_intersects, point_triangle_distance,
-                                         segment_distance, triangle_distance)
+from bench.geometry.tri_distance import (TriangleSet, paper_intersects, point_triangle_distance,
+                                         prism_bound, prism_bounds, segment_distance,
+                                         triangle_distance)
 from bench.geometry.urdf_shapes import CollisionShape
 from bench.robots import get_robot
 from bench.scene import URDF_DIR
@@ -98,6 +99,30 @@ def test_triangle_distance_matches_brute_force():
     assert np.max(np.abs(triangle_distance(A[:, ::-1], B[:, [1, 2, 0]]) - d)) < 1e-12
 
 
+def test_prism_bounds_bracket_the_distance_and_are_tight_over_a_face():
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(5000, 3, 3))
+    B = rng.normal(size=(5000, 3, 3)) * 0.3 + rng.normal(size=(5000, 1, 3)) * 1.5
+    d = triangle_distance(A, B)
+    SA, SB = TriangleSet.from_triangles(A), TriangleSet.from_triangles(B)
+    idx = np.arange(len(A))
+    lower, upper = prism_bounds(SA.planes(idx), SB.vertices(idx))
+    assert np.all(lower <= d + 1e-12) and np.all(d <= upper + 1e-12)
+    assert np.array_equal(prism_bound(SA.planes(idx), SB.vertices(idx)), lower)
+    assert np.all(prism_bound(SB.planes(idx), SA.vertices(idx)) <= d + 1e-12)
+    # where B's nearest point is a vertex standing over A's face, both bounds are exact
+    over = np.isfinite(upper) & (np.abs(upper - d) < 1e-12)
+    assert over.sum() > 300 and np.allclose(lower[over], d[over], atol=1e-12)
+    # a point set (a mesh patch) bounds its convex hull: here, the pair's two triangles
+    hull = np.concatenate([SB.vertices(idx), SB.vertices(idx[::-1])], axis=1)
+    both = np.minimum(d, triangle_distance(A, B[::-1]))
+    assert np.all(prism_bound(SA.planes(idx), hull) <= both + 1e-12)
+    # a degenerate triangle bounds nothing
+    flat = np.repeat(A[:1, :1], 3, axis=1)
+    zero = prism_bound(TriangleSet.from_triangles(flat).planes(np.zeros(1, int)), SB.vertices(idx[:1]))
+    assert zero[0] == 0.0
+
+
 def test_points_and_segments():
     rng = np.random.default_rng(2)
     P, T = rng.normal(size=(300, 3)), rng.normal(size=(300, 3, 3))
@@ -138,11 +163,12 @@ def test_box_index_finds_every_pair_within_the_pad():
     hi = lo + rng.uniform(0, 0.1, (700, 3))
     qlo = rng.uniform(0, 1, (60, 3))
     qhi = qlo + rng.uniform(0, 0.3, (60, 3))
-    index = BoxIndex.build(lo, hi, cluster_size=16)
-    qi, ii, gap = index.query(qlo, qhi, 0.05)
     G = box_gap(qlo[:, None], qhi[:, None], lo[None], hi[None])
-    assert set(zip(qi.tolist(), ii.tolist())) == set(zip(*np.nonzero(G <= 0.05)))
-    assert np.allclose(gap, G[qi, ii])
+    for leaf, branch, top in ((16, 8, 64), (1, 2, 1), (8, 4, 8), (1000, 8, 64)):
+        index = BoxIndex.build(lo, hi, leaf_size=leaf, branch=branch, top_size=top)
+        qi, ii, gap = index.query(qlo, qhi, 0.05)
+        assert sorted(zip(qi.tolist(), ii.tolist())) == sorted(zip(*np.nonzero(G <= 0.05)))
+        assert np.allclose(gap, G[qi, ii])
 
 
 def test_gantry_mesh_stays_within_its_slack_of_the_torus():

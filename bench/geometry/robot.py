@@ -239,15 +239,25 @@ class RobotGeometry:
     def link_frames_batch(self, Q: np.ndarray) -> np.ndarray:
         return self.poser.frames_batch(Q)[:, self.frame_index]
 
+    def triangle_index(self, links: np.ndarray) -> np.ndarray:
+        """Indices of the given links' triangles (in :attr:`tris_local`), link by link."""
+        count = self.tri_stop[links] - self.tri_start[links]
+        return np.repeat(self.tri_start[links] - np.cumsum(count) + count, count) \
+            + np.arange(int(count.sum()))
+
     def world_triangles(self, frames: np.ndarray, links: np.ndarray | None = None):
         """World triangles of the given links (all by default) and each one's link index."""
         if links is None:
-            idx = np.arange(len(self.tri_link))
+            links, lk = range(len(self.links)), self.tri_link
         else:
-            idx = np.concatenate([np.arange(self.tri_start[k], self.tri_stop[k]) for k in links]) \
-                if len(links) else np.zeros(0, dtype=int)
-        lk = self.tri_link[idx]
-        R = frames[lk, :3, :3]
-        t = frames[lk, :3, 3]
-        world = np.einsum("nij,nvj->nvi", R, self.tris_local[idx]) + t[:, None, :]
-        return world, lk
+            links = np.asarray(links, dtype=int)
+            lk = np.repeat(links, self.tri_stop[links] - self.tri_start[links])
+        out = np.empty((len(lk) * 3, 3))
+        local = self.tris_local.reshape(-1, 3)
+        at = 0
+        for k in links:  # one matrix product per link: far cheaper than a batched einsum
+            a, b = 3 * self.tri_start[k], 3 * self.tri_stop[k]
+            F = frames[k]
+            np.add(local[a:b] @ F[:3, :3].T, F[:3, 3], out=out[at:at + b - a])
+            at += b - a
+        return out.reshape(-1, 3, 3), lk
