@@ -38,8 +38,8 @@ import numpy as np
 from bench.geometry.bvh import BoxIndex
 from bench.geometry.robot import RobotGeometry
 from bench.geometry.torus import Torus, mesh_slack
-from bench.geometry.tri_distance import (TriangleSet, pair_distance2, paper_intersects,
-                                         prism_bound, prism_bounds, triangle_distance)
+from bench.geometry.tri_distance import (TriangleSet, edge_distance2, pair_distance2,
+                                         paper_intersects, prism_bounds, triangle_distance)
 
 __all__ = ["Gantry", "GantryContact", "ContactReport", "GantryClearance", "Clearance",
            "RobotGeometry", "all_pairs_distance", "all_pairs_contact", "default_gantry",
@@ -397,8 +397,8 @@ class GantryContact:
         largest of its boxes' gap, the robot triangle's torus bound and the
         prism bounds both ways (a triangle's plane and edge lines against the
         other's vertices, :func:`~bench.geometry.tri_distance.prism_bound`);
-        robot vertices standing over a gantry face give realised distances that
-        start each link's best. Only pairs whose bound is below their link's best
+        a vertex of either standing over the other's face gives a realised
+        distance that starts its link's best. Only pairs whose bound is below their link's best
         reach the exact kernel, nearest first.
         """
         gantry, reach = self.gantry, self.reach
@@ -408,26 +408,35 @@ class GantryContact:
         robot = TriangleSet.from_triangles(tris)
         G = gantry.prepared
         bound = np.maximum(gap, tri_bound[qi]) if tri_bound is not None else gap
-        bound = np.maximum(bound, prism_bound(robot.planes(qi), G.vertices(gi)))
-        keep = bound <= reach
-        qi, gi, bound = qi[keep], gi[keep], bound[keep]
-        lower, upper = prism_bounds(G.planes(gi), robot.vertices(qi))
-        np.minimum.at(best, tri_link[qi], upper)  # robot vertices over a gantry face
+        lower, up = prism_bounds(robot.planes(qi), G.vertices(gi))
+        np.minimum.at(best, tri_link[qi], up)  # gantry vertices over a robot face
         bound = np.maximum(bound, lower)
         keep = (bound <= reach) & (bound < best[tri_link[qi]])
+        qi, gi, bound, up = qi[keep], gi[keep], bound[keep], up[keep]
+        lower, up_g = prism_bounds(G.planes(gi), robot.vertices(qi))
+        np.minimum.at(best, tri_link[qi], up_g)  # robot vertices over a gantry face
+        bound = np.maximum(bound, lower)
+        up = np.minimum(up, up_g)  # each pair's vertex–face distances
+        keep = (bound <= reach) & (bound < best[tri_link[qi]])
         order = np.flatnonzero(keep)[np.argsort(bound[keep], kind="stable")]
-        qi, gi, bound = qi[order], gi[order], bound[order]
+        qi, gi, bound, up = qi[order], gi[order], bound[order], up[order]
         link = tri_link[qi]
         done = 0
         start = 0
         n = len(qi)
-        size = 32  # the nearest pairs first settle each link's distance; the rest mostly drop
+        size = 64  # the nearest pairs first settle each link's distance; the rest mostly drop
         while start < n:
             sel = np.arange(start, min(n, start + size))
             sel = sel[bound[sel] < best[link[sel]]]
             if sel.size:
-                d = np.sqrt(pair_distance2(robot.take(qi[sel]), G.take(gi[sel])))
-                np.minimum.at(best, link[sel], d)
+                A, B = robot.take(qi[sel]), G.take(gi[sel])
+                if bound[sel[0]] > 0.0:
+                    # disjoint pairs (a positive lower bound): the vertex–face distances
+                    # are known, the edges remain
+                    d2 = np.minimum(edge_distance2(A, B), up[sel] * up[sel])
+                else:
+                    d2 = pair_distance2(A, B)
+                np.minimum.at(best, link[sel], np.sqrt(d2))
                 done += sel.size
             start += size
             size = min(self.chunk, size * 2)

@@ -33,7 +33,8 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["TriangleSet", "segment_distance", "triangle_distance", "paper_intersects",
-           "point_triangle_distance", "pair_distance2", "prism_bound", "prism_bounds"]
+           "point_triangle_distance", "pair_distance2", "edge_distance2", "prism_bound",
+           "prism_bounds"]
 
 _NEXT = np.array([1, 2, 0])
 _EDGE_I = np.repeat(np.arange(3), 3)  # the nine edge pairs (i of one, j of the other)
@@ -177,7 +178,8 @@ def _one_way(X: TriangleSet, Y: TriangleSet):
     pierces Y (eq 6), per pair."""
     m = len(X)
     # Y's plane and edge normals once for each of X's three vertices: rows n, nn, nd, m, mv
-    Yt = np.tile(Y.data[_N.start:_MV.stop], 3)
+    rows = Y.data[_N.start:_MV.stop]
+    Yt = np.concatenate([rows, rows, rows], axis=1)
     yn, ynd = Yt[0:3], Yt[_ND - _N.start]
     ym = Yt[_M.start - _N.start:_M.stop - _N.start].reshape(3, 3, 3 * m)
     ymv = Yt[_MV.start - _N.start:]
@@ -194,15 +196,24 @@ def _one_way(X: TriangleSet, Y: TriangleSet):
     return vf2, hit[0] | hit[1] | hit[2]
 
 
+def edge_distance2(A: TriangleSet, B: TriangleSet) -> np.ndarray:
+    """Least squared distance between an edge of A[i] and an edge of B[i] (nine pairs).
+
+    With the vertex–face distances (which :func:`prism_bounds` gives as its
+    upper bounds) this is the distance of two triangles known to be disjoint.
+    """
+    ee = _seg_dist2(A.v.take(_EDGE_I, axis=1), A.e.take(_EDGE_I, axis=1),
+                    B.v.take(_EDGE_J, axis=1), B.e.take(_EDGE_J, axis=1),
+                    A.ee.take(_EDGE_I, axis=0), B.ee.take(_EDGE_J, axis=0))
+    return ee.min(axis=0)
+
+
 def pair_distance2(A: TriangleSet, B: TriangleSet) -> np.ndarray:
     """Squared distances between triangles A[i] and B[i] (0 where they touch or intersect)."""
     n = len(A)
     # both directions (A's vertices and edges against B, B's against A) in one pass
     vf, pierce = _one_way(_stack(A, B), _stack(B, A))
-    ee = _seg_dist2(A.v.take(_EDGE_I, axis=1), A.e.take(_EDGE_I, axis=1),
-                    B.v.take(_EDGE_J, axis=1), B.e.take(_EDGE_J, axis=1),
-                    A.ee.take(_EDGE_I, axis=0), B.ee.take(_EDGE_J, axis=0))
-    d2 = np.minimum(np.minimum(vf[:n], vf[n:]), ee.min(axis=0))
+    d2 = np.minimum(np.minimum(vf[:n], vf[n:]), edge_distance2(A, B))
     return np.where(pierce[:n] | pierce[n:], 0.0, d2)
 
 
@@ -232,9 +243,9 @@ def _heights(planes: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """``W·y - o`` for each of X's four planes (rows of ``planes``) and each point of Y:
     (points, 4, n)."""
     k, n = Y.shape[1], Y.shape[2]
-    W = np.tile(planes[:12].reshape(3, 4, n), (1, k, 1))  # (3, 4k, n), point-major
+    W = np.concatenate([planes[:12].reshape(3, 4, n)] * k, axis=1)  # (3, 4k, n), point-major
     Yr = np.repeat(Y, 4, axis=1)
-    return (_dot(W, Yr) - np.tile(planes[12:], (k, 1))).reshape(k, 4, n)
+    return (_dot(W, Yr) - np.concatenate([planes[12:]] * k)).reshape(k, 4, n)
 
 
 def _lower(H: np.ndarray) -> np.ndarray:
