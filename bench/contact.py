@@ -351,7 +351,7 @@ class GantryContact:
             if gantry.torus is not None:
                 # the mesh lies in a thin shell around the torus surface: deeper in is
                 # inside it, farther out is outside; only the shell needs the ray test
-                f = gantry.torus.sdf(pts)
+                f = self._bound._torus(pts)[0]
                 inside = f < -gantry.slack_in
                 shell = ~inside & (f <= gantry.slack_out)
                 if shell.any():

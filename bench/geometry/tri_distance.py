@@ -241,11 +241,10 @@ def point_triangle_distance(P: np.ndarray, T: np.ndarray) -> np.ndarray:
 
 def _heights(planes: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """``W·y - o`` for each of X's four planes (rows of ``planes``) and each point of Y:
-    (points, 4, n)."""
-    k, n = Y.shape[1], Y.shape[2]
-    W = np.concatenate([planes[:12].reshape(3, 4, n)] * k, axis=1)  # (3, 4k, n), point-major
-    Yr = np.repeat(Y, 4, axis=1)
-    return (_dot(W, Yr) - np.concatenate([planes[12:]] * k)).reshape(k, 4, n)
+    (points, 4, n). One ``einsum`` pass; repeating the operands to same-shaped arrays
+    first costs more than it saves here."""
+    n = Y.shape[2]
+    return np.einsum("crn,ckn->krn", planes[:12].reshape(3, 4, n), Y) - planes[12:]
 
 
 def _lower(H: np.ndarray) -> np.ndarray:
