@@ -324,7 +324,7 @@ class GantryContact:
             f = self._bound._torus(c)[0]
             r = self._link_radius
             lower = np.maximum(f - r - self.gantry.slack_out, -f - r - self.gantry.slack_in)
-            # only a link with some surface not provably outside the mesh can be inside it
+            # a link wholly inside the mesh has no surface provably outside it
             maybe_inside = f - r <= self.gantry.slack_out
             links = np.flatnonzero(lower <= self.reach)
             tris, tri_link = g.world_triangles(frames, links)
@@ -332,7 +332,7 @@ class GantryContact:
             if links.size:
                 start = np.searchsorted(tri_link, links)
                 lower[links] = np.minimum.reduceat(tb, start)
-                maybe_inside[links] = np.minimum.reduceat(f_low, start) <= self.gantry.slack_out
+                maybe_inside[links] = np.maximum.reduceat(f_low, start) <= self.gantry.slack_out
             near = tb <= self.reach
             tris, tri_link, tb = tris[near], tri_link[near], tb[near]
         best = np.full(L, np.inf)

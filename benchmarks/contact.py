@@ -3,7 +3,10 @@
 For each robot, at poses 15-25 mm from the gantry (where pruning helps least)
 and at home:
 
-* the exact test (``GantryContact.check``: AABB tree + triangle distances),
+* the exact test (``GantryContact.check``: box tree + triangle distances), as
+  configured by default (every link's distance exact up to margin + 10 mm) and
+  answering what the paper's test answers (``reach`` = margin: the verdict at
+  the margin, with exact distances below it),
 * the per-cycle interlock (``GantryClearance.check``, all links; target
   <= 0.5 ms for the arc robot, to fit a 1 kHz loop), and the safety
   interlock built on it along a path from home to a near pose,
@@ -143,14 +146,15 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--save-poses", metavar="PREFIX", help="save the near poses to PREFIX_ROBOT.npy")
     args = ap.parse_args()
-    rng = np.random.default_rng(args.seed)
     gantry = default_gantry()
     print(f"gantry mesh: {len(gantry.tris)} triangles (torus, 70 cm bore); margin 20 mm; "
           f"CPU time per check, best of 5 x 10 calls in each of {args.passes} passes")
     near_arc = None
-    for name in ("arc-train", "zerobot"):
+    for k, name in enumerate(("arc-train", "zerobot")):
         model = get_robot(name)
+        rng = np.random.default_rng([args.seed, k])  # the same poses whatever else runs
         exact = GantryContact(model, gantry=gantry)
+        verdict = GantryContact(model, gantry=gantry, reach=exact.margin)
         cycle = GantryClearance(model, gantry=gantry)
         g = exact.geometry
         poses = near_poses(model, cycle, exact, args.poses, rng)
@@ -170,16 +174,20 @@ def main() -> None:
             runs.append(([best_time(lambda q=q: exact.check(q)) for q in poses],
                          [best_time(lambda q=q: cycle.check(q), number=50) for q in poses],
                          best_time(lambda: exact.check(home)),
-                         best_time(lambda: cycle.check(home), number=50), t_all, t_paper))
-        t_exact, t_cycle = np.min([r[0] for r in runs], axis=0), np.min([r[1] for r in runs], axis=0)
+                         best_time(lambda: cycle.check(home), number=50), t_all, t_paper,
+                         [best_time(lambda q=q: verdict.check(q)) for q in poses]))
+        t_exact, t_cycle, t_verdict = (np.min([r[i] for r in runs], axis=0) for i in (0, 1, 6))
         t_exact_home, t_cycle_home, t_all, t_paper = (min(r[i] for r in runs) for i in range(2, 6))
         c_all, c_paper = chunks
-        worst_exact, worst_cycle = max(t_exact), max(t_cycle)
+        worst_exact, worst_cycle, worst_verdict = max(t_exact), max(t_cycle), max(t_verdict)
         print(f"\n{name}: {len(g.links)} links, {len(robot_tris)} robot triangles; "
               f"{len(poses)} poses 15-25 mm from the gantry")
         print(f"  exact test (pruned)        {worst_exact * 1e3:9.3f} ms worst near, "
               f"{np.median(t_exact) * 1e3:.3f} ms median, {t_exact_home * 1e3:.3f} ms at home "
               f"(near poses: {' '.join(f'{t * 1e3:.2f}' for t in t_exact)} ms)")
+        print(f"  exact test, reach = margin {worst_verdict * 1e3:9.3f} ms worst near, "
+              f"{np.median(t_verdict) * 1e3:.3f} ms median "
+              f"(near poses: {' '.join(f'{t * 1e3:.2f}' for t in t_verdict)} ms)")
         print(f"  per-cycle interlock        {worst_cycle * 1e3:9.3f} ms worst near, "
               f"{np.median(t_cycle) * 1e3:.3f} ms median, {t_cycle_home * 1e3:.3f} ms at home"
               + ("   (target <= 0.5 ms)" if name == "arc-train" else ""))
@@ -191,8 +199,9 @@ def main() -> None:
               f"timed and scaled; batches of {c_all:,}, the fastest tried)")
         print(f"  all pairs, paper eqs 4-6   {t_paper:9.3f} s   (yes/no only; same extrapolation; "
               f"batches of {c_paper:,})")
-        print(f"  ratios: all-pairs distance / exact = {t_all / worst_exact:,.0f}x, "
-              f"paper's test / exact = {t_paper / worst_exact:,.0f}x (target >= 1000x); "
+        print(f"  ratios (worst near pose): all-pairs distance / exact = "
+              f"{t_all / worst_exact:,.0f}x; paper's test / exact = {t_paper / worst_exact:,.0f}x, "
+              f"/ exact at the margin = {t_paper / worst_verdict:,.0f}x (target >= 1000x); "
               f"exact / interlock = {worst_exact / worst_cycle:,.1f}x")
     arc = get_robot("arc-train")
     print("\nPyBullet step of the arc robot (1 kHz, position control, bed and phantom colliding):")
