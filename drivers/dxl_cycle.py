@@ -14,6 +14,7 @@ import os
 import select
 import struct
 import time
+from itertools import chain
 from typing import Sequence
 
 from drivers import CommunicationError
@@ -22,6 +23,8 @@ from drivers.dxl_protocol import (
 )
 
 _STATUS = Instruction.STATUS
+_TRIPLE = b"\xff\xff\xfd"  # a header inside the parameters: the packet needs stuffing
+_FAST_HEAD = HEADER + bytes((BROADCAST_ID,))
 
 
 class SyncCycle:
@@ -40,7 +43,13 @@ class SyncCycle:
         instr = Instruction.FAST_SYNC_READ if fast else Instruction.SYNC_READ
         self._read_packet = build_instruction(BROADCAST_ID, instr, params)
         self._write_head = struct.pack("<HH", write_address, 4)
-        self._goal_fmt = "<" + "Bi" * self.n
+        self._goals = struct.Struct("<" + "Bi" * self.n)
+        # Everything before the parameters of an unstuffed Sync Write (LEN is fixed then).
+        length = 1 + len(self._write_head) + self._goals.size + 2
+        self._write_prefix = HEADER + bytes(
+            (BROADCAST_ID, length & 0xFF, length >> 8, Instruction.SYNC_WRITE))
+        # ERR, ID, data and running CRC of each block of a Fast Sync Read status
+        self._fast_blocks = struct.Struct("<8x" + f"BB{read_length}sH" * self.n)
         if fast:
             self._expect = 8 + self.n * (4 + read_length)
         else:
@@ -53,8 +62,13 @@ class SyncCycle:
     # -- send -----------------------------------------------------------------
     def write_goals(self, ticks: Sequence[int]) -> None:
         """One Sync Write of Goal Position (4 bytes each) to every servo; no reply."""
-        data = struct.pack(self._goal_fmt, *[v for pair in zip(self.ids, ticks) for v in pair])
-        packet = build_instruction(BROADCAST_ID, Instruction.SYNC_WRITE, self._write_head + data)
+        params = self._write_head + self._goals.pack(*chain.from_iterable(zip(self.ids, ticks)))
+        if _TRIPLE in params:  # rare (e.g. Goal Position -131073): stuffing changes LEN
+            packet = build_instruction(BROADCAST_ID, Instruction.SYNC_WRITE, params)
+        else:
+            packet = self._write_prefix + params
+            crc = crc16(packet)
+            packet += bytes((crc & 0xFF, crc >> 8))
         self._send(packet)
 
     def _send(self, packet: bytes) -> None:
@@ -92,7 +106,7 @@ class SyncCycle:
                 return
 
     def _receive(self, length: int) -> bytes | None:
-        buf = bytearray()
+        buf = b""
         deadline = time.monotonic() + self.timeout_s
         fd = self.fd
         while len(buf) < length:
@@ -109,41 +123,40 @@ class SyncCycle:
                 break
             if not chunk:
                 break
-            buf += chunk
+            buf = buf + chunk if buf else chunk  # usually one chunk: no copy
         if len(buf) < length:
             self.last_error = (f"timeout: {len(buf)} of {length} status bytes within "
                                f"{self.timeout_s * 1e3:.1f} ms")
             return None
-        if not self.fast and len(buf) == length:
-            # A stuffed status is longer; give its extra bytes a moment to arrive.
-            pass
-        return bytes(buf)
+        return buf
 
     def _parse_fast(self, raw: bytes) -> list[bytes] | None:
         n, L = self.n, self.read_length
-        if raw[:5] != HEADER + bytes((BROADCAST_ID,)) or raw[7] != _STATUS:
+        if raw[:5] != _FAST_HEAD or raw[7] != _STATUS:
             self.last_error = "fast sync read: bad header"
             return None
         declared = raw[5] | (raw[6] << 8)
         if declared != 1 + n * (4 + L):
             self.last_error = f"fast sync read: length {declared}, expected {1 + n * (4 + L)}"
             return None
+        fields = self._fast_blocks.unpack_from(raw)
         blocks = []
+        crc, counted, end = 0, 0, 8 + 2 + L  # running CRC of raw[:counted]; end of block k
         for k, sid in enumerate(self.ids):
-            start = 8 + k * (4 + L)
-            end = start + 2 + L
+            err, bid, data, block_crc = fields[4 * k : 4 * k + 4]
             # each block's CRC is the running CRC of every byte before it
-            if raw[end] | (raw[end + 1] << 8) != crc16(raw[:end]):
+            crc = crc16(raw[counted:end], crc)
+            if block_crc != crc:
                 self.last_error = f"fast sync read: CRC error in the block of servo {sid}"
                 return None
-            err, bid = raw[start], raw[start + 1]
             if bid != sid:
                 self.last_error = f"fast sync read: block {k} is from ID {bid}, expected {sid}"
                 return None
             if err & 0x7F:
                 self.last_error = f"servo {sid} answered with error 0x{err:02X}"
                 return None
-            blocks.append(raw[start + 2:end])
+            blocks.append(data)
+            counted, end = end, end + 4 + L
         return blocks
 
     def _parse_sync(self, raw: bytes) -> list[bytes] | None:

@@ -154,8 +154,8 @@ except ImportError:  # pragma: no cover - fastcrc is a dependency; the table is 
 
 def crc16(data: bytes | bytearray | Sequence[int], crc: int = 0) -> int:
     """ROBOTIS CRC-16 of ``data``, continuing from ``crc`` (0 starts a packet)."""
-    if crc == 0 and _native_crc16 is not None and isinstance(data, (bytes, bytearray)):
-        return _native_crc16(bytes(data))
+    if _native_crc16 is not None and isinstance(data, (bytes, bytearray)):
+        return _native_crc16(bytes(data), crc)
     table = CRC_TABLE
     for byte in data:
         crc = ((crc << 8) ^ table[((crc >> 8) ^ byte) & 0xFF]) & 0xFFFF
@@ -221,9 +221,9 @@ def _frame(packet_id: int, body: bytes) -> bytes:
     length = len(body) + 2
     if length > 0xFFFF:
         raise ValueError(f"packet body of {len(body)} bytes does not fit the 16-bit LEN field")
-    head = HEADER + bytes((packet_id, length & 0xFF, length >> 8))
-    crc = crc16(head + body)
-    return head + body + bytes((crc & 0xFF, crc >> 8))
+    packet = HEADER + bytes((packet_id, length & 0xFF, length >> 8)) + body
+    crc = crc16(packet)
+    return packet + bytes((crc & 0xFF, crc >> 8))
 
 
 def _as_bytes(params: bytes | bytearray | Iterable[int]) -> bytes:
@@ -473,16 +473,17 @@ class PacketParser:
         region_end = 7 + length - 2  # exclusive: the CRC is not stuffed
         available = min(len(buf), region_end)
         i = max(9, 7 + self._scanned)  # index of a candidate FD (needs two FF before it)
-        while i < available:
-            if buf[i] == 0xFD and buf[i - 1] == 0xFF and buf[i - 2] == 0xFF and i - 2 >= 7:
-                if i + 1 >= len(buf):
-                    self._scanned = i - 7
-                    return None
-                if buf[i + 1] != _STUFF:
-                    return i - 2
-                i += 2  # skip the stuffing byte
-                continue
-            i += 1
+        while True:
+            triple = buf.find(_TRIPLE, i - 2, available)
+            if triple < 0:
+                break
+            i = triple + 2  # its FD
+            if i + 1 >= len(buf):
+                self._scanned = i - 7
+                return None
+            if buf[i + 1] != _STUFF:
+                return triple
+            i += 2  # skip the stuffing byte
         self._scanned = max(0, available - 7)
         return 0
 

@@ -22,9 +22,22 @@ Bus behaviour, after the e-manual's Protocol 2.0 page:
   neither executes nor answers — so a scan at several rates finds servos
   configured at different rates. If the speed cannot be read, all listen.
 
-Wire timing (off by default): each status packet is delayed by the servo's
-Return Delay Time plus ``bytes × 10 / baud``, servos answering one after the
-other, with sleeps accurate to ~50 µs (the tail is busy-waited).
+Wire timing (off by default): an instruction counts as arrived once its bytes
+would have crossed the wire after the previous transfer (``bytes × 10 / baud``);
+each status packet then follows after the servo's Return Delay Time plus its
+own transfer time, servos answering one after the other, with sleeps accurate
+to a few µs (the serving thread asks Linux for 1 ns timer slack and yields
+through the last 100 µs; ~50 µs where the slack cannot be set).
+
+A servo's firmware runs its 1 ms loop while bytes are on the wire, and nothing
+the host sends can take effect before the wire is free; so with the wire-time
+model the physics steps falling due while the wire is modelled busy run during
+that stretch, each only if it ends before the stretch does, instead of after
+every answer. Before a state read is answered every step due by the read's
+instant has run, so the answer is at most one step old, as a real servo's
+(unless the physics has fallen more than a few steps behind real time: then
+the answer goes first, as without wire timing); between instructions the
+physics otherwise waits until it is two steps behind.
 
 Fault hooks (:class:`BusFaults`, seeded by ``seed``): drop a fraction of status
 packets, corrupt their CRC, delay them, silence some IDs or all, or pass each
@@ -35,6 +48,7 @@ whole bus deaf and mute until :meth:`DynamixelBusEmulator.replug`.
 from __future__ import annotations
 
 import array
+import ctypes
 import fcntl
 import os
 import select
@@ -43,7 +57,9 @@ import termios
 import threading
 import time
 import tty
+from collections import deque
 from dataclasses import dataclass, field
+from operator import itemgetter
 from typing import Callable, Mapping
 
 import numpy as np
@@ -65,6 +81,11 @@ from drivers.emulator.servo import ServoModel
 __all__ = ["BusFaults", "BusStats", "DynamixelBusEmulator"]
 
 _TCGETS2 = 0x802C542A  # Linux asm-generic: _IOR('T', 0x2A, struct termios2)
+_PR_SET_TIMERSLACK = 29
+#: Last stretch of a wait spent yielding rather than asleep: with the default 50 µs
+#: timer slack a sleep may overshoot by that much, with 1 ns slack by a few µs.
+_SPIN_LOOSE_S = 0.0015
+_SPIN_TIGHT_S = 0.0001
 _READ_INSTRUCTIONS = {
     Instruction.PING,
     Instruction.READ,
@@ -73,6 +94,12 @@ _READ_INSTRUCTIONS = {
     Instruction.BULK_READ,
     Instruction.FAST_BULK_READ,
 }
+#: Instructions answering control-table state, which must be current when they are answered.
+_STATE_READS = frozenset(_READ_INSTRUCTIONS - {Instruction.PING})
+#: Due physics steps a state read waits for; a longer backlog means the physics is not
+#: keeping real time, and it is then caught up after the answer, as without wire timing.
+_READ_WAITS_FOR_STEPS = 3
+_BY_ID = itemgetter(0)
 
 
 @dataclass
@@ -181,6 +208,13 @@ class DynamixelBusEmulator:
         self._last_rx = 0.0
         self._outbox: list[tuple[float, int, bytes]] = []
         self._wire_free = 0.0  # perf_counter time the wire is idle again (wire-time model)
+        self._host_baud: int | None = None  # read once per pass over received bytes
+        # Wall time of the last physics steps (s), and what a step is expected to take:
+        # their median with a margin, so that one slow step (the process was preempted)
+        # does not keep steps out of the wire windows for long.
+        self._step_costs: deque[float] = deque(maxlen=15)
+        self._step_cost = 0.0
+        self._spin_s = _SPIN_LOOSE_S
         self._levels: dict[int, int] = {}
         self._ids: dict[int, int] = {}
         #: Exceptions raised while serving (the thread keeps serving); empty in a healthy run.
@@ -285,6 +319,8 @@ class DynamixelBusEmulator:
 
     # -- serving thread ---------------------------------------------------------
     def _run(self) -> None:
+        if _tighten_timer_slack():
+            self._spin_s = _SPIN_TIGHT_S
         idle = min(0.005, max(self.physics_dt, 0.001))
         while not self._stop.is_set():
             try:
@@ -313,47 +349,107 @@ class DynamixelBusEmulator:
         # Answer first, then catch the physics up: the idle loop steps the physics
         # every millisecond, so an answer's state is at most about that old, and
         # the host does not wait for the emulator's arithmetic as it would not for
-        # a servo's.
+        # a servo's. With the wire-time model the physics keeps to the stretches
+        # where the wire is modelled busy instead (see the module docstring).
         now = time.perf_counter()
         try:
             self._answer(data, now)
         finally:
             if self.realtime:
-                self._catch_up(time.perf_counter())
+                if self.wire_timing and data:
+                    self._catch_up_between_instructions()
+                else:
+                    self._catch_up(time.perf_counter())
 
     def _answer(self, data: bytes, now: float) -> None:
         if data:
             self._last_rx = now
             if self._unplugged:
                 return
-            for event in self._parser.feed(data):
+            events = self._parser.feed(data)
+            if not events:
+                return
+            self._host_baud = self.host_baud() if self.check_baud or self.wire_timing else None
+            for event in events:
                 if self.wire_timing and isinstance(event, Packet):
-                    # The pty delivers at once; a real wire carries the instruction
-                    # first, one at a time: answers start after it has arrived.
-                    baud = self.host_baud() or 1_000_000
-                    start = max(now, self._wire_free) + len(event.raw) * 10.0 / baud
-                    self._handle(event)
-                    self._flush(start)
-                    self._wire_free = max(time.perf_counter(), start)
+                    self._answer_on_wire(event, now)
                 else:
                     self._handle(event)
             self._flush(now)
         elif self._parser.pending and now - self._last_rx > self.frame_timeout_s:
             self._parser.reset()  # inter-byte timeout: drop the partial frame
 
-    def _catch_up(self, now: float) -> None:
+    def _answer_on_wire(self, packet: Packet, now: float) -> None:
+        """Handle one instruction under the wire-time model.
+
+        The pty delivers at once; a real wire carries the instruction first, one
+        transfer at a time, so answers start only after its last byte would have
+        arrived. The servo works on it meanwhile, as firmware parses bytes as
+        they come: that is where a due physics step goes before a state read.
+        """
+        baud = self._host_baud or 1_000_000
+        start = max(now, self._wire_free) + len(packet.raw) * 10.0 / baud
+        if self.realtime and packet.instruction in _STATE_READS:
+            self._catch_up_for_read(max(start, time.perf_counter()))
+        self._handle(packet)
+        self._flush(start)
+        self._wire_free = max(time.perf_counter(), start)
+
+    def _due_steps(self, now: float) -> int:
+        """Physics steps due by ``now``; beyond ``max_catchup_s`` the backlog is skipped."""
         steps = int((now - self._sim_wall) / self.physics_dt)
         if steps <= 0:
-            return
+            return 0
         limit = max(1, int(self.max_catchup_s / self.physics_dt))
         if steps > limit:
             self.stats.physics_skipped_s += (steps - limit) * self.physics_dt
             self._sim_wall += (steps - limit) * self.physics_dt
             steps = limit
+        return steps
+
+    def _catch_up(self, now: float) -> None:
+        steps = self._due_steps(now)
+        if steps <= 0:
+            return
         if self.max_batch_s is not None:  # the rest is due at the next pass
             steps = min(steps, max(1, int(self.max_batch_s / self.physics_dt)))
+        self._run_physics(steps)
+
+    def _catch_up_for_read(self, instant: float) -> None:
+        """Run the steps due by a state read's ``instant``, so its answer is at most one step old."""
+        steps = self._due_steps(instant)
+        if 0 < steps <= _READ_WAITS_FOR_STEPS:
+            self._run_physics(steps)
+
+    def _catch_up_before(self, deadline: float) -> None:
+        """Run the steps falling due by ``deadline``, one at a time, while each ends before it.
+
+        No instruction can take effect before ``deadline`` (the wire is modelled
+        busy, or a delayed status is still to go out), so a step may run ahead
+        of its time: nothing it would have seen can change meanwhile.
+        """
+        while self._due_steps(deadline) and time.perf_counter() + self._step_cost <= deadline:
+            self._run_physics(1)
+
+    def _catch_up_between_instructions(self) -> None:
+        """After a pass under the wire-time model: step in the wire's busy stretch only.
+
+        The host's next instruction may come at any moment once the wire is idle,
+        and a step then would delay its answer; so steps wait for a stretch where
+        the wire is modelled busy, unless the physics would fall two steps behind.
+        """
+        self._catch_up_before(self._wire_free)
+        now = time.perf_counter()
+        if now - self._sim_wall >= 2 * self.physics_dt:
+            self._catch_up(now)
+
+    def _run_physics(self, steps: int) -> None:
+        """Advance the physics by ``steps`` and update the estimate of one step's wall time."""
+        t0 = time.perf_counter()
         self._physics(steps)
         self._sim_wall += steps * self.physics_dt
+        self._step_costs.append((time.perf_counter() - t0) / steps)
+        self._step_cost = 1.25 * sorted(self._step_costs)[len(self._step_costs) // 2]
 
     def _physics(self, steps: int) -> None:
         dt = self.physics_dt
@@ -373,15 +469,16 @@ class DynamixelBusEmulator:
     # -- instruction handling -------------------------------------------------------
     def _listening(self) -> dict[int, ServoModel]:
         """Servos that can hear the host now (baud rate matches, not rebooting), by ID."""
-        baud = self.host_baud() if self.check_baud else None
-        now = time.perf_counter()
+        baud = self._host_baud if self.check_baud else None
+        deaf_until = self._deaf_until
+        now = time.perf_counter() if deaf_until else 0.0
         out: dict[int, ServoModel] = {}
-        for servo, _ in sorted(self._servos, key=lambda item: item[0].id):
+        for servo_id, servo in sorted([(servo.id, servo) for servo, _ in self._servos], key=_BY_ID):
             if baud is not None and servo.baud_rate != baud:
                 continue
-            if self._deaf_until.get(id(servo), 0.0) > now:
+            if deaf_until and deaf_until.get(id(servo), 0.0) > now:
                 continue
-            out.setdefault(servo.id, servo)
+            out.setdefault(servo_id, servo)
         return out
 
     def _handle(self, event: object) -> None:
@@ -405,7 +502,7 @@ class DynamixelBusEmulator:
         # The ID and Status Return Level in force when the instruction arrived
         # govern its answer (a WRITE to ID 7 answers as the old ID).
         self._levels = {id(servo): servo.status_return_level for servo in listening.values()}
-        self._ids = {id(servo): servo.id for servo in listening.values()}
+        self._ids = {id(servo): servo_id for servo_id, servo in listening.items()}
         handler = self._HANDLERS.get(event.instruction)
         if handler is None:
             if not broadcast:
@@ -416,20 +513,27 @@ class DynamixelBusEmulator:
     def _reply(
         self, servo: ServoModel, error: int, params: bytes = b"", *, instruction: int
     ) -> None:
-        level = self._levels.get(id(servo), servo.status_return_level)
+        level = self._levels.get(id(servo))
+        if level is None:
+            level = servo.status_return_level
         if instruction != Instruction.PING and (
             level == 0 or (level == 1 and instruction not in _READ_INSTRUCTIONS)
         ):
             return
-        servo_id = self._ids.get(id(servo), servo.id)
+        servo_id = self._ids.get(id(servo))
+        if servo_id is None:
+            servo_id = servo.id
         packet = build_status(servo_id, servo.status_error(error), params)
-        self._queue(servo_id, packet, servo.return_delay_s, servo.baud_rate)
+        self._queue(servo_id, packet, servo)
 
     def _mute(self, servo_id: int) -> bool:
         return self.faults.silent or servo_id in self.faults.silent_ids
 
-    def _queue(self, source_id: int, packet: bytes | None, return_delay_s: float, baud: int) -> None:
+    def _queue(self, source_id: int, packet: bytes | None, servo: ServoModel) -> None:
+        """Put a status packet in the outbox, through the faults; ``servo`` sets its timing."""
         faults = self.faults
+        if self.wire_timing:
+            return_delay_s, baud = servo.return_delay_s, servo.baud_rate
         if self._mute(source_id):
             packet = None
         elif faults.drop_prob and self.rng.random() < faults.drop_prob:
@@ -454,9 +558,15 @@ class DynamixelBusEmulator:
         for delay, _, packet in self._outbox:
             if delay > 0:
                 elapsed += delay
-                _sleep_until(start + elapsed)
+                self._wait_until(start + elapsed)
             self._write(packet)
         self._outbox.clear()
+
+    def _wait_until(self, deadline: float) -> None:
+        """Wait for a status packet's time; due physics steps that fit run meanwhile."""
+        if self.realtime:
+            self._catch_up_before(deadline)
+        _sleep_until(deadline, self._spin_s)
 
     def _write(self, packet: bytes) -> None:
         view = memoryview(packet)
@@ -596,7 +706,7 @@ class DynamixelBusEmulator:
         if first is None:
             return
         packet = build_fast_status(blocks, [length for _, _, length in requests])
-        self._queue(BROADCAST_ID, packet, first.return_delay_s, first.baud_rate)
+        self._queue(BROADCAST_ID, packet, first)
 
     def _sync_write(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
         if self._not_broadcast(pkt, listening) or len(pkt.params) < 4:
@@ -649,13 +759,24 @@ def _u16(data: bytes, offset: int) -> int:
     return data[offset] | (data[offset + 1] << 8)
 
 
-def _sleep_until(deadline: float) -> None:
-    """Sleep to ``deadline`` (perf_counter s) within ~50 µs: coarse sleep, busy-wait the tail."""
+def _sleep_until(deadline: float, spin_s: float) -> None:
+    """Sleep to ``deadline`` (perf_counter s): coarse sleep, then yield for the last ``spin_s``."""
     while True:
         remaining = deadline - time.perf_counter()
         if remaining <= 0:
             return
-        if remaining > 0.002:
-            time.sleep(remaining - 0.0015)
-        else:
-            time.sleep(0)
+        time.sleep(remaining - spin_s if remaining > spin_s else 0)
+
+
+def _tighten_timer_slack() -> bool:
+    """Ask Linux for 1 ns timer slack on the calling thread; True if granted.
+
+    With the default 50 µs slack every short sleep, even ``sleep(0)``, may
+    overshoot by up to 50 µs, which would lengthen each modelled transfer.
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False

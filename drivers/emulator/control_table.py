@@ -16,11 +16,12 @@ from them (R = V/I_stall, Kt = T_stall/I_stall, Ke = V/w_no_load).
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass, field
 from enum import Enum
 from functools import lru_cache
 from importlib import resources
-from typing import Iterator, Mapping
+from typing import Callable, Iterator, Mapping
 
 from drivers import ConfigurationError
 
@@ -32,6 +33,7 @@ __all__ = [
     "ModelSpec",
     "MotorSpec",
     "Register",
+    "WriteSlot",
     "XC430_W150",
     "XL430_W250",
     "XM430_W350",
@@ -89,6 +91,28 @@ class Register:
     def decode(self, raw: bytes) -> int:
         return int.from_bytes(raw, "little", signed=self.signed)
 
+    @property
+    def codec(self) -> struct.Struct:
+        """Little-endian struct of the item (``<i`` for a signed 4-byte item...).
+
+        Packing a value within the item's range gives the bytes of :meth:`encode`;
+        the servo uses it to keep its byte image current without per-call dispatch.
+        """
+        try:
+            return _CODECS[self.size, self.signed]
+        except KeyError:
+            raise ValueError(f"{self.name}: no struct for a {self.size}-byte item") from None
+
+
+_CODECS: dict[tuple[int, bool], struct.Struct] = {
+    (size, signed): struct.Struct("<" + (code.lower() if signed else code))
+    for size, code in ((1, "B"), (2, "H"), (4, "I"))
+    for signed in (False, True)
+}
+
+#: One item a WRITE sets: the register, its offset in the written data and its decoder.
+WriteSlot = tuple[Register, int, Callable[[bytes, int], tuple[int]]]
+
 
 @dataclass(frozen=True)
 class MotorSpec:
@@ -127,7 +151,9 @@ class ControlTable:
         self._by_address = {r.address: r for r in registers}
         self.size = max(r.address + r.size for r in registers)
         self._ordered = tuple(sorted(registers, key=lambda r: r.address))
-        self._covering: dict[tuple[int, int], list[Register]] = {}  # every access asks again
+        # Every access asks again with the same few (address, length) pairs: keep the answers.
+        self._covering: dict[tuple[int, int], tuple[Register, ...]] = {}
+        self._writes: dict[tuple[int, int], tuple[WriteSlot, ...] | None] = {}
 
     def __getitem__(self, name: str) -> Register:
         try:
@@ -150,13 +176,44 @@ class ControlTable:
 
     def covering(self, address: int, length: int) -> list[Register]:
         """Registers overlapping ``[address, address + length)``, in address order."""
+        return list(self._overlapping(address, length))
+
+    def readable(self, address: int, length: int) -> bool:
+        """Whether ``[address, address + length)`` lies in the table and touches an item."""
+        return (length > 0 and address >= 0 and address + length <= self.size
+                and bool(self._overlapping(address, length)))
+
+    def write_slots(self, address: int, length: int) -> tuple[WriteSlot, ...] | None:
+        """The items a WRITE of ``length`` bytes at ``address`` sets, in address order.
+
+        Each comes with its offset in the written data and its decoder
+        (``unpack_from(data, offset)[0]`` is its value). None when an item is only
+        partly covered (Data Length Error); empty when no item is touched.
+        The layout never changes, so the answer is worked out once per (address, length).
+        """
+        key = (address, length)
+        try:
+            return self._writes[key]
+        except KeyError:
+            pass
+        slots: list[WriteSlot] | None = []
+        for register in self._overlapping(address, length):
+            start = register.address - address
+            if start < 0 or start + register.size > length:
+                slots = None
+                break
+            slots.append((register, start, register.codec.unpack_from))
+        found = self._writes[key] = None if slots is None else tuple(slots)
+        return found
+
+    def _overlapping(self, address: int, length: int) -> tuple[Register, ...]:
         key = (address, length)
         found = self._covering.get(key)
         if found is None:
             end = address + length
-            found = self._covering[key] = [r for r in self._ordered
-                                           if r.address < end and r.address + r.size > address]
-        return list(found)
+            found = self._covering[key] = tuple(r for r in self._ordered
+                                                if r.address < end and r.address + r.size > address)
+        return found
 
 
 @dataclass(frozen=True)

@@ -103,6 +103,11 @@ _POSITION_MODES = (
     OperatingMode.CURRENT_BASED_POSITION,
 )
 _HW_BIT = {name: bit for bit, name in HARDWARE_ERROR_BITS.items()}
+#: Items whose accepted values depend on other registers (see ``_check_limits``).
+_CROSS_CHECKED = frozenset(
+    {"Operating Mode", "Goal Position", "Goal Current", "Goal Velocity", "Goal PWM",
+     "Torque Enable"}
+)
 
 
 def _clamp(value: float, limit: float) -> float:
@@ -131,6 +136,11 @@ class ServoModel:
     ) -> None:
         self.spec = model if isinstance(model, ModelSpec) else model_spec(model)
         self.table = self.spec.table
+        # Motor constants the 1 ms loop uses every step (the spec is frozen).
+        motor = self.spec.motor
+        self._kt, self._ke, self._resistance = motor.kt, motor.ke, motor.resistance
+        self._amps_per_unit = self.spec.current_unit or (motor.stall_current / 1000.0)
+        self._has_current_limit = "Current Limit" in self.table
         if deadband_ticks < 0:
             raise ValueError(f"deadband_ticks must be >= 0, got {deadband_ticks}")
         if overload_time_s <= 0:
@@ -148,6 +158,7 @@ class ServoModel:
         # the byte image the bus reads is brought up to date lazily.
         self._memory = bytearray(self.table.size)
         self._fmt = {r.name: (r.address, r.size, r.signed) for r in self.table}
+        self._packers = {r.name: (r.codec.pack_into, r.address) for r in self.table}
         self._bounds = {
             r.name: (-(1 << (8 * r.size - 1)), (1 << (8 * r.size - 1)) - 1)
             if r.signed
@@ -186,6 +197,11 @@ class ServoModel:
         self._values[name] = value
         self._dirty.add(name)
 
+    def _report(self, name: str, value: int) -> None:
+        """:meth:`set` for what the physics reports: most steps leave most items as they were."""
+        if self._values[name] != value:
+            self.set(name, value)
+
     @property
     def memory(self) -> bytes:
         """The control table as bytes, as a READ sees it."""
@@ -193,14 +209,11 @@ class ServoModel:
         return bytes(self._memory)
 
     def _sync_memory(self) -> None:
-        dirty = self._dirty
+        dirty, values, packers, memory = self._dirty, self._values, self._packers, self._memory
         while dirty:  # pop, not iterate: another thread may force() meanwhile
             name = dirty.pop()
-            address, size, signed = self._fmt[name]
-            value = self._values[name]
-            self._memory[address : address + size] = value.to_bytes(
-                size, "little", signed=signed and value < 0
-            )
+            pack_into, address = packers[name]
+            pack_into(memory, address, values[name])  # set() keeps the value within the item
 
     def _missing(self, name: str) -> NoReturn:
         raise KeyError(f"{self.spec.name} has no control-table item {name!r}")
@@ -262,9 +275,7 @@ class ServoModel:
     # -- instructions -----------------------------------------------------------
     def read(self, address: int, length: int) -> tuple[int, bytes]:
         """(error, data) for a READ of ``length`` bytes at ``address``."""
-        if length <= 0 or address < 0 or address + length > self.table.size:
-            return StatusError.ACCESS, b""
-        if not self.table.covering(address, length):
+        if not self.table.readable(address, length):
             return StatusError.ACCESS, b""
         self._sync_memory()
         return 0, bytes(self._memory[address : address + length])
@@ -365,44 +376,47 @@ class ServoModel:
     # -- physics ------------------------------------------------------------------
     def step(self, dt: float, position: float, velocity: float) -> float:
         """Run the firmware for ``dt`` s given the shaft state (rad, rad/s); return shaft torque (N·m)."""
+        # The bus runs this for every servo every millisecond: items are read from
+        # the value dict directly rather than through get().
+        values = self._values
         self._time += dt
-        sign = -1.0 if self.get("Drive Mode") & 1 else 1.0
+        sign = -1.0 if values["Drive Mode"] & 1 else 1.0
         present = self._sense(position, velocity, sign)
         self._check_supervision()
-        mode = self.get("Operating Mode")
-        motor = self.spec.motor
+        mode = values["Operating Mode"]
         omega = sign * velocity  # servo frame
-        pwm_limit = float(self.get("PWM Limit"))
+        pwm_limit = float(values["PWM Limit"])
         current_cmd: float | None = None
         pwm = 0.0
-        if not self.torque_enabled:
+        if values["Torque Enable"] != 1:
             self._track_present(present)
             current = 0.0
         else:
             if mode in _POSITION_MODES:
                 u = self._position_control(dt, present)
                 if mode == OperatingMode.CURRENT_BASED_POSITION:
-                    current_cmd = _clamp(u, abs(self.get("Goal Current"))) * self._current_unit()
+                    current_cmd = _clamp(u, abs(self.get("Goal Current"))) * self._amps_per_unit
                 else:
-                    pwm = _clamp(u, min(pwm_limit, abs(self.get("Goal PWM"))))
+                    pwm = _clamp(u, min(pwm_limit, abs(values["Goal PWM"])))
             elif mode == OperatingMode.VELOCITY:
-                pwm = _clamp(self._velocity_control(dt), min(pwm_limit, abs(self.get("Goal PWM"))))
+                pwm = _clamp(self._velocity_control(dt), min(pwm_limit, abs(values["Goal PWM"])))
             elif mode == OperatingMode.CURRENT:
-                current_cmd = self.get("Goal Current") * self._current_unit()
+                current_cmd = self.get("Goal Current") * self._amps_per_unit
             else:  # PWM
-                pwm = _clamp(float(self.get("Goal PWM")), pwm_limit)
+                pwm = _clamp(float(values["Goal PWM"]), pwm_limit)
             vin = max(self.input_voltage, 1e-6)
             if current_cmd is not None:
-                needed = current_cmd * motor.resistance + motor.ke * omega
+                needed = current_cmd * self._resistance + self._ke * omega
                 pwm = _clamp(needed / vin * PWM_FULL_SCALE, pwm_limit)
-            current = (pwm / PWM_FULL_SCALE * vin - motor.ke * omega) / motor.resistance
+            current = (pwm / PWM_FULL_SCALE * vin - self._ke * omega) / self._resistance
             current = _clamp(current, self._current_limit_a())
             self._check_overload(dt, current)
-        if not self.torque_enabled:  # overload may just have switched it off
+        if values["Torque Enable"] != 1:  # overload may just have switched it off
             current, pwm = 0.0, 0.0
         self._report_drive(pwm, current)
-        self._apply_forced()
-        return sign * motor.kt * current
+        if self._forced:
+            self._apply_forced()
+        return sign * self._kt * current
 
     def power_on(self, position: float, velocity: float = 0.0) -> None:
         """Read the absolute encoder as at power-up: one turn, goal = present, torque off."""
@@ -414,9 +428,10 @@ class ServoModel:
 
     def observe(self, position: float, velocity: float) -> None:
         """Refresh the reported state from the shaft without running the controller."""
-        sign = -1.0 if self.get("Drive Mode") & 1 else 1.0
+        sign = -1.0 if self._values["Drive Mode"] & 1 else 1.0
         self._sense(position, velocity, sign)
-        self._apply_forced()
+        if self._forced:
+            self._apply_forced()
 
     # -- internals ------------------------------------------------------------------
     def _factory_reset_memory(self) -> None:
@@ -426,26 +441,20 @@ class ServoModel:
         for register in self.table:
             self.set(register.name, register.default)
 
-    def _current_unit(self) -> float:
-        return self.spec.current_unit or (self.spec.motor.stall_current / 1000.0)
-
     def _current_limit_a(self) -> float:
-        if self.has("Current Limit"):
-            return self.get("Current Limit") * self._current_unit()
+        if self._has_current_limit:
+            return self._values["Current Limit"] * self._amps_per_unit
         return math.inf
 
     def _validate(self, address: int, data: bytes) -> tuple[int, list[tuple[Register, int]]]:
         if not data or address < 0 or address + len(data) > self.table.size:
             return StatusError.ACCESS, []
-        registers = self.table.covering(address, len(data))
-        if not registers:
+        slots = self.table.write_slots(address, len(data))
+        if slots is None:
+            return StatusError.DATA_LENGTH, []
+        if not slots:
             return StatusError.ACCESS, []
-        items: list[tuple[Register, int]] = []
-        for register in registers:
-            start = register.address - address
-            if start < 0 or start + register.size > len(data):
-                return StatusError.DATA_LENGTH, []
-            items.append((register, register.decode(data[start : start + register.size])))
+        items = [(register, unpack_from(data, start)[0]) for register, start, unpack_from in slots]
         new = {register.name: value for register, value in items}
         for register, value in items:
             if register.access is Access.R:
@@ -456,9 +465,10 @@ class ServoModel:
                 return StatusError.DATA_RANGE, []
             if register.maximum is not None and value > register.maximum:
                 return StatusError.DATA_RANGE, []
-            error = self._check_limits(register.name, value, new)
-            if error:
-                return error, []
+            if register.name in _CROSS_CHECKED:
+                error = self._check_limits(register.name, value, new)
+                if error:
+                    return error, []
         return 0, items
 
     def _check_limits(self, name: str, value: int, new: Mapping[str, int]) -> int:
@@ -485,12 +495,12 @@ class ServoModel:
         """Update Present Position/Velocity; return the encoder reading in ticks."""
         raw = CENTER_TICK + sign * position / RAD_PER_TICK + self._turn_offset
         self._raw_ticks = raw
-        present = math.floor(raw + 0.5) + self.get("Homing Offset")
-        self.set("Present Position", present)
-        self.set("Present Velocity", round(sign * velocity / VELOCITY_UNIT_RAD_S))
-        self.set("Realtime Tick", int(self._time * 1000.0) % 32768)
-        self.set("Present Input Voltage", round(self.input_voltage * 10.0))
-        self.set("Present Temperature", max(0, min(255, round(self.temperature_c))))
+        present = math.floor(raw + 0.5) + self._values["Homing Offset"]
+        self._report("Present Position", present)
+        self._report("Present Velocity", round(sign * velocity / VELOCITY_UNIT_RAD_S))
+        self._report("Realtime Tick", int(self._time * 1000.0) % 32768)
+        self._report("Present Input Voltage", round(self.input_voltage * 10.0))
+        self._report("Present Temperature", max(0, min(255, round(self.temperature_c))))
         return float(present)
 
     def _wrap_turns(self) -> None:
@@ -520,9 +530,9 @@ class ServoModel:
         self._traj_pos = present
         self._traj_vel = 0.0
         self._profile_ongoing = False
-        self.set("Position Trajectory", int(present))
-        self.set("Velocity Trajectory", 0)
-        self.set("Moving Status", 0)
+        self._report("Position Trajectory", int(present))
+        self._report("Velocity Trajectory", 0)
+        self._report("Moving Status", 0)
 
     def _plan_profile(self) -> None:
         """Profile limits for a new Goal Position (ticks/s, ticks/s²)."""
@@ -542,7 +552,7 @@ class ServoModel:
         self._profile_ongoing = True
 
     def _advance_profile(self, dt: float) -> None:
-        goal = float(self.get("Goal Position"))
+        goal = float(self._values["Goal Position"])
         remaining = goal - self._traj_pos
         vmax, amax = self._profile_vmax, self._profile_amax
         if math.isinf(vmax) or remaining == 0.0:
@@ -560,12 +570,13 @@ class ServoModel:
             else:
                 self._traj_pos += step
         self._profile_ongoing = self._traj_pos != goal
-        self.set("Position Trajectory", round(self._traj_pos))
-        self.set("Velocity Trajectory", round(self._traj_vel * RAD_PER_TICK / VELOCITY_UNIT_RAD_S))
+        self._report("Position Trajectory", round(self._traj_pos))
+        self._report("Velocity Trajectory", round(self._traj_vel * RAD_PER_TICK / VELOCITY_UNIT_RAD_S))
 
     def _position_control(self, dt: float, present: float) -> float:
         self._advance_profile(dt)
-        goal = self.get("Goal Position")
+        values = self._values
+        goal = values["Goal Position"]
         error = self._traj_pos - present
         if (
             self.deadband_ticks
@@ -575,11 +586,11 @@ class ServoModel:
             self._integral = 0.0
             self._prev_error = error
             return 0.0
-        kp = self.get("Position P Gain") / 128.0
-        ki = self.get("Position I Gain") / 65536.0
-        kd = self.get("Position D Gain") / 16.0
+        kp = values["Position P Gain"] / 128.0
+        ki = values["Position I Gain"] / 65536.0
+        kd = values["Position D Gain"] / 16.0
         samples = dt / CONTROL_PERIOD_S
-        limit = float(self.get("PWM Limit"))
+        limit = float(values["PWM Limit"])
         self._integral = _clamp(self._integral + ki * error * samples, limit)
         derivative = 0.0 if self._prev_error is None else (error - self._prev_error) / samples
         self._prev_error = error
@@ -595,7 +606,7 @@ class ServoModel:
         else:
             self._traj_vel = target
         self._profile_ongoing = self._traj_vel != target
-        self.set("Velocity Trajectory", round(self._traj_vel / per_unit))
+        self._report("Velocity Trajectory", round(self._traj_vel / per_unit))
         error = self._traj_vel / per_unit - self.get("Present Velocity")
         kp = self.get("Velocity P Gain") / 128.0
         ki = self.get("Velocity I Gain") / 65536.0
@@ -604,14 +615,15 @@ class ServoModel:
         return kp * error + self._vel_integral
 
     def _check_supervision(self) -> None:
+        values = self._values
         volts = self.input_voltage * 10.0
-        if not self.get("Min Voltage Limit") <= volts <= self.get("Max Voltage Limit"):
+        if not values["Min Voltage Limit"] <= volts <= values["Max Voltage Limit"]:
             self.raise_hardware_error("input_voltage")
-        if self.temperature_c > self.get("Temperature Limit"):
+        if self.temperature_c > values["Temperature Limit"]:
             self.raise_hardware_error("overheating")
 
     def _check_overload(self, dt: float, current: float) -> None:
-        available = min(self._current_limit_a(), self.input_voltage / self.spec.motor.resistance)
+        available = min(self._current_limit_a(), self.input_voltage / self._resistance)
         if available > 0 and abs(current) >= self.overload_fraction * available:
             self._overload_timer += dt
             if self._overload_timer > self.overload_time_s:
@@ -620,24 +632,25 @@ class ServoModel:
             self._overload_timer = 0.0
 
     def _report_drive(self, pwm: float, current: float) -> None:
-        self.set("Present PWM", round(pwm))
+        values = self._values
+        self._report("Present PWM", round(pwm))
         if self.spec.senses_current:
-            self.set("Present Current", round(current / self._current_unit()))
+            self._report("Present Current", round(current / self._amps_per_unit))
         else:
             load = round(current / self.spec.motor.stall_current * 1000.0)
-            self.set("Present Load", max(-1000, min(1000, load)))
-        velocity = self.get("Present Velocity")
-        moving = abs(velocity) > self.get("Moving Threshold") or self._profile_ongoing
-        self.set("Moving", 1 if moving else 0)
+            self._report("Present Load", max(-1000, min(1000, load)))
+        velocity = values["Present Velocity"]
+        moving = abs(velocity) > values["Moving Threshold"] or self._profile_ongoing
+        self._report("Moving", 1 if moving else 0)
         status = 0
-        if self.torque_enabled and self.get("Operating Mode") in _POSITION_MODES:
-            if abs(self.get("Goal Position") - self.get("Present Position")) <= max(2, self.deadband_ticks):
+        if values["Torque Enable"] == 1 and values["Operating Mode"] in _POSITION_MODES:
+            if abs(values["Goal Position"] - values["Present Position"]) <= max(2, self.deadband_ticks):
                 status |= 0x01  # in position
             if self._profile_ongoing:
                 status |= 0x02
             if not math.isinf(self._profile_vmax):
                 status |= 0x30 if not math.isinf(self._profile_amax) else 0x10
-        self.set("Moving Status", status)
+        self._report("Moving Status", status)
 
     def _apply_forced(self) -> None:
         for name, value in list(self._forced.items()):  # may change from another thread
