@@ -79,7 +79,7 @@ from typing import Callable, Iterable, Literal, Mapping, Optional, Sequence, Uni
 import numpy as np
 from numpy.typing import ArrayLike
 
-from bench.kinematics.arc_train import TARGET_1, ArcTrainRobot
+from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, TARGET_1, ArcTrainRobot
 from bench.kinematics.needle import UnreachableError
 from bench.kinematics.para_brachy_robot import ParaBrachyRobot
 
@@ -126,16 +126,6 @@ PINION_RADIUS = 0.010  #: assumed rack-and-pinion radius of every servo-driven s
 JACOBIAN_STEP = 1e-6  #: central-difference step (m or rad)
 _CHUNK = 50_000  # rows of one batch FK call: bounds the memory of chain.frames
 
-#: Seed 000 Table 2–3, Target 1 as asked (mm, degrees).
-TABLE3_TARGET: dict[str, float] = {"x": 0.0, "y": 88.2, "z": 66.0, "insertion": 30.1, "angle": 47.0}
-#: Seed 000 Table 3: the five repeats of Target 1 as measured by the cameras (mm, degrees).
-TABLE3_MEASURED: dict[str, tuple[float, ...]] = {
-    "x": (1.33, 1.34, 1.42, 1.26, 1.23),
-    "y": (87.50, 87.93, 88.94, 87.84, 87.80),
-    "z": (65.09, 66.71, 64.99, 66.90, 65.59),
-    "insertion": (29.88, 30.23, 30.43, 29.92, 30.16),
-    "angle": (47.22, 46.50, 46.12, 47.13, 46.64),
-}
 
 
 # ---------------------------------------------------------------------------

@@ -49,6 +49,7 @@ from typing import Literal, Optional, Sequence
 
 import numpy as np
 
+from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET
 from bench.kinematics.needle import NeedleTarget
 from bench.log import TrialLog
 from bench.outcome import SETTLED_WINDOW_S, NeedleOutcome, needle_outcome
@@ -93,15 +94,6 @@ LAG_SMOOTH_S = 0.05  #: half-width of the velocity's central difference for the 
 LAG_CLIP = 2.0  #: measured speeds beyond this × the joint's peak commanded speed are clipped
 MOTION_BANDS = 10.0  #: a joint whose command spans less than this many bands has no lag to measure
 
-#: Seed 000 Table 3: Target 1 as asked (mm, degrees) and the five repeats as measured.
-TABLE3_TARGET: dict[str, float] = {"x": 0.0, "y": 88.2, "z": 66.0, "insertion": 30.1, "angle": 47.0}
-TABLE3_MEASURED: dict[str, tuple[float, ...]] = {
-    "x": (1.33, 1.34, 1.42, 1.26, 1.23),
-    "y": (87.50, 87.93, 88.94, 87.84, 87.80),
-    "z": (65.09, 66.71, 64.99, 66.90, 65.59),
-    "insertion": (29.88, 30.23, 30.43, 29.92, 30.16),
-    "angle": (47.22, 46.50, 46.12, 47.13, 46.64),
-}
 #: Seed 000 Table 4, "current research": average deviation (mm) in X, Y, Z and depth.
 TABLE4_CURRENT_RESEARCH_MM: dict[str, float] = {"x": 2.7, "y": 3.1, "z": 2.7, "insertion": 1.51}
 

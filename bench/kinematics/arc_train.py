@@ -52,6 +52,7 @@ from bench.kinematics.dh import DHChain, DHRow, check_rows, translation
 from bench.kinematics.needle import NeedlePose, NeedleTarget, UnreachableError, pose_from_axis
 
 __all__ = ["ArcTrainParams", "ArcTrainRobot", "NeedlePose", "NeedleTarget", "TARGET_1",
+           "TABLE3_TARGET", "TABLE3_MEASURED",
            "UnreachableError", "build_chain", "train_pose", "epsilon_from_d2"]
 
 DEG = np.pi / 180.0
@@ -197,6 +198,16 @@ def epsilon_for_target_y(y: float, p: ArcTrainParams = ArcTrainParams()) -> floa
 
 
 TARGET_1 = NeedleTarget(entry=np.array([0.0, 0.0882, 0.066]), depth=0.0301, angle=47.0 * DEG)
+
+#: Seed 000 Tables 2–3: Target 1 as asked (mm, degrees) and the five repeats as measured.
+TABLE3_TARGET: dict[str, float] = {"x": 0.0, "y": 88.2, "z": 66.0, "insertion": 30.1, "angle": 47.0}
+TABLE3_MEASURED: dict[str, tuple[float, ...]] = {
+    "x": (1.33, 1.34, 1.42, 1.26, 1.23),
+    "y": (87.50, 87.93, 88.94, 87.84, 87.80),
+    "z": (65.09, 66.71, 64.99, 66.90, 65.59),
+    "insertion": (29.88, 30.23, 30.43, 29.92, 30.16),
+    "angle": (47.22, 46.50, 46.12, 47.13, 46.64),
+}
 
 
 @dataclass
