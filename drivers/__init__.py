@@ -146,6 +146,13 @@ class ActuatorsBase:
         return n
 
     @property
+    def _finite_probe(self) -> np.ndarray:
+        z = self.__dict__.get("_finite_probe_cached")
+        if z is None:
+            z = self.__dict__["_finite_probe_cached"] = np.zeros(self._n_joints)
+        return z
+
+    @property
     def enabled(self) -> bool:
         return self._enabled
 
@@ -171,7 +178,7 @@ class ActuatorsBase:
         n = self._n_joints
         if position.shape != (n,):
             raise ValueError(f"command position has shape {position.shape}, expected ({n},)")
-        if not np.isfinite(position).all():
+        if position.dot(self._finite_probe) != 0.0:  # NaN exactly when an entry is NaN or infinite
             raise ValueError(f"command position is not finite: {position}")
         if velocity is not None:
             velocity = np.asarray(velocity, dtype=float)

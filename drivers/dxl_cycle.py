@@ -14,46 +14,64 @@ import os
 import select
 import struct
 import time
-from itertools import chain
 from typing import Sequence
+
+import numpy as np
 
 from drivers import CommunicationError
 from drivers.dxl_protocol import (
-    BROADCAST_ID, HEADER, Instruction, PacketParser, build_instruction, crc16,
+    BROADCAST_ID, HEADER, Instruction, PacketParser, build_instruction,
 )
+from drivers.dxl_protocol import crc16_bytes as _crc
 
 _STATUS = Instruction.STATUS
 _TRIPLE = b"\xff\xff\xfd"  # a header inside the parameters: the packet needs stuffing
 _FAST_HEAD = HEADER + bytes((BROADCAST_ID,))
+_LOW_7_BITS = bytes(b & 0x7F for b in range(256))
+
+
+#: The state block every cycle reads: Present Current (int16), Present Velocity (int32)
+#: and Present Position (int32), 10 bytes from address 126 on X-series servos.
+STATE_ADDRESS, STATE_LENGTH = 126, 10
+#: One servo's block of a Fast Sync Read status (after the 8-byte packet head).
+_FAST_BLOCK = np.dtype({"names": ["err", "id", "cur", "vel", "pos", "crc"],
+                        "formats": ["u1", "u1", "<i2", "<i4", "<i4", "<u2"],
+                        "offsets": [0, 1, 2, 4, 8, 12], "itemsize": 14})
+#: One unstuffed Sync Read status packet: head (header, ID, LEN, 0x55), error, state, CRC.
+_SYNC_STATUS = np.dtype({"names": ["head", "err", "cur", "vel", "pos", "crc"],
+                         "formats": ["V8", "u1", "<i2", "<i4", "<i4", "<u2"],
+                         "offsets": [0, 8, 9, 11, 15, 19], "itemsize": 21})
 
 
 class SyncCycle:
     """Goal-position writes and state reads for a fixed set of servo IDs on one port."""
 
-    def __init__(self, fd: int, baud: int, ids: Sequence[int], *, read_address: int = 126,
-                 read_length: int = 10, write_address: int = 116, fast: bool = True,
-                 latency_s: float = 0.002) -> None:
+    def __init__(self, fd: int, baud: int, ids: Sequence[int], *, write_address: int = 116,
+                 fast: bool = True, latency_s: float = 0.002) -> None:
         self.fd = fd
         self.ids = list(ids)
-        self.n = len(self.ids)
-        self.read_address, self.read_length = read_address, read_length
+        self.n = n = len(self.ids)
         self.write_address = write_address
         self.fast = fast
-        params = struct.pack("<HH", read_address, read_length) + bytes(self.ids)
+        params = struct.pack("<HH", STATE_ADDRESS, STATE_LENGTH) + bytes(self.ids)
         instr = Instruction.FAST_SYNC_READ if fast else Instruction.SYNC_READ
         self._read_packet = build_instruction(BROADCAST_ID, instr, params)
-        self._write_head = struct.pack("<HH", write_address, 4)
-        self._goals = struct.Struct("<" + "Bi" * self.n)
-        # Everything before the parameters of an unstuffed Sync Write (LEN is fixed then).
-        length = 1 + len(self._write_head) + self._goals.size + 2
+        # Sync Write: the parameters are (ID, goal) pairs after the address and length;
+        # the IDs sit in a list whose odd slots take the goals of each cycle.
+        self._goals = struct.Struct("<HH" + "Bi" * n)
+        self._goal_args: list[int] = [write_address, 4] + [v for sid in self.ids for v in (sid, 0)]
+        length = 1 + self._goals.size + 2  # LEN of an unstuffed Sync Write
         self._write_prefix = HEADER + bytes(
             (BROADCAST_ID, length & 0xFF, length >> 8, Instruction.SYNC_WRITE))
-        # ERR, ID, data and running CRC of each block of a Fast Sync Read status
-        self._fast_blocks = struct.Struct("<8x" + f"BB{read_length}sH" * self.n)
+        self._id_bytes = bytes(self.ids)
+        self._no_errors = bytes(n)
+        # The head each unstuffed Sync Read status must carry: header, ID, LEN, 0x55.
+        self._sync_heads = b"".join(
+            HEADER + bytes((sid, STATE_LENGTH + 4, 0, _STATUS)) for sid in self.ids)
         if fast:
-            self._expect = 8 + self.n * (4 + read_length)
+            self._expect = 8 + n * (4 + STATE_LENGTH)
         else:
-            self._expect = self.n * (11 + read_length)
+            self._expect = n * (11 + STATE_LENGTH)
         self._byte_time = 10.0 / baud
         # Late answers are expected after this long: wire time of the reply, plus slack.
         self.timeout_s = latency_s + 3 * (self._expect + len(self._read_packet)) * self._byte_time + 0.003
@@ -62,12 +80,14 @@ class SyncCycle:
     # -- send -----------------------------------------------------------------
     def write_goals(self, ticks: Sequence[int]) -> None:
         """One Sync Write of Goal Position (4 bytes each) to every servo; no reply."""
-        params = self._write_head + self._goals.pack(*chain.from_iterable(zip(self.ids, ticks)))
+        args = self._goal_args
+        args[3::2] = ticks
+        params = self._goals.pack(*args)
         if _TRIPLE in params:  # rare (e.g. Goal Position -131073): stuffing changes LEN
             packet = build_instruction(BROADCAST_ID, Instruction.SYNC_WRITE, params)
         else:
             packet = self._write_prefix + params
-            crc = crc16(packet)
+            crc = _crc(packet, 0)
             packet += bytes((crc & 0xFF, crc >> 8))
         self._send(packet)
 
@@ -84,10 +104,13 @@ class SyncCycle:
             view = view[n:]
 
     # -- receive ----------------------------------------------------------------
-    def read_state(self) -> list[bytes] | None:
-        """Send the (Fast) Sync Read and return each servo's data block, or None on failure.
+    def read_state(self) -> np.ndarray | None:
+        """Send the (Fast) Sync Read; the state of every servo, or None on failure.
 
-        On failure ``last_error`` says what went wrong (timeout, CRC, servo error).
+        The state is a (3, n) float array in servo order and raw units: rows
+        Present Position (ticks), Present Velocity (0.229 rpm units), Present
+        Current (model units). On failure ``last_error`` says what went wrong
+        (timeout, CRC, servo error).
         """
         self._drain()
         self._send(self._read_packet)
@@ -106,6 +129,7 @@ class SyncCycle:
                 return
 
     def _receive(self, length: int) -> bytes | None:
+        """Sleep in the kernel until ``length`` bytes are in, or the timeout."""
         buf = b""
         deadline = time.monotonic() + self.timeout_s
         fd = self.fd
@@ -130,49 +154,47 @@ class SyncCycle:
             return None
         return buf
 
-    def _parse_fast(self, raw: bytes) -> list[bytes] | None:
-        n, L = self.n, self.read_length
+    def _parse_fast(self, raw: bytes) -> np.ndarray | None:
+        n = self.n
         if raw[:5] != _FAST_HEAD or raw[7] != _STATUS:
             self.last_error = "fast sync read: bad header"
             return None
         declared = raw[5] | (raw[6] << 8)
-        if declared != 1 + n * (4 + L):
-            self.last_error = f"fast sync read: length {declared}, expected {1 + n * (4 + L)}"
+        if declared != 1 + n * (4 + STATE_LENGTH):
+            self.last_error = f"fast sync read: length {declared}, expected {1 + n * (4 + STATE_LENGTH)}"
             return None
-        fields = self._fast_blocks.unpack_from(raw)
-        blocks = []
-        crc, counted, end = 0, 0, 8 + 2 + L  # running CRC of raw[:counted]; end of block k
-        for k, sid in enumerate(self.ids):
-            err, bid, data, block_crc = fields[4 * k : 4 * k + 4]
-            # each block's CRC is the running CRC of every byte before it
-            crc = crc16(raw[counted:end], crc)
-            if block_crc != crc:
-                self.last_error = f"fast sync read: CRC error in the block of servo {sid}"
-                return None
-            if bid != sid:
-                self.last_error = f"fast sync read: block {k} is from ID {bid}, expected {sid}"
-                return None
-            if err & 0x7F:
-                self.last_error = f"servo {sid} answered with error 0x{err:02X}"
-                return None
-            blocks.append(data)
-            counted, end = end, end + 4 + L
-        return blocks
+        # Each block's CRC continues over every byte before it, earlier CRCs included,
+        # so the last one covers the whole packet: checking it is the packet's CRC check.
+        if _crc(raw[:-2], 0) != raw[-2] | (raw[-1] << 8):
+            self.last_error = "fast sync read: CRC error"
+            return None
+        ids = raw[9::14][:n]
+        if ids != self._id_bytes:
+            self.last_error = f"fast sync read: blocks from IDs {list(ids)}, expected {self.ids}"
+            return None
+        return self._state(np.frombuffer(raw, _FAST_BLOCK, n, 8), raw[8::14][:n])
 
-    def _parse_sync(self, raw: bytes) -> list[bytes] | None:
-        L = self.read_length
-        size = 11 + L
-        blocks = []
-        for k, sid in enumerate(self.ids):
-            p = raw[k * size:(k + 1) * size]
-            if p[:4] != HEADER or p[4] != sid or (p[5] | (p[6] << 8)) != L + 4 or p[7] != _STATUS \
-                    or crc16(p[:-2]) != (p[-2] | (p[-1] << 8)):
+    def _parse_sync(self, raw: bytes) -> np.ndarray | None:
+        if len(raw) != self._expect:
+            return self._parse_sync_slow(raw)
+        packets = np.frombuffer(raw, _SYNC_STATUS, self.n)
+        if packets["head"].tobytes() != self._sync_heads:
+            return self._parse_sync_slow(raw)
+        crcs = packets["crc"].tolist()
+        size = 11 + STATE_LENGTH
+        for k in range(self.n):
+            if _crc(raw[k * size:(k + 1) * size - 2], 0) != crcs[k]:
                 return self._parse_sync_slow(raw)
-            if p[8] & 0x7F:
-                self.last_error = f"servo {sid} answered with error 0x{p[8]:02X}"
-                return None
-            blocks.append(p[9:9 + L])
-        return blocks
+        return self._state(packets, raw[8::size][:self.n])
+
+    def _state(self, blocks: np.ndarray, errors: bytes) -> np.ndarray | None:
+        """Position, velocity and current rows of the parsed blocks, unless a servo reports an error."""
+        # 0x80 is the hardware-error alert, not a failed instruction: only the low 7 bits count
+        if errors.translate(_LOW_7_BITS) != self._no_errors:
+            k = next(k for k, e in enumerate(errors) if e & 0x7F)
+            self.last_error = f"servo {self.ids[k]} answered with error 0x{errors[k]:02X}"
+            return None
+        return np.array((blocks["pos"], blocks["vel"], blocks["cur"]), dtype=float)
 
     def _parse_sync_slow(self, raw: bytes) -> list[bytes] | None:
         """Stuffed or out-of-step statuses: the full parser (reads the rest of the bytes)."""
@@ -192,7 +214,7 @@ class SyncCycle:
                     self.last_error = f"sync read: {type(ev).__name__}"
                     return None
             if all(sid in got for sid in self.ids):
-                return [got[sid][:self.read_length] for sid in self.ids]
+                return unpack_state([got[sid][:STATE_LENGTH] for sid in self.ids])
             more = self._receive_more(deadline)
             if not more:
                 missing = [sid for sid in self.ids if sid not in got]
@@ -210,12 +232,7 @@ class SyncCycle:
             return b""
 
 
-def unpack_state(blocks: list[bytes]) -> tuple[list[int], list[int], list[int]]:
-    """Present Current (int16), Velocity (int32), Position (int32) of each servo's 10-byte block."""
-    current, velocity, position = [], [], []
-    for b in blocks:
-        c, v, p = struct.unpack_from("<hii", b)
-        current.append(c)
-        velocity.append(v)
-        position.append(p)
-    return current, velocity, position
+def unpack_state(blocks: list[bytes]) -> np.ndarray:
+    """The (3, n) position, velocity, current rows of each servo's 10-byte state block."""
+    cur, vel, pos = zip(*(struct.unpack_from("<hii", b) for b in blocks))
+    return np.array((pos, vel, cur), dtype=float)

@@ -55,7 +55,6 @@ ADDR = {
     "Present Position": (132, 4), "Present Input Voltage": (144, 2),
     "Present Temperature": (146, 1),
 }
-STATE_ADDR, STATE_LEN = 126, 10  # Present Current, Velocity, Position in one block
 
 FAST_SYNC_READ_FIRMWARE = 45  # X-series firmware that answers Fast Sync Read
 
@@ -141,6 +140,11 @@ class DynamixelActuators(ActuatorsBase):
         self._qd_per_unit = self._ratio * RAD_S_PER_VEL_UNIT
         self._effort_per_unit = np.array(
             [_kt(sv.model) * _current_unit(sv.model) for sv in s.servos]) / self._ratio
+        # The same, as one (3, n) scale on raw position, velocity, current and the
+        # position at tick 0: one multiply-add per cycle.
+        self._si_per_raw = np.array([self._q_per_tick, self._qd_per_unit, self._effort_per_unit])
+        self._q_at_tick0 = self._offset - self._q_per_tick * self._zero
+        self._ticks_per_q = 1.0 / self._q_per_tick
         self._in_joint_order = self._index == list(range(len(names)))
         self._servo_of_joint = np.argsort(self._index)
         self._limits = JointLimits(np.asarray(s.lower, float), np.asarray(s.upper, float),
@@ -288,7 +292,6 @@ class DynamixelActuators(ActuatorsBase):
         if self.settings.fast_sync_read and not fw_ok:
             self._warn(f"Fast Sync Read needs firmware {FAST_SYNC_READ_FIRMWARE}+; using Sync Read")
         self._cycle = SyncCycle(self.port.ser.fileno(), self.settings.baud, self._ids,
-                                read_address=STATE_ADDR, read_length=STATE_LEN,
                                 write_address=ADDR["Goal Position"][0], fast=self._fast)
         if self.settings.timeout_s:
             self._cycle.timeout_s = self.settings.timeout_s
@@ -343,22 +346,18 @@ class DynamixelActuators(ActuatorsBase):
         return st
 
     def _read_bus(self) -> JointState:
-        from drivers.dxl_cycle import unpack_state
-
         cyc = self._cycle
         for _ in range(self.settings.retries + 1):
-            blocks = cyc.read_state()
-            if blocks is not None:
+            raw = cyc.read_state()  # position, velocity, current rows in servo order
+            if raw is not None:
                 break
         else:
             raise CommunicationError(
                 f"servos {self._ids} did not answer the {'fast ' if self._fast else ''}sync read "
                 f"after {self.settings.retries + 1} tries ({cyc.last_error}); bus lost?")
-        cur, vel, pos = unpack_state(blocks)
-        raw = np.array((pos, vel, cur), dtype=float)  # servo order
-        q = self._offset + self._q_per_tick * (raw[0] - self._zero)
-        qd = self._qd_per_unit * raw[1]
-        eff = self._effort_per_unit * raw[2]
+        raw *= self._si_per_raw
+        raw[0] += self._q_at_tick0
+        q, qd, eff = raw
         if not self._in_joint_order:
             q, qd, eff = q[self._servo_of_joint], qd[self._servo_of_joint], eff[self._servo_of_joint]
         flags: tuple[str, ...] = ()
@@ -409,7 +408,7 @@ class DynamixelActuators(ActuatorsBase):
 
     def _goal_ticks(self, q: np.ndarray) -> np.ndarray:
         qs = q if self._in_joint_order else q[self._index]
-        return np.rint(self._zero + (qs - self._offset) / self._q_per_tick).astype(np.int64)
+        return np.rint((qs - self._q_at_tick0) * self._ticks_per_q).astype(np.int64)
 
     def _send_goals(self, ticks: np.ndarray) -> None:
         self._cycle.write_goals(ticks.tolist())

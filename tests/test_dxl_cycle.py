@@ -8,9 +8,9 @@ import struct
 import dynamixel_sdk as sdk
 import pytest
 
-from drivers.dxl_cycle import SyncCycle, unpack_state
+from drivers.dxl_cycle import SyncCycle
 from drivers.dxl_io import StuffingPacketHandler
-from drivers.dxl_protocol import FastStatusBlock, build_fast_status, build_status, stuff
+from drivers.dxl_protocol import FastStatusBlock, build_fast_status, build_status
 
 IDS = list(range(1, 10))
 
@@ -98,13 +98,16 @@ def test_fast_status_parsed_and_crc_checked():
     cyc = SyncCycle(-1, 1_000_000, IDS, fast=True)
     values = [(-1, -3, -131073 + i) for i in range(9)]
     raw = build_fast_status([FastStatusBlock(i, 0, state_block(*v)) for i, v in zip(IDS, values)])
-    blocks = respond(cyc, raw)
-    assert blocks is not None
-    cur, vel, pos = unpack_state(blocks)
+    state = respond(cyc, raw)
+    assert state is not None
+    pos, vel, cur = state
     assert list(zip(cur, vel, pos)) == values
-    bad = bytearray(raw)
-    bad[40] ^= 0x01
-    assert respond(SyncCycle(-1, 1_000_000, IDS, fast=True), bytes(bad)) is None
+    for byte in (10, 40, 133):  # a data byte early, one mid-packet, the last block's CRC
+        bad = bytearray(raw)
+        bad[byte] ^= 0x01
+        cyc = SyncCycle(-1, 1_000_000, IDS, fast=True)
+        assert respond(cyc, bytes(bad)) is None
+        assert "CRC" in cyc.last_error
 
 
 def test_stuffed_sync_read_statuses_arrive_intact():
@@ -114,8 +117,9 @@ def test_stuffed_sync_read_statuses_arrive_intact():
     assert b"\xff\xff\xfd" in data
     status = b"".join(build_status(i, 0, data) for i in IDS)
     assert len(status) > 9 * 21  # stuffing added bytes
-    blocks = respond(cyc, status)
-    assert blocks is not None and set(blocks) == {data}
+    state = respond(cyc, status)
+    assert state is not None
+    assert state.T.tolist() == [[2048, -3, -1]] * 9
 
 
 def test_servo_error_in_a_status_is_reported():
@@ -123,3 +127,23 @@ def test_servo_error_in_a_status_is_reported():
     status = b"".join(build_status(i, 0x80 | (7 if i == 4 else 0), state_block(0, 0, 2048)) for i in IDS)
     assert respond(cyc, status) is None
     assert "servo 4" in cyc.last_error
+
+
+def test_sync_read_statuses_parsed_and_each_crc_checked():
+    values = [(i - 5, -3 * i, 2048 + 100 * i) for i in IDS]
+    status = b"".join(build_status(i, 0, state_block(*v)) for i, v in zip(IDS, values))
+    state = respond(SyncCycle(-1, 1_000_000, IDS, fast=False), status)
+    assert state is not None
+    assert [tuple(int(x) for x in col[::-1]) for col in state.T] == values
+    bad = bytearray(status)
+    bad[21 * 6 + 12] ^= 0x10  # a data byte of the seventh servo's status
+    cyc = SyncCycle(-1, 1_000_000, IDS, fast=False)
+    assert respond(cyc, bytes(bad)) is None
+    assert "Crc" in cyc.last_error
+
+
+def test_servo_error_in_a_fast_status_is_reported():
+    blocks = [FastStatusBlock(i, 0x80 | (6 if i == 8 else 0), state_block(0, 0, 2048)) for i in IDS]
+    cyc = SyncCycle(-1, 1_000_000, IDS, fast=True)
+    assert respond(cyc, build_fast_status(blocks)) is None
+    assert "servo 8" in cyc.last_error and "0x86" in cyc.last_error

@@ -28,8 +28,11 @@ def test_is_an_actuators_and_refuses_commands_before_enable(arc_train):
         sim.command(arc_train.chain.home)
         with pytest.raises(ValueError, match="shape"):
             sim.command(np.zeros(3))
-        with pytest.raises(ValueError, match="finite"):
-            sim.command(np.full(9, np.nan))
+        for bad in (np.nan, np.inf, -np.inf):
+            q = np.array(arc_train.chain.home, dtype=float)
+            q[4] = bad
+            with pytest.raises(ValueError, match="finite"):
+                sim.command(q)
     assert not sim.enabled
 
 

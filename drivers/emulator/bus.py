@@ -48,7 +48,6 @@ whole bus deaf and mute until :meth:`DynamixelBusEmulator.replug`.
 from __future__ import annotations
 
 import array
-import ctypes
 import fcntl
 import os
 import select
@@ -77,11 +76,11 @@ from drivers.dxl_protocol import (
 )
 from drivers.emulator.plant import InertiaPlant, Plant
 from drivers.emulator.servo import ServoModel
+from drivers.timing import sleep_until, tighten_timer_slack
 
 __all__ = ["BusFaults", "BusStats", "DynamixelBusEmulator"]
 
 _TCGETS2 = 0x802C542A  # Linux asm-generic: _IOR('T', 0x2A, struct termios2)
-_PR_SET_TIMERSLACK = 29
 #: Last stretch of a wait spent yielding rather than asleep: with the default 50 µs
 #: timer slack a sleep may overshoot by that much, with 1 ns slack by a few µs.
 _SPIN_LOOSE_S = 0.0015
@@ -319,7 +318,7 @@ class DynamixelBusEmulator:
 
     # -- serving thread ---------------------------------------------------------
     def _run(self) -> None:
-        if _tighten_timer_slack():
+        if tighten_timer_slack():
             self._spin_s = _SPIN_TIGHT_S
         idle = min(0.005, max(self.physics_dt, 0.001))
         while not self._stop.is_set():
@@ -566,7 +565,7 @@ class DynamixelBusEmulator:
         """Wait for a status packet's time; due physics steps that fit run meanwhile."""
         if self.realtime:
             self._catch_up_before(deadline)
-        _sleep_until(deadline, self._spin_s)
+        sleep_until(deadline, self._spin_s)
 
     def _write(self, packet: bytes) -> None:
         view = memoryview(packet)
@@ -757,26 +756,3 @@ class DynamixelBusEmulator:
 
 def _u16(data: bytes, offset: int) -> int:
     return data[offset] | (data[offset + 1] << 8)
-
-
-def _sleep_until(deadline: float, spin_s: float) -> None:
-    """Sleep to ``deadline`` (perf_counter s): coarse sleep, then yield for the last ``spin_s``."""
-    while True:
-        remaining = deadline - time.perf_counter()
-        if remaining <= 0:
-            return
-        time.sleep(remaining - spin_s if remaining > spin_s else 0)
-
-
-def _tighten_timer_slack() -> bool:
-    """Ask Linux for 1 ns timer slack on the calling thread; True if granted.
-
-    With the default 50 µs slack every short sleep, even ``sleep(0)``, may
-    overshoot by up to 50 µs, which would lengthen each modelled transfer.
-    """
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        return ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0) == 0
-    except (OSError, AttributeError):
-        return False

@@ -54,6 +54,7 @@ within ±deadband of the goal, like a worn or deliberately detuned unit.
 from __future__ import annotations
 
 import math
+import struct
 from typing import Mapping, NoReturn
 
 from drivers.dxl_protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
@@ -104,6 +105,7 @@ _POSITION_MODES = (
 )
 _HW_BIT = {name: bit for bit, name in HARDWARE_ERROR_BITS.items()}
 #: Items whose accepted values depend on other registers (see ``_check_limits``).
+_INT32 = struct.Struct("<i")
 _CROSS_CHECKED = frozenset(
     {"Operating Mode", "Goal Position", "Goal Current", "Goal Velocity", "Goal PWM",
      "Torque Enable"}
@@ -141,6 +143,13 @@ class ServoModel:
         self._kt, self._ke, self._resistance = motor.kt, motor.ke, motor.resistance
         self._amps_per_unit = self.spec.current_unit or (motor.stall_current / 1000.0)
         self._has_current_limit = "Current Limit" in self.table
+        # The cycle's Goal Position writes take a short path when the item is the usual
+        # 4-byte signed RAM register (every X-series model); -1: always the general one.
+        goal = self.table["Goal Position"] if "Goal Position" in self.table else None
+        fast_goal = (goal is not None and goal.size == 4 and goal.signed
+                     and goal.access is Access.RW and goal.area is Area.RAM)
+        self._goal_register = goal
+        self._goal_address = goal.address if fast_goal else -1
         if deadband_ticks < 0:
             raise ValueError(f"deadband_ticks must be >= 0, got {deadband_ticks}")
         if overload_time_s <= 0:
@@ -286,6 +295,8 @@ class ServoModel:
 
     def write(self, address: int, data: bytes) -> int:
         """Apply a WRITE; returns the status error code (0: done, nothing changed otherwise)."""
+        if address == self._goal_address and len(data) == 4:
+            return self._write_goal_position(_INT32.unpack(data)[0])
         error, items = self._validate(address, bytes(data))
         if error:
             return error
@@ -306,6 +317,21 @@ class ServoModel:
             raw = getattr(self, "_raw_ticks", float(CENTER_TICK))
             self.set("Present Position", math.floor(raw + 0.5) + self.get("Homing Offset"))
             self._apply_forced()
+        return 0
+
+    def _write_goal_position(self, value: int) -> int:
+        """WRITE of Goal Position alone, every cycle's instruction: the checks of
+        :meth:`_validate` and the effects of :meth:`write` for that one item."""
+        register = self._goal_register
+        if (register.minimum is not None and value < register.minimum) or (
+                register.maximum is not None and value > register.maximum):
+            return StatusError.DATA_RANGE
+        values = self._values
+        if values["Operating Mode"] == OperatingMode.POSITION and not (
+                values["Min Position Limit"] <= value <= values["Max Position Limit"]):
+            return StatusError.DATA_LIMIT
+        self.set("Goal Position", value)
+        self._plan_profile()
         return 0
 
     def register_write(self, address: int, data: bytes) -> int:
