@@ -545,3 +545,18 @@ def test_wire_timing_adds_return_delay_and_transfer_time() -> None:
     # 500 us return delay + 14 bytes at 1 Mbps = 640 us on top of the pty round trip.
     assert delayed >= 0.00064
     assert delayed - round_trip(False) >= 0.0005
+
+
+@pytest.mark.parametrize("mode", [3, 4])  # position, extended position
+def test_goal_position_writes_answer_as_the_general_write_path_does(mode):
+    """The cycle's Goal Position writes take a short path; it must accept and refuse alike."""
+    servo = ServoModel(XM430_W350, registers={"Operating Mode": mode, "Min Position Limit": 1000,
+                                              "Max Position Limit": 3000})
+    servo.set("Torque Enable", 1)
+    for value in (-1_048_576, -1_048_575, -5, 999, 1000, 2048, 3000, 3001, 1_048_575, 1_048_576):
+        data = value.to_bytes(4, "little", signed=True)
+        expected = servo.check_write(116, data)  # the general validation
+        assert servo.write(116, data) == expected, value
+        if expected == 0:
+            assert servo.get("Goal Position") == value
+    assert servo.write(116, (3001).to_bytes(4, "little")) == (StatusError.DATA_LIMIT if mode == 3 else 0)
