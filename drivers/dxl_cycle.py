@@ -159,9 +159,9 @@ class SyncCycle:
         if raw[:5] != _FAST_HEAD or raw[7] != _STATUS:
             self.last_error = "fast sync read: bad header"
             return None
-        declared = raw[5] | (raw[6] << 8)
-        if declared != 1 + n * (4 + STATE_LENGTH):
-            self.last_error = f"fast sync read: length {declared}, expected {1 + n * (4 + STATE_LENGTH)}"
+        declared, expected = raw[5] | (raw[6] << 8), self._expect - 7  # LEN: instruction .. CRC
+        if declared != expected:
+            self.last_error = f"fast sync read: length {declared}, expected {expected}"
             return None
         # Each block's CRC continues over every byte before it, earlier CRCs included,
         # so the last one covers the whole packet: checking it is the packet's CRC check.
@@ -196,7 +196,7 @@ class SyncCycle:
             return None
         return np.array((blocks["pos"], blocks["vel"], blocks["cur"]), dtype=float)
 
-    def _parse_sync_slow(self, raw: bytes) -> list[bytes] | None:
+    def _parse_sync_slow(self, raw: bytes) -> np.ndarray | None:
         """Stuffed or out-of-step statuses: the full parser (reads the rest of the bytes)."""
         parser = PacketParser(stuffed=True, resync_on_header=True)
         got: dict[int, bytes] = {}
