@@ -5,8 +5,15 @@ and the commanded positions — and either passes (``None``) or returns a
 :class:`Trip` saying which interlock, why, and (where one joint is to blame)
 the joint and the offending value in SI units. :class:`Interlocks` checks a
 list in order and returns the first trip, so cheap checks go first and the
-reported cause is deterministic. Interlocks keep no state between cycles
-and never move anything: stopping is the runner's job.
+reported cause is deterministic. Interlocks never move anything: stopping
+is the runner's job.
+
+:meth:`Interlocks.scan` checks a block of cycles at once for a runner that
+executes a block before looking at it (the simulator, which can rewind). Each
+interlock's ``may_trip`` marks, vectorised, the cycles where its ``check``
+could trip (a superset); only those cycles are checked one by one, in order,
+with the very same ``check``, so a scan trips at the same cycle with the same
+cause as checking every cycle would.
 """
 
 from __future__ import annotations
@@ -60,6 +67,41 @@ class Interlocks:
                 return trip
         return None
 
+    def scan(self, times: np.ndarray, position: np.ndarray, velocity: np.ndarray,
+             effort: np.ndarray, commanded: np.ndarray) -> tuple[int, Trip] | None:
+        """The first cycle of a block (rows of the arrays) that trips, and its trip.
+
+        Gives what calling :meth:`check` on every row in order would give; the
+        samples carry no flags (a backend that flags samples is checked cycle by
+        cycle). Interlocks without ``may_trip`` are checked on every row.
+        """
+        k = len(times)
+        static = np.zeros(k, dtype=bool)
+        stateful = []
+        for il in self.interlocks:
+            may_trip = getattr(il, "may_trip", None)
+            if may_trip is None:
+                static[:] = True
+            elif getattr(il, "stateful", False):
+                stateful.append(il)
+            else:
+                static |= may_trip(position, velocity, commanded)
+        i = 0
+        while i < k:
+            need = static[i:].copy()
+            for il in stateful:
+                need |= il.may_trip(position[i:], velocity[i:], commanded[i:])
+            hits = np.flatnonzero(need)
+            if not len(hits):
+                return None
+            j = i + int(hits[0])
+            st = JointState(float(times[j]), position[j].copy(), velocity[j].copy(), effort[j].copy())
+            trip = self.check(st.time, st, commanded[j])
+            if trip is not None:
+                return j, trip
+            i = j + 1
+        return None
+
     def __iter__(self):
         return iter(self.interlocks)
 
@@ -105,6 +147,13 @@ class JointLimitInterlock:
         self._lo = self.lower - self.tolerance
         self._hi = self.upper + self.tolerance
 
+    def may_trip(self, position: np.ndarray, velocity: np.ndarray,
+                 commanded: np.ndarray) -> np.ndarray:
+        ok = ((position >= self._lo) & (position <= self._hi)).all(axis=1)
+        if self.check_commanded:
+            ok &= ((commanded >= self._lo) & (commanded <= self._hi)).all(axis=1)
+        return ~ok
+
     def _first_out(self, q: np.ndarray) -> int | None:
         bad = ~((q >= self._lo) & (q <= self._hi))
         return int(np.argmax(bad)) if bad.any() else None  # NaN counts as outside
@@ -142,6 +191,11 @@ class VelocityLimitInterlock:
         if not factor > 0:
             raise ValueError(f"factor must be positive, got {factor}")
         self.factor = float(factor)
+        self._bound = self.factor * self.limits
+
+    def may_trip(self, position: np.ndarray, velocity: np.ndarray,
+                 commanded: np.ndarray) -> np.ndarray:
+        return ~(np.abs(velocity) <= self._bound).all(axis=1)
 
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
         _check_shape(self.name, self.names, measured.velocity, "measured velocity")
@@ -165,6 +219,10 @@ class TrackingErrorInterlock:
         if np.any(self.bound <= 0):
             raise ValueError(f"tracking-error bounds must be positive, got {self.bound}")
 
+    def may_trip(self, position: np.ndarray, velocity: np.ndarray,
+                 commanded: np.ndarray) -> np.ndarray:
+        return ~(np.abs(commanded - position) <= self.bound).all(axis=1)
+
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
         _check_shape(self.name, self.names, measured.position, "measured position")
         _check_shape(self.name, self.names, commanded, "commanded position")
@@ -181,6 +239,10 @@ class StaleDataInterlock:
     """Trips when the backend flags a reading as stale (``measured.flags`` entry ``stale:…``)."""
 
     name = "stale_data"
+
+    def may_trip(self, position: np.ndarray, velocity: np.ndarray,
+                 commanded: np.ndarray) -> np.ndarray:
+        return np.zeros(len(position), dtype=bool)  # a scanned block carries no flags
 
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Trip | None:
         for flag in measured.flags:
@@ -209,6 +271,9 @@ class GantryClearanceInterlock:
     """
 
     name = "gantry_clearance"
+    stateful = True  # the carried-forward result changes at every exact check
+    #: Rounding allowance between the block bound and the per-cycle one (m).
+    _SCAN_SLACK = 1e-9
 
     def __init__(self, model, margin: float = 0.020, clearance=None,
                  check_commanded: bool = True, reuse: bool = True,
@@ -226,6 +291,17 @@ class GantryClearanceInterlock:
         self._levers = self.clearance.geometry.levers
         self._last_q: np.ndarray | None = None
         self._last_d = -np.inf
+
+    def may_trip(self, position: np.ndarray, velocity: np.ndarray,
+                 commanded: np.ndarray) -> np.ndarray:
+        """Rows where the carried-forward bound does not clear every checked position."""
+        if not self.reuse or self._last_q is None:
+            return np.ones(len(position), dtype=bool)
+        sources = [position, position + velocity * self.lookahead_s]
+        if self.check_commanded:
+            sources.append(commanded)
+        reach = np.abs(np.stack(sources, axis=1) - self._last_q) @ self._levers
+        return ~(self._last_d - reach >= self.margin + self._SCAN_SLACK).all(axis=1)
 
     def _distance(self, q: np.ndarray) -> tuple[float, str | None]:
         """A lower bound of the clearance at q, and the closest link when computed afresh."""
