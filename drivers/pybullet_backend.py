@@ -16,7 +16,8 @@ from typing import Literal, Sequence
 
 import numpy as np
 
-from drivers import ActuatorsBase, ConfigurationError, JointLimits, JointState
+from drivers import (ActuatorError, ActuatorsBase, ConfigurationError, JointLimits, JointState,
+                     NotEnabledError)
 
 
 @dataclass(frozen=True)
@@ -30,6 +31,16 @@ class SceneObject:
     # gantry: a concave mesh there triples the cost of every step; proximity
     # to it is checked separately).
     collide: bool = True
+
+
+@dataclass(frozen=True)
+class BlockStates:
+    """The states read at the start of each cycle of a block, rows ordered by cycle (SI)."""
+
+    time: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
 
 
 @dataclass
@@ -100,6 +111,7 @@ class PyBulletActuators(ActuatorsBase):
             pb.disconnect(self._client)
             raise
         self._step_count = 0
+        self._block = None
 
     # -- set-up ---------------------------------------------------------------
     def _setup(self, urdf: Path) -> None:
@@ -218,6 +230,80 @@ class PyBulletActuators(ActuatorsBase):
             self.robot, self._joint_index, self._pb.POSITION_CONTROL,
             targetPositions=position.tolist(), targetVelocities=qd, forces=self._forces,
             positionGains=self._kp, velocityGains=self._kd, physicsClientId=self._client)
+
+    # -- block execution (the runner's fast path) -----------------------------
+    def execute_block(self, position: np.ndarray, velocity: np.ndarray,
+                      ends: np.ndarray) -> BlockStates:
+        """Run a block of control cycles: read, command row k, step to ``ends[k]``.
+
+        Exactly the cycles ``read(); command(position[k], velocity[k]);
+        wait_until(ends[k])`` would run, without a Python object per sample:
+        the commands are checked and clipped for the whole block first, and the
+        states read at each cycle's start come back as arrays. The block's
+        states are kept so :meth:`rewind` can put the robot back where it was
+        at any of its cycles.
+        """
+        if not self._enabled:
+            raise NotEnabledError(f"{type(self).__name__}.execute_block() before enable()")
+        position = np.asarray(position, dtype=float)
+        velocity = np.asarray(velocity, dtype=float)
+        k, n = len(ends), self._n_joints
+        if position.shape != (k, n) or velocity.shape != (k, n):
+            raise ValueError(f"a block of {k} cycles needs ({k}, {n}) positions and velocities, "
+                             f"got {position.shape} and {velocity.shape}")
+        if not np.isfinite(position).all():
+            raise ValueError(f"command position is not finite in row "
+                             f"{int(np.flatnonzero(~np.isfinite(position).all(axis=1))[0])}")
+        lim = self._limits
+        targets = np.minimum(np.maximum(position, lim.lower), lim.upper).tolist()
+        speeds = np.minimum(np.maximum(velocity, -lim.velocity), lim.velocity).tolist()
+        steps = np.floor(np.asarray(ends) / self._dt + 1e-6).astype(np.int64).tolist()
+        pb, c, body, idx = self._pb, self._client, self.robot, self._joint_index
+        read, send, step = pb.getJointStates, pb.setJointMotorControlArray, pb.stepSimulation
+        mode, forces, kp, kd = pb.POSITION_CONTROL, self._forces, self._kp, self._kd
+        pos, vel, eff, counts = [], [], [], []
+        count = self._step_count
+        for q, qd, target in zip(targets, speeds, steps):
+            p, v, _, e = zip(*read(body, idx, physicsClientId=c))
+            pos.append(p)
+            vel.append(v)
+            eff.append(e)
+            counts.append(count)
+            send(body, idx, mode, targetPositions=q, targetVelocities=qd, forces=forces,
+                 positionGains=kp, velocityGains=kd, physicsClientId=c)
+            while count < target:
+                step(physicsClientId=c)
+                count += 1
+        self._step_count = count
+        self._hold_target = np.array(targets[-1]) if k else self._hold_target
+        states = BlockStates(np.array(counts) * self._dt, np.array(pos), np.array(vel),
+                             np.array(eff))
+        self._block = (states, counts, targets, speeds)
+        return states
+
+    def rewind(self, cycle: int) -> JointState:
+        """Put the robot back in the state read at ``cycle`` of the last block.
+
+        Positions, velocities and the clock are restored exactly; the physics
+        engine's solver caches are not, so what follows matches a run that
+        stopped there to within the solver's tolerance.
+        """
+        if self._block is None:
+            raise ActuatorError("rewind() without a block to rewind")
+        states, counts, targets, speeds = self._block
+        pb, c, body = self._pb, self._client, self.robot
+        for j, q, qd in zip(self._joint_index, states.position[cycle], states.velocity[cycle]):
+            pb.resetJointState(body, j, float(q), float(qd), physicsClientId=c)
+        if cycle > 0:  # the motors hold the previous cycle's command, as they did then
+            self._hold_target = np.array(targets[cycle - 1])
+            pb.setJointMotorControlArray(
+                body, self._joint_index, pb.POSITION_CONTROL, targetPositions=targets[cycle - 1],
+                targetVelocities=speeds[cycle - 1], forces=self._forces, positionGains=self._kp,
+                velocityGains=self._kd, physicsClientId=c)
+        self._step_count = counts[cycle]
+        self._block = None
+        return JointState(float(states.time[cycle]), states.position[cycle].copy(),
+                          states.velocity[cycle].copy(), states.effort[cycle].copy())
 
     def _disable(self) -> None:
         if self.settings.safe_stop == "hold":

@@ -1,0 +1,84 @@
+"""A block of control cycles run by the PyBullet backend in one call gives, bit for bit, what
+the same cycles give one call at a time; rewinding puts the robot back where it was."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.kinematics.arc_train import TARGET_1
+from bench.scene import URDF_DIR
+from drivers import NotEnabledError
+from drivers.pybullet_backend import PyBulletActuators, PyBulletSettings, default_scene
+from trajectories import LSPB
+
+
+def _sim(arc_train, physics_hz=1000.0, period=0.002) -> PyBulletActuators:
+    return PyBulletActuators(PyBulletSettings(
+        robot_urdf=URDF_DIR / "arc_train.urdf", joint_names=arc_train.joint_names,
+        scene=default_scene(), initial_position=arc_train.chain.home, physics_hz=physics_hz,
+        control_period=period))
+
+
+def _plan(arc_train, period: float, cycles: int):
+    vel = np.array([r.velocity for r in arc_train.chain.rows]) * 0.5
+    traj = LSPB(arc_train.chain.home, arc_train.ik(TARGET_1), vel, vel * 2)
+    q, qd, _ = traj.sample(np.arange(cycles) * period)
+    return q, qd
+
+
+@pytest.mark.parametrize("period", [0.001, 0.002])
+def test_a_block_equals_the_same_cycles_one_by_one(arc_train, period):
+    k = 600
+    q, qd = _plan(arc_train, period, k)
+    ends = np.add.accumulate(np.concatenate([[0.0], np.full(k, period)]))[1:]
+    with _sim(arc_train, period=period) as one, _sim(arc_train, period=period) as block:
+        one.enable()
+        block.enable()
+        rows = []
+        t = one.now()
+        for i in range(k):
+            st = one.read()
+            rows.append((st.time, st.position, st.velocity, st.effort))
+            one.command(q[i], qd[i])
+            t += period
+            one.wait_until(t)
+        got = [block.execute_block(q[a:a + 150], qd[a:a + 150], ends[a:a + 150])
+               for a in range(0, k, 150)]
+        assert one.now() == block.now()
+        for field, col in (("time", 0), ("position", 1), ("velocity", 2), ("effort", 3)):
+            expected = np.array([r[col] for r in rows])
+            assert np.array_equal(np.concatenate([getattr(g, field) for g in got]), expected), field
+        assert np.array_equal(one.read().position, block.read().position)
+
+
+def test_rewind_restores_the_state_read_at_a_cycle(arc_train):
+    k, period = 400, 0.002
+    q, qd = _plan(arc_train, period, k)
+    ends = (np.arange(k) + 1) * period
+    with _sim(arc_train) as sim:
+        with pytest.raises(NotEnabledError):
+            sim.execute_block(q, qd, ends)
+        sim.enable()
+        states = sim.execute_block(q, qd, ends)
+        st = sim.rewind(250)
+        assert st.time == pytest.approx(250 * period) and sim.now() == pytest.approx(st.time)
+        again = sim.read()
+        assert np.array_equal(again.position, states.position[250])
+        assert np.allclose(again.velocity, states.velocity[250], atol=1e-12)
+        # the motors hold the command of the cycle before: the next cycle continues as it did
+        sim.command(q[250], qd[250])
+        sim.wait_until(251 * period)
+        assert np.allclose(sim.read().position, states.position[251], atol=1e-6)
+
+
+def test_a_block_refuses_bad_commands_before_moving(arc_train):
+    q, qd = _plan(arc_train, 0.002, 10)
+    q[7, 3] = np.nan
+    with _sim(arc_train) as sim:
+        sim.enable()
+        with pytest.raises(ValueError, match="not finite in row 7"):
+            sim.execute_block(q, qd, (np.arange(10) + 1) * 0.002)
+        with pytest.raises(ValueError, match="needs"):
+            sim.execute_block(q[:, :3], qd[:, :3], (np.arange(10) + 1) * 0.002)
+        assert sim.now() == 0.0
