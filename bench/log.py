@@ -49,8 +49,8 @@ class TrialLog:
     def __len__(self) -> int:
         return self._n
 
-    def _grow(self) -> None:
-        cap = 2 * len(self._t)
+    def _grow(self, need: int = 0) -> None:
+        cap = max(2 * len(self._t), need)
         self._t = np.resize(self._t, cap)
         self._seg = np.resize(self._seg, cap)
         for k, a in self._arr.items():
@@ -71,6 +71,21 @@ class TrialLog:
         a["qd"][i] = qd
         a["effort"][i] = effort
         self._n = i + 1
+
+    def append_block(self, t, segment: int, q_cmd, qd_cmd, q, qd, effort) -> None:
+        """Rows of consecutive cycles at once (arrays with one row per cycle)."""
+        i, k = self._n, len(t)
+        if i + k > len(self._t):
+            self._grow(i + k)
+        self._t[i:i + k] = t
+        self._seg[i:i + k] = segment
+        a = self._arr
+        a["q_cmd"][i:i + k] = q_cmd
+        a["qd_cmd"][i:i + k] = qd_cmd
+        a["q"][i:i + k] = q
+        a["qd"][i:i + k] = qd
+        a["effort"][i:i + k] = effort
+        self._n = i + k
 
     def event(self, t: float, kind: str, message: str) -> None:
         self.events.append(Event(float(t), kind, message))

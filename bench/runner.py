@@ -4,30 +4,68 @@ The runner knows nothing of backends, robots or reports: it takes an
 ``Actuators`` and a list of :class:`Segment` (each a ``Trajectory`` plus a settle
 time) the way dm_control's environment takes a physics and a task. Each cycle
 reads the joints, checks the interlocks, records, commands, and waits for the
-next tick of the backend's clock. Offline trajectories are sampled for the
-whole segment in one vectorised call, so a cycle costs little more than the
-backend's own work.
+next tick of the backend's clock. Trajectories are sampled vectorised, a chunk
+of cycles at a time (memory stays bounded whatever a segment lasts).
+
+A backend that can run a block of cycles in one call and rewind to any of
+them (the simulator: :class:`BlockExecution`) gets the blocks whole: the
+interlocks then scan each block after it ran (:meth:`Interlocks.scan`) and, on
+a trip, the backend is rewound to the tripping cycle, so the trial trips and
+holds exactly where checking every cycle would have — at the cost of a bare
+simulation loop.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Literal, Optional, Protocol, Sequence
+from typing import Callable, Iterator, Literal, Optional, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
 from drivers import Actuators, ActuatorError, JointState
 from trajectories import Trajectory
-from trajectories.ruckig_traj import RuckigOnline
 
 from bench.log import TrialLog
+
+#: Cycles sampled from a trajectory at once: bounds a segment's memory, amortises sampling.
+SAMPLE_CHUNK = 2048
+#: Cycles a block-executing backend runs between two looks at the interlocks and progress.
+BLOCK = 256
 
 
 class TripCheck(Protocol):
     """What the runner needs of the safety interlocks (see bench/safety.py)."""
 
     def check(self, t: float, measured: JointState, commanded: np.ndarray): ...
+
+
+@runtime_checkable
+class BlockExecution(Protocol):
+    """A backend that runs many control cycles per call and can rewind to any of them."""
+
+    def execute_block(self, position: np.ndarray, velocity: np.ndarray, ends: np.ndarray): ...
+
+    def rewind(self, cycle: int) -> JointState: ...
+
+
+def runs_blocks(act: Actuators, interlocks: Optional[TripCheck]) -> bool:
+    """True when the runner may hand ``act`` whole blocks of cycles.
+
+    Asked of the object's class, not through attribute forwarding, so a fault
+    wrapper (which must see every cycle) never lets the block path through.
+    """
+    cls = type(act)
+    return (callable(getattr(cls, "execute_block", None)) and callable(getattr(cls, "rewind", None))
+            and (interlocks is None or callable(getattr(interlocks, "scan", None))))
+
+
+def sample_chunks(trajectory: Trajectory, cycles: int, dt: float,
+                  chunk: int = SAMPLE_CHUNK) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """(positions, velocities) for cycles 0..cycles-1 at period dt, ``chunk`` rows at a time."""
+    for k0 in range(0, cycles, chunk):
+        q, qd, _ = trajectory.sample(np.arange(k0, min(cycles, k0 + chunk)) * dt)
+        yield np.atleast_2d(q), np.atleast_2d(qd)
 
 
 @dataclass
@@ -81,41 +119,28 @@ class Runner:
                 raise ValueError(f"segment {seg.name!r} has {seg.trajectory.dof} joints, "
                                  f"the actuators have {n_dof}")
         log.segment_names = [s.name for s in segments]
-        total = sum(self._cycles(s) for s in segments)
-        done = 0
-        report_every = max(1, total // 200)
+        self._total = sum(self._cycles(s) for s in segments)
+        self._done = 0
+        self._report_every = max(1, self._total // 200)
         if not act.enabled:
             act.enable()
+        blocks = runs_blocks(act, self.interlocks)
         t_next = act.now()
+        q_c = None
         try:
             for si, seg in enumerate(segments):
                 n = self._cycles(seg)
                 log.event(act.now(), "segment", f"start {seg.name} ({seg.trajectory.duration:.3f} s"
                           f" + {seg.settle:.3f} s settle)")
-                online = isinstance(seg.trajectory, RuckigOnline)
-                times = np.arange(n) * dt
-                if not online:
-                    q_all, qd_all, _ = seg.trajectory.sample(times)
-                for k in range(n):
-                    if online:
-                        q_c, qd_c, _ = seg.trajectory.sample(times[k])
-                    else:
-                        q_c, qd_c = q_all[k], qd_all[k]
-                    st = act.read()
-                    log.append(st.time, si, q_c, qd_c, st.position, st.velocity, st.effort)
-                    if self.interlocks is not None:
-                        trip = self.interlocks.check(st.time, st, q_c)
-                        if trip is not None:
-                            return self._tripped(trip, st, si, log)
-                    act.command(q_c, qd_c)
-                    t_next += dt
-                    act.wait_until(t_next)
-                    done += 1
-                    if self.progress is not None and done % report_every == 0:
-                        self.progress(done / total)
+                for q_all, qd_all in sample_chunks(seg.trajectory, n, dt):
+                    step = self._run_blocks if blocks else self._run_cycles
+                    t_next, trip = step(si, q_all, qd_all, t_next, log)
+                    if trip is not None:
+                        return trip
+                    q_c = q_all[-1]
             st = act.read()
-            log.append(st.time, len(segments) - 1, q_c, np.zeros(n_dof), st.position,
-                       st.velocity, st.effort)
+            log.append(st.time, len(segments) - 1, st.position if q_c is None else q_c,
+                       np.zeros(n_dof), st.position, st.velocity, st.effort)
             log.event(st.time, "done", "all segments completed")
             if self.progress is not None:
                 self.progress(1.0)
@@ -125,6 +150,53 @@ class Runner:
             log.event(_safe_now(act), "abort", what)
             _safe_disable(act)
             raise
+
+    def _run_cycles(self, si: int, q_all: np.ndarray, qd_all: np.ndarray, t_next: float,
+                    log: TrialLog) -> tuple[float, Optional[RunResult]]:
+        """One chunk, cycle by cycle: read, record, check, command, wait."""
+        act, dt, interlocks = self.act, self.dt, self.interlocks
+        report_every = self._report_every
+        for k in range(len(q_all)):
+            q_c, qd_c = q_all[k], qd_all[k]
+            st = act.read()
+            log.append(st.time, si, q_c, qd_c, st.position, st.velocity, st.effort)
+            if interlocks is not None:
+                trip = interlocks.check(st.time, st, q_c)
+                if trip is not None:
+                    return t_next, self._tripped(trip, st, si, log)
+            act.command(q_c, qd_c)
+            t_next += dt
+            act.wait_until(t_next)
+            self._done += 1
+            if self.progress is not None and self._done % report_every == 0:
+                self.progress(self._done / self._total)
+        return t_next, None
+
+    def _run_blocks(self, si: int, q_all: np.ndarray, qd_all: np.ndarray, t_next: float,
+                    log: TrialLog) -> tuple[float, Optional[RunResult]]:
+        """One chunk in blocks the backend runs whole; the interlocks scan each block after it."""
+        act, interlocks = self.act, self.interlocks
+        for b0 in range(0, len(q_all), BLOCK):
+            q, qd = q_all[b0:b0 + BLOCK], qd_all[b0:b0 + BLOCK]
+            # the same sums the cycle-by-cycle loop makes, in the same order
+            ends = np.add.accumulate(np.concatenate(([t_next], np.full(len(q), self.dt))))[1:]
+            states = act.execute_block(q, qd, ends)
+            hit = None if interlocks is None else interlocks.scan(
+                states.time, states.position, states.velocity, states.effort, q)
+            if hit is None:
+                log.append_block(states.time, si, q, qd, states.position, states.velocity,
+                                 states.effort)
+                t_next = float(ends[-1])
+                self._done += len(q)
+                if self.progress is not None:
+                    self.progress(self._done / self._total)
+                continue
+            j, trip = hit
+            log.append_block(states.time[:j + 1], si, q[:j + 1], qd[:j + 1],
+                             states.position[:j + 1], states.velocity[:j + 1], states.effort[:j + 1])
+            st = act.rewind(j)
+            return t_next, self._tripped(trip, st, si, log)
+        return t_next, None
 
     def _tripped(self, trip, st: JointState, si: int, log: TrialLog) -> RunResult:
         act = self.act

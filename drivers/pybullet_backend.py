@@ -10,6 +10,8 @@ and gives the same numbers every time.
 from __future__ import annotations
 
 import math
+from array import array
+from itertools import repeat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, Sequence
@@ -257,27 +259,32 @@ class PyBulletActuators(ActuatorsBase):
         lim = self._limits
         targets = np.minimum(np.maximum(position, lim.lower), lim.upper).tolist()
         speeds = np.minimum(np.maximum(velocity, -lim.velocity), lim.velocity).tolist()
-        steps = np.floor(np.asarray(ends) / self._dt + 1e-6).astype(np.int64).tolist()
+        targets_steps = np.floor(np.asarray(ends) / self._dt + 1e-6).astype(np.int64)
+        # the step count when each cycle reads: it only moves forward
+        counts = np.maximum.accumulate(np.concatenate(([self._step_count], targets_steps)))
         pb, c, body, idx = self._pb, self._client, self.robot, self._joint_index
         read, send, step = pb.getJointStates, pb.setJointMotorControlArray, pb.stepSimulation
         mode, forces, kp, kd = pb.POSITION_CONTROL, self._forces, self._kp, self._kd
-        pos, vel, eff, counts = [], [], [], []
-        count = self._step_count
-        for q, qd, target in zip(targets, speeds, steps):
+        # Each cycle's reading goes straight into one flat buffer: keeping PyBullet's
+        # tuples alive instead costs more than the conversion (fresh memory every cycle).
+        buf = array("d")
+        put = buf.fromlist
+        for q, qd, steps in zip(targets, speeds, np.diff(counts).tolist()):
             p, v, _, e = zip(*read(body, idx, physicsClientId=c))
-            pos.append(p)
-            vel.append(v)
-            eff.append(e)
-            counts.append(count)
+            put(list(p + v + e))
             send(body, idx, mode, targetPositions=q, targetVelocities=qd, forces=forces,
                  positionGains=kp, velocityGains=kd, physicsClientId=c)
-            while count < target:
+            if steps == 1:
                 step(physicsClientId=c)
-                count += 1
-        self._step_count = count
+            else:
+                for _ in repeat(None, steps):
+                    step(physicsClientId=c)
+        self._step_count = int(counts[-1])
+        counts = counts[:-1].tolist()
         self._hold_target = np.array(targets[-1]) if k else self._hold_target
-        states = BlockStates(np.array(counts) * self._dt, np.array(pos), np.array(vel),
-                             np.array(eff))
+        rows = np.frombuffer(buf, dtype=float).reshape(k, 3, n)
+        states = BlockStates(np.array(counts, dtype=float) * self._dt, rows[:, 0], rows[:, 1],
+                             rows[:, 2])
         self._block = (states, counts, targets, speeds)
         return states
 

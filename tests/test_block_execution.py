@@ -82,3 +82,40 @@ def test_a_block_refuses_bad_commands_before_moving(arc_train):
         with pytest.raises(ValueError, match="needs"):
             sim.execute_block(q[:, :3], qd[:, :3], (np.arange(10) + 1) * 0.002)
         assert sim.now() == 0.0
+
+
+@pytest.mark.parametrize("on_trip", ["hold", "stop"])
+def test_runner_blocks_trip_at_the_cycle_checking_every_cycle_trips(on_trip, monkeypatch):
+    """A plan aimed through the gantry, run in blocks and cycle by cycle: the same trip at the
+    same cycle with the same cause, the same samples up to it, and the same hold after it to
+    within the solver's tolerance (the block path rewinds the physics to the tripping cycle)."""
+    import bench.runner as runner_module
+    from bench.config import TrialConfig
+    from bench.log import TrialLog
+    from bench.trial import interlocks_for, make_backend, plan, prepare
+    from test_interlock_trial import INTO_GANTRY
+
+    cfg = TrialConfig.model_validate({**INTO_GANTRY, "safety": {"on_trip": on_trip}})
+
+    def run(blocks: bool) -> TrialLog:
+        prep = prepare(cfg)
+        with make_backend(prep) as act:
+            assert runner_module.runs_blocks(act, interlocks_for(prep, act))
+            monkeypatch.setattr(runner_module, "runs_blocks", lambda a, i: blocks)
+            log = TrialLog(list(prep.robot.joint_names))
+            result = runner_module.Runner(act, cfg.control_period, interlocks_for(prep, act),
+                                          on_trip=on_trip).run(
+                plan(prep, act.read().position, act.limits.velocity), log)
+            monkeypatch.undo()
+        assert not result.completed and result.reason.startswith("interlock gantry_clearance")
+        return log
+
+    cycles, blocks = run(False), run(True)
+    kinds = lambda log: [(e.kind, e.message) for e in log.events]  # noqa: E731
+    assert kinds(blocks) == kinds(cycles)
+    trip_t = next(e.time for e in cycles.events if e.kind == "interlock")
+    upto = int(np.searchsorted(cycles.time, trip_t)) + 1
+    for field in ("time", "q_cmd", "qd_cmd", "q", "qd", "effort"):
+        assert np.array_equal(getattr(blocks, field)[:upto], getattr(cycles, field)[:upto]), field
+    assert len(blocks) == len(cycles)
+    assert np.allclose(blocks.q, cycles.q, atol=1e-6)
