@@ -158,7 +158,34 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
           note: str = typer.Option("", "--note", help="Operator note stored in the trial record."),
           emulate: bool = typer.Option(False, "--emulate", help="Run the real backend against the emulated servo bus and sensor."),
           as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
-    """Run one trial: home -> Target -> insertion -> retract, with its log and report."""
+    """Run one trial: home -> Target -> insertion -> retract, with its log and report.
+
+    Exit codes: 0 passed, 1 ran and failed, 2 refused before anything moved,
+    128 + N when stopped by signal N (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP).
+    """
+    from bench.interrupts import SignalGuard, TrialInterrupted
+
+    with SignalGuard() as guard:  # first, so no signal can land before it
+        try:
+            res, name = _trial(config, out, gui, note, emulate, guard)
+        except TrialInterrupted as e:
+            _interrupted(e)
+    if as_json:
+        emit_json(res.summary())
+    else:
+        o = res.outcome
+        verdict = "[green]PASSED[/]" if res.passed else "[red]FAILED[/]"
+        console.print(f"trial {name}: {verdict}  ({res.run_dir})")
+        if not res.completed:
+            console.print(f"[red]stopped early:[/] {res.reason}")
+        if o is not None:
+            console.print(f"tip deviation (mm): {o.tip_deviation_mm}, depth {o.depth_deviation_mm:+.3f} mm, "
+                          f"angle {o.angle_deviation_deg:+.4f}°")
+        console.print(f"report: {res.run_dir / 'report.html'}")
+    raise typer.Exit(0 if res.passed else 1)
+
+
+def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
     from bench.config import ConfigError, load_trial_config
     from bench.trial import TrialError
 
@@ -166,6 +193,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
         cfg = load_trial_config(config)
     except ConfigError as e:
         fail(str(e))
+    guard.check()
     rig = None
     if emulate:
         from bench.emulation import EmulatorProcess
@@ -188,29 +216,30 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
             backend.emulator = rig
             return backend
     try:
-        res = _run_with_progress(cfg, out, gui, note, factory)
+        return _run_with_progress(cfg, out, gui, note, factory, guard), cfg.name
     finally:
         if rig is not None:
             rig.close()
-    if as_json:
-        emit_json(res.summary())
-    else:
-        o = res.outcome
-        verdict = "[green]PASSED[/]" if res.passed else "[red]FAILED[/]"
-        console.print(f"trial {cfg.name}: {verdict}  ({res.run_dir})")
-        if not res.completed:
-            console.print(f"[red]stopped early:[/] {res.reason}")
-        if o is not None:
-            console.print(f"tip deviation (mm): {o.tip_deviation_mm}, depth {o.depth_deviation_mm:+.3f} mm, "
-                          f"angle {o.angle_deviation_deg:+.4f}°")
-        console.print(f"report: {res.run_dir / 'report.html'}")
-    raise typer.Exit(0 if res.passed else 1)
 
 
-def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=None):
+def _interrupted(e) -> None:
+    """One line on stderr for a trial stopped by a signal, then exit 128 + N."""
+    from bench.interrupts import signal_name
+
+    run_dir = getattr(e, "run_dir", None)
+    stop = getattr(e, "safe_stop", None)
+    where = f"log saved in {run_dir}" if run_dir else "nothing had moved; no log"
+    what = f"; {stop}" if stop else ""
+    err_console.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] trial stopped{what}; "
+                      f"{where}", highlight=False, soft_wrap=True)
+    raise typer.Exit(e.exit_code)
+
+
+def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=None, guard=None):
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from bench.config import ConfigError
+    from bench.interrupts import NO_SIGNALS
     from bench.trial import TrialError, run_trial
     from drivers import ActuatorError
 
@@ -219,7 +248,8 @@ def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=Non
         task = bar.add_task(f"trial {cfg.name}", total=1.0)
         try:
             return run_trial(cfg, out, gui=gui, note=note, backend_factory=backend_factory,
-                             progress=lambda f: bar.update(task, completed=f))
+                             progress=lambda f: bar.update(task, completed=f),
+                             interrupts=guard or NO_SIGNALS)
         except (TrialError, ConfigError, ActuatorError) as e:
             fail(str(e))
 

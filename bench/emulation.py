@@ -250,9 +250,13 @@ class EmulatorProcess:
         import tempfile
 
         self._stderr = tempfile.TemporaryFile(mode="w+")
+        # Its own session: a Ctrl-C or hang-up meant for the trial must not take the rig
+        # away before the trial's safe stop has talked to it; the trial ends it after.
+        # And it dies with its parent, even one killed outright.
         self.proc = subprocess.Popen(cmd + ["emulate", str(config_path), "--json"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=self._stderr, text=True, env=env)
+                                     stderr=self._stderr, text=True, env=env,
+                                     start_new_session=True, preexec_fn=_die_with_parent)
         self.faults = RemoteBusFaults(self._send)
         line = self._first_line(start_timeout)
         try:
@@ -307,6 +311,17 @@ class EmulatorProcess:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+        if os.getppid() == 1:  # the parent died before prctl took effect
+            os._exit(1)
 
 
 def retarget(config: TrialConfig, ports: RigPorts) -> TrialConfig:

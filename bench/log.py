@@ -3,11 +3,19 @@
 Saved as one ``.npz`` file: the time series as arrays and the metadata (config,
 package versions, seed, events) as one JSON string inside it, so a log can be
 moved, archived and compared without anything else.
+
+While a trial runs, the log also goes to a journal beside it (raw float64
+rows, and the metadata and events as JSON), flushed to the operating system
+at least every :data:`FLUSH_EVERY_S`: a process killed outright (SIGKILL, out
+of memory) leaves a log that :meth:`TrialLog.recover` reads back, losing at
+most that last second.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import time as _time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,6 +23,9 @@ from typing import Any
 import numpy as np
 
 SERIES = ("time", "segment", "q_cmd", "qd_cmd", "q", "qd", "effort")
+JOURNAL_ROWS = "trial.journal"  # float64 records: time, segment, then q_cmd qd_cmd q qd effort
+JOURNAL_META = "trial.journal.json"  # joint and segment names, metadata, events
+FLUSH_EVERY_S = 0.5
 
 
 @dataclass
@@ -45,6 +56,11 @@ class TrialLog:
         self._t = np.empty(self.capacity)
         self._seg = np.empty(self.capacity, dtype=np.int16)
         self._arr = {k: np.empty((self.capacity, n)) for k in ("q_cmd", "qd_cmd", "q", "qd", "effort")}
+
+        self._journal = None  # (rows file, meta path) while journaling
+        self._journaled = 0
+        self._meta_dirty = True
+        self._next_flush = 0.0
 
     def __len__(self) -> int:
         return self._n
@@ -89,6 +105,80 @@ class TrialLog:
 
     def event(self, t: float, kind: str, message: str) -> None:
         self.events.append(Event(float(t), kind, message))
+        self._meta_dirty = True
+
+    # -- journal (what survives a kill) -----------------------------------------
+    def journal_to(self, directory: Path) -> None:
+        """Start journaling into ``directory`` (rows so far included) and flush now."""
+        directory = Path(directory)
+        self._journal = (open(directory / JOURNAL_ROWS, "wb"), directory / JOURNAL_META)
+        self._journaled = 0
+        self._meta_dirty = True
+        self.flush()
+
+    def maybe_flush(self) -> None:
+        """Flush the journal if the last flush is older than FLUSH_EVERY_S (cheap otherwise)."""
+        if self._journal is not None and _time.monotonic() >= self._next_flush:
+            self.flush()
+
+    def flush(self) -> None:
+        """Hand the rows and events recorded since the last flush to the operating system."""
+        if self._journal is None:
+            return
+        rows, meta_path = self._journal
+        i, n = self._journaled, self._n
+        if n > i:
+            a = self._arr
+            block = np.hstack([self._t[i:n, None], self._seg[i:n, None].astype(float),
+                               a["q_cmd"][i:n], a["qd_cmd"][i:n], a["q"][i:n], a["qd"][i:n],
+                               a["effort"][i:n]])
+            rows.write(block.tobytes())
+            rows.flush()
+            self._journaled = n
+        if self._meta_dirty:
+            tmp = meta_path.with_name(meta_path.name + ".part")
+            tmp.write_text(json.dumps(self._meta(), default=_json_default))
+            tmp.replace(meta_path)
+            self._meta_dirty = False
+        self._next_flush = _time.monotonic() + FLUSH_EVERY_S
+
+    def close_journal(self, remove: bool = True) -> None:
+        """Stop journaling; ``remove`` deletes the journal (once the .npz holds everything)."""
+        if self._journal is None:
+            return
+        rows, meta_path = self._journal
+        rows.close()
+        self._journal = None
+        if remove:
+            for path in (Path(rows.name), meta_path):
+                try:
+                    os.unlink(path)
+                except FileNotFoundError:
+                    pass
+
+    @classmethod
+    def recover(cls, directory: Path) -> "TrialLog":
+        """The log of a trial whose process died, read back from its journal."""
+        directory = Path(directory)
+        meta_path, rows_path = directory / JOURNAL_META, directory / JOURNAL_ROWS
+        if not meta_path.is_file() or not rows_path.is_file():
+            raise FileNotFoundError(f"no trial journal in {directory}")
+        meta = json.loads(meta_path.read_text())
+        n_joints = len(meta["joint_names"])
+        width = 2 + 5 * n_joints
+        raw = np.frombuffer(rows_path.read_bytes(), dtype=float)
+        rows = raw[: len(raw) // width * width].reshape(-1, width)  # a torn last row is dropped
+        log = cls(meta["joint_names"], meta["segment_names"], meta["metadata"],
+                  [Event(**e) for e in meta["events"]], capacity=max(1, len(rows)))
+        j = 2
+        cols = {}
+        for k in SERIES[2:]:
+            cols[k] = rows[:, j:j + n_joints]
+            j += n_joints
+        log.append_block(rows[:, 0], 0, cols["q_cmd"], cols["qd_cmd"], cols["q"], cols["qd"],
+                         cols["effort"])
+        log._seg[: len(rows)] = rows[:, 1].astype(np.int16)
+        return log
 
     # -- views ---------------------------------------------------------------
     @property
@@ -115,12 +205,7 @@ class TrialLog:
         """Write the log atomically (a temporary file renamed into place)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        meta = {
-            "joint_names": self.joint_names,
-            "segment_names": self.segment_names,
-            "events": [e.as_dict() for e in self.events],
-            "metadata": self.metadata,
-        }
+        meta = self._meta()
         tmp = path.with_name(path.name + ".part")
         with open(tmp, "wb") as f:
             np.savez_compressed(f, time=self.time, segment=self.segment,
@@ -128,6 +213,10 @@ class TrialLog:
                                 meta=np.array(json.dumps(meta, default=_json_default)))
         tmp.replace(path)
         return path
+
+    def _meta(self) -> dict:
+        return {"joint_names": self.joint_names, "segment_names": self.segment_names,
+                "events": [e.as_dict() for e in self.events], "metadata": self.metadata}
 
     @classmethod
     def load(cls, path: Path) -> "TrialLog":

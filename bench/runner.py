@@ -26,12 +26,19 @@ import numpy as np
 from drivers import Actuators, ActuatorError, JointState
 from trajectories import Trajectory
 
+from bench.interrupts import NO_SIGNALS
 from bench.log import TrialLog
 
 #: Cycles sampled from a trajectory at once: bounds a segment's memory, amortises sampling.
 SAMPLE_CHUNK = 2048
 #: Cycles a block-executing backend runs between two looks at the interlocks and progress.
 BLOCK = 256
+
+
+class Interruptible(Protocol):
+    """Raises when the run must stop (a stop signal arrived), polled every cycle or block."""
+
+    def check(self) -> None: ...
 
 
 class TripCheck(Protocol):
@@ -92,7 +99,7 @@ class Runner:
     def __init__(self, actuators: Actuators, control_period: float,
                  interlocks: Optional[TripCheck] = None,
                  on_trip: Literal["hold", "stop"] = "hold", hold_after_trip: float = 0.25,
-                 progress: Optional[ProgressFn] = None) -> None:
+                 progress: Optional[ProgressFn] = None, interrupts: "Interruptible" = NO_SIGNALS) -> None:
         if control_period <= 0:
             raise ValueError(f"control period must be positive, got {control_period}")
         self.act = actuators
@@ -101,6 +108,7 @@ class Runner:
         self.on_trip = on_trip
         self.hold_after_trip = hold_after_trip
         self.progress = progress
+        self.interrupts = interrupts
 
     def _cycles(self, seg: Segment) -> int:
         return int(math.ceil((seg.trajectory.duration + seg.settle) / self.dt - 1e-9)) + 1
@@ -145,9 +153,8 @@ class Runner:
             if self.progress is not None:
                 self.progress(1.0)
             return RunResult(log, True)
-        except (ActuatorError, KeyboardInterrupt) as e:
-            what = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else f"{type(e).__name__}: {e}"
-            log.event(_safe_now(act), "abort", what)
+        except BaseException as e:  # a lost bus, a stop signal, a bad command: stop safely first
+            log.event(_safe_now(act), "abort", abort_reason(e))
             _safe_disable(act)
             raise
 
@@ -155,7 +162,7 @@ class Runner:
                     log: TrialLog) -> tuple[float, Optional[RunResult]]:
         """One chunk, cycle by cycle: read, record, check, command, wait."""
         act, dt, interlocks = self.act, self.dt, self.interlocks
-        report_every = self._report_every
+        report_every, check = self._report_every, self.interrupts.check
         for k in range(len(q_all)):
             q_c, qd_c = q_all[k], qd_all[k]
             st = act.read()
@@ -167,6 +174,8 @@ class Runner:
             act.command(q_c, qd_c)
             t_next += dt
             act.wait_until(t_next)
+            check()
+            log.maybe_flush()
             self._done += 1
             if self.progress is not None and self._done % report_every == 0:
                 self.progress(self._done / self._total)
@@ -187,6 +196,8 @@ class Runner:
                 log.append_block(states.time, si, q, qd, states.position, states.velocity,
                                  states.effort)
                 t_next = float(ends[-1])
+                self.interrupts.check()
+                log.maybe_flush()
                 self._done += len(q)
                 if self.progress is not None:
                     self.progress(self._done / self._total)
@@ -217,6 +228,13 @@ class Runner:
             s = act.read()
             log.append(s.time, si, hold, zero, s.position, s.velocity, s.effort)
         return RunResult(log, False, f"interlock {trip.interlock}: {trip.cause}", trip)
+
+
+def abort_reason(e: BaseException) -> str:
+    """One line for the log and the operator: why the run stopped."""
+    if isinstance(e, KeyboardInterrupt):
+        return str(e) if str(e).startswith("interrupted") else "interrupted (Ctrl-C)"
+    return f"{type(e).__name__}: {e}"
 
 
 def _safe_now(act: Actuators) -> float:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import platform
+import shutil
 from dataclasses import dataclass, field
 from importlib import metadata as importlib_metadata
 from pathlib import Path
@@ -20,9 +21,10 @@ import numpy as np
 from bench.config import ConfigError, TrialConfig
 from bench.kinematics.needle import NeedleTarget, UnreachableError
 from bench.lab.calibration import calibration_of, calibration_record
-from bench.log import TrialLog
+from bench.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
 from bench.outcome import NeedleOutcome, needle_outcome, settled_position
-from bench.runner import Runner, Segment
+from bench.interrupts import NO_SIGNALS, TrialInterrupted
+from bench.runner import Interruptible, Runner, Segment, abort_reason
 from drivers import Actuators, ActuatorError
 
 PACKAGES = ("needle-hil-bench", "numpy", "pybullet", "ruckig", "dynamixel-sdk", "pyserial", "pydantic")
@@ -235,29 +237,107 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
               progress: Optional[Callable[[float], None]] = None,
               backend_factory: Optional[Callable[[PreparedTrial], Actuators]] = None,
               wrap: Optional[Callable[[Actuators], Actuators]] = None,
-              note: str = "", report: bool = True) -> TrialResult:
+              note: str = "", report: bool = True,
+              interrupts: Interruptible = NO_SIGNALS) -> TrialResult:
     """Run one trial and write its run directory; the log is saved on every exit path.
 
     ``report=False`` writes only the log and ``result.json`` (no figures), for campaigns.
+    ``interrupts`` (a :class:`bench.interrupts.SignalGuard`) turns stop signals into
+    :class:`TrialInterrupted`, raised once the actuators are safe and the record written.
     """
     prep = prepare(config)
-    backend = (backend_factory or (lambda p: make_backend(p, gui)))(prep)
-    act = backend
-    try:  # a refused fault (e.g. one the backend cannot host) leaves nothing behind
-        if config.faults:
-            from bench.faults import apply_faults, parse_faults
-
-            specs = parse_faults(config.faults, prep.robot.joint_names)
-            act = apply_faults(act, specs, np.random.default_rng(config.seed))
-        if wrap:
-            act = wrap(act)
-    except BaseException:
-        backend.close()
+    interrupts.check()
+    log = TrialLog(list(prep.robot.joint_names), metadata=_metadata(prep, note))
+    out_existed = Path(out).exists()
+    with interrupts.deferred():  # a run directory is never left without its journal
+        run_dir = new_run_dir(out, config.name)
+        log_path = run_dir / "trial.npz"
+        log.journal_to(run_dir)
+    backend = None
+    try:
+        backend = (backend_factory or (lambda p: make_backend(p, gui)))(prep)
+        act = _wrapped(backend, prep, wrap)
+    except (ActuatorError, ConfigError, TrialError, ValueError):
+        if backend is not None:
+            backend.close()
+        log.close_journal()
+        shutil.rmtree(run_dir, ignore_errors=True)  # refused before anything moved: nothing to keep
+        if not out_existed:
+            shutil.rmtree(out, ignore_errors=True)
         raise
-    run_dir = new_run_dir(out, config.name)
-    log_path = run_dir / "trial.npz"
-    log = TrialLog(list(prep.robot.joint_names))
-    log.metadata.update({
+    except BaseException as e:  # interrupted while the backend was being built
+        with interrupts.deferred():
+            if backend is not None:
+                backend.close()
+            log.event(0.0, "abort", abort_reason(e))
+            _finish_record(run_dir, log, log_path, prep)
+        e.run_dir, e.safe_stop = run_dir, "the actuators were never enabled"
+        raise
+    interrupted: Optional[BaseException] = None
+    try:
+        try:
+            interrupts.check()
+            if hasattr(backend, "servo_info"):
+                log.metadata["servos"] = backend.servo_info()
+            if getattr(getattr(backend, "settings", None), "warnings", None):
+                log.metadata["warnings"] = list(backend.settings.warnings)
+            q_start = act.read().position
+            segments = plan(prep, q_start, act.limits.velocity)
+            interlocks = interlocks_for(prep, act)  # built (and imported) before anything moves
+            interrupts.check()  # a signal swallowed during the set-up still stops here
+            runner = Runner(act, config.control_period, interlocks=interlocks,
+                            on_trip=config.safety.on_trip, progress=progress, interrupts=interrupts)
+            runner.run(segments, log)
+        finally:
+            with interrupts.deferred():  # the safe stop always runs to its end
+                act.close()
+    except KeyboardInterrupt as e:
+        interrupted = e
+        _abort_once(log, abort_reason(e))
+    except (ActuatorError, ValueError, ArithmeticError) as e:  # lost bus, hardware fault, bad command
+        _abort_once(log, abort_reason(e))
+    except BaseException as e:
+        with interrupts.deferred():
+            _abort_once(log, abort_reason(e))
+            _note_safe_stop(log, backend)
+            _finish_record(run_dir, log, log_path, prep)
+        raise
+    with interrupts.deferred():
+        _note_safe_stop(log, backend)
+        if interrupted is None and interrupts.interrupted:  # noted while stopping safely
+            interrupted = TrialInterrupted(interrupts.signum)
+            _abort_once(log, abort_reason(interrupted))
+        res = _finish_record(run_dir, log, log_path, prep)
+    try:
+        if interrupted is not None:
+            raise interrupted
+        if report:
+            from bench.report import write_trial_report
+
+            write_trial_report(res, log, prep)
+        interrupts.check()
+    except KeyboardInterrupt as e:  # the record is complete; the report can be rebuilt from it
+        e.run_dir = run_dir
+        e.safe_stop = getattr(backend, "safe_stop_report", None) or "the actuators were never enabled"
+        raise
+    return res
+
+
+def _wrapped(backend: Actuators, prep: PreparedTrial,
+             wrap: Optional[Callable[[Actuators], Actuators]]) -> Actuators:
+    """The backend inside the config's fault wrappers (a fault it cannot host is refused)."""
+    act = backend
+    if prep.config.faults:
+        from bench.faults import apply_faults, parse_faults
+
+        specs = parse_faults(prep.config.faults, prep.robot.joint_names)
+        act = apply_faults(act, specs, np.random.default_rng(prep.config.seed))
+    return wrap(act) if wrap else act
+
+
+def _metadata(prep: PreparedTrial, note: str) -> dict:
+    config = prep.config
+    return {
         "config": json.loads(config.model_dump_json()),
         "config_file": str(config.source) if config.source else None,
         "calibration": calibration_record(config),  # path and content, or None
@@ -268,37 +348,29 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
                    "angle_rad": prep.target.angle, "tilt_rad": prep.target.tilt},
         "q_entry": prep.q_entry.tolist(), "q_insert": prep.q_insert.tolist(),
         "control_period": config.control_period,
-    })
-    if hasattr(backend, "servo_info"):
-        log.metadata["servos"] = backend.servo_info()
-    if getattr(getattr(backend, "settings", None), "warnings", None):
-        log.metadata["warnings"] = list(backend.settings.warnings)
-    try:
-        with act:
-            q_start = act.read().position
-            segments = plan(prep, q_start, act.limits.velocity)
-            runner = Runner(act, config.control_period, interlocks=interlocks_for(prep, act),
-                            on_trip=config.safety.on_trip, progress=progress)
-            runner.run(segments, log)
-    except ActuatorError as e:
-        if not any(ev.kind == "abort" for ev in log.events):  # failed before the runner started
-            log.event(log.time[-1] if len(log) else 0.0, "abort", f"{type(e).__name__}: {e}")
-    except KeyboardInterrupt:
-        if not any(e.kind == "abort" for e in log.events):
-            log.event(log.time[-1] if len(log) else 0.0, "abort", "interrupted (Ctrl-C)")
-        log.save(log_path)
-        write_record(run_dir, log_path)
-        raise
-    finally:
-        log.save(log_path)
-    write_record(run_dir, log_path)
-    res = result_from_log(run_dir, log, prep)
-    if report:
-        from bench.report import write_trial_report
+    }
 
-        write_trial_report(res, log, prep)
-    else:
-        write_result_json(res)
+
+def _abort_once(log: TrialLog, reason: str) -> None:
+    if not any(ev.kind == "abort" for ev in log.events):
+        log.event(log.time[-1] if len(log) else 0.0, "abort", reason)
+
+
+def _note_safe_stop(log: TrialLog, backend: Actuators) -> None:
+    """Record how the actuators were left (the backend's own read-back where it has one)."""
+    report = getattr(backend, "safe_stop_report", None)
+    if report:
+        log.event(log.time[-1] if len(log) else 0.0, "safe-stop", report)
+
+
+def _finish_record(run_dir: Path, log: TrialLog, log_path: Path, prep: PreparedTrial) -> TrialResult:
+    """The log, record.json and result.json on disk; the journal removed once they are."""
+    log.flush()
+    log.save(log_path)
+    write_record(run_dir, log_path)
+    log.close_journal()
+    res = result_from_log(run_dir, log, prep)
+    write_result_json(res)
     return res
 
 
@@ -358,6 +430,8 @@ def load_record(run_dir: Path) -> tuple[TrialLog, PreparedTrial]:
     """The log and the prepared trial of a run directory, after checking the log's checksum."""
     run_dir = Path(run_dir)
     rec_path = run_dir / "record.json"
+    if not rec_path.is_file() and (run_dir / JOURNAL_META).is_file():
+        recover_run(run_dir)
     if not rec_path.is_file():
         raise TrialError(f"{run_dir} has no record.json: not a trial run directory")
     rec = json.loads(rec_path.read_text())
@@ -373,6 +447,21 @@ def load_record(run_dir: Path) -> tuple[TrialLog, PreparedTrial]:
     except Exception as e:  # a record written by an incompatible version
         raise TrialError(f"the config stored in {log_path.name} is not readable: {e}") from None
     return log, prepare(config)
+
+
+def recover_run(run_dir: Path) -> Path:
+    """trial.npz and record.json of a trial whose process was killed, from its journal."""
+    log = TrialLog.recover(run_dir)
+    if not any(e.kind in ("done", "abort") for e in log.events):
+        log.event(log.time[-1] if len(log) else 0.0, "abort",
+                  "the trial's process ended without saving its log (killed?); "
+                  "recovered from the journal")
+    log_path = Path(run_dir) / "trial.npz"
+    log.save(log_path)
+    write_record(run_dir, log_path)
+    for name in (JOURNAL_ROWS, JOURNAL_META):
+        (Path(run_dir) / name).unlink(missing_ok=True)
+    return log_path
 
 
 def rebuild_report(run_dir: Path) -> TrialResult:

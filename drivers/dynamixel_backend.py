@@ -153,6 +153,7 @@ class DynamixelActuators(ActuatorsBase):
         self._last: Optional[JointState] = None
         self._fails = 0
         self.firmware: dict[int, int] = {}
+        self.safe_stop_report: Optional[str] = None
         self.models: dict[int, int] = {}
         self.port = BlockingPortHandler(s.port)
         self.ph = StuffingPacketHandler()
@@ -417,20 +418,37 @@ class DynamixelActuators(ActuatorsBase):
         if self.settings.safe_stop == "hold":
             try:
                 self._send_goals(self._goal_ticks(self._encoder_positions(self._read_bus())))
-            except CommunicationError:
-                pass
+                self.safe_stop_report = "holding the measured position (torque on)"
+            except CommunicationError as e:
+                self.safe_stop_report = f"hold not confirmed: {e}"
             return
         self._torque_off_all()
 
     def _torque_off_all(self) -> None:
-        """Torque off on every servo that still answers (broadcast, then one by one)."""
+        """Torque off on every servo that still answers (broadcast, then one by one), then
+        Torque Enable read back from each: ``safe_stop_report`` says which confirmed."""
         addr, _ = ADDR["Torque Enable"]
-        self.ph.write1ByteTxOnly(self.port, self._sdk.BROADCAST_ID, addr, 0)
+        try:
+            self.ph.write1ByteTxOnly(self.port, self._sdk.BROADCAST_ID, addr, 0)
+        except Exception:  # the port may already be gone; try one by one all the same
+            pass
+        unconfirmed = []
         for sid in self._ids:
-            try:
-                self.ph.write1ByteTxRx(self.port, sid, addr, 0)
-            except Exception:  # the port may already be gone
-                pass
+            for _ in range(2):  # one retry: a dead bus must not hold up the exit
+                try:
+                    self.ph.write1ByteTxRx(self.port, sid, addr, 0)
+                    value, comm, err = self.ph.read1ByteTxRx(self.port, sid, addr)
+                except Exception:  # the port may already be gone
+                    continue
+                if comm == self._sdk.COMM_SUCCESS and value == 0:
+                    break
+            else:
+                unconfirmed.append(sid)
+        n = len(self._ids)
+        self.safe_stop_report = (
+            f"torque off, confirmed by reading Torque Enable back from all {n} servos"
+            if not unconfirmed else
+            f"torque off NOT confirmed for servo ID(s) {unconfirmed} of {n}: check the rig")
 
     def _close(self) -> None:
         self._shutdown_port()
@@ -440,7 +458,8 @@ class DynamixelActuators(ActuatorsBase):
             self._sensor.close()
             self._sensor = None
         try:
-            if self.settings.safe_stop == "torque_off" and getattr(self.port, "is_open", False):
+            if (self.settings.safe_stop == "torque_off" and self.safe_stop_report is None
+                    and getattr(self.port, "is_open", False)):
                 self._torque_off_all()
         finally:
             try:

@@ -114,6 +114,7 @@ class PyBulletActuators(ActuatorsBase):
             raise
         self._step_count = 0
         self._block = None
+        self.safe_stop_report: str | None = None
 
     # -- set-up ---------------------------------------------------------------
     def _setup(self, urdf: Path) -> None:
@@ -315,8 +316,10 @@ class PyBulletActuators(ActuatorsBase):
     def _disable(self) -> None:
         if self.settings.safe_stop == "hold":
             self._send(self.read().position, None)
+            self.safe_stop_report = "holding the measured position"
         else:
             self._motors_off()
+            self.safe_stop_report = "motors off"
 
     def _motors_off(self) -> None:
         n = len(self._joint_index)

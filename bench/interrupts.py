@@ -1,0 +1,110 @@
+"""SIGINT, SIGTERM and SIGHUP end a trial the same way: safe stop, log saved, one line, 128+N.
+
+A signal handler that only raised an exception would be lost wherever library
+code swallows exceptions (an import that catches ``BaseException``) and would
+cut a safe stop short if a second signal came during it. So the guard records
+the first signal and raises :class:`TrialInterrupted` once; the runner and the
+trial also poll :meth:`SignalGuard.check` at every phase boundary and control
+block, so a swallowed exception is still acted on; later signals are counted,
+never raised, so the safe stop and the saving of the log always finish.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import contextmanager
+from types import FrameType
+from typing import Iterator, Optional
+
+#: The signals a trial treats as "stop now, safely": Ctrl-C, kill/timeout/systemd, a lost terminal.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class TrialInterrupted(KeyboardInterrupt):
+    """A stop signal arrived; ``signum`` says which (exit code 128 + signum)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(f"interrupted by {signal_name(signum)}")
+        self.signum = signum
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+
+def signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
+
+
+class SignalGuard:
+    """Context manager: the stop signals become one :class:`TrialInterrupted` and a flag.
+
+    Installs its handlers only in the main thread (elsewhere Python forbids
+    it; the guard then does nothing but answer :meth:`check` with no signal),
+    and restores the previous handlers on exit.
+    """
+
+    def __init__(self) -> None:
+        self.signum: Optional[int] = None
+        self.repeats = 0
+        self._previous: dict[int, object] = {}
+        self._deferring = 0
+
+    def _handle(self, signum: int, frame: Optional[FrameType]) -> None:  # noqa: ARG002
+        if self.signum is not None:
+            self.repeats += 1  # never raise twice: the safe stop in progress must finish
+            return
+        self.signum = signum
+        if not self._deferring:
+            raise TrialInterrupted(signum)
+
+    @contextmanager
+    def deferred(self) -> Iterator[None]:
+        """A stretch no signal may cut short (the safe stop, writing the record): a signal
+        arriving in it is only noted, for :meth:`check` to raise afterwards."""
+        self._deferring += 1
+        try:
+            yield
+        finally:
+            self._deferring -= 1
+
+    def check(self) -> None:
+        """Raise :class:`TrialInterrupted` if a stop signal has arrived (even if swallowed)."""
+        if self.signum is not None:
+            raise TrialInterrupted(self.signum)
+
+    @property
+    def interrupted(self) -> bool:
+        return self.signum is not None
+
+    def __enter__(self) -> "SignalGuard":
+        if threading.current_thread() is threading.main_thread():
+            for sig in STOP_SIGNALS:
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)  # type: ignore[arg-type]
+        self._previous.clear()
+
+
+class _NoSignals:
+    """The guard of a trial run with no signal handling (library use, worker threads)."""
+
+    signum = None
+    interrupted = False
+
+    def check(self) -> None:
+        return None
+
+    @contextmanager
+    def deferred(self) -> Iterator[None]:
+        yield
+
+
+NO_SIGNALS = _NoSignals()

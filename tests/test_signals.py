@@ -1,0 +1,175 @@
+"""SIGINT, SIGTERM and SIGHUP at any moment of `hilbench trial` end it the same way: safe stop,
+log and record on disk (rebuildable), one line on stderr, exit 128 + N, no surviving child;
+SIGKILL leaves a journal that `hilbench report` recovers."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from bench.log import TrialLog
+
+REPO = Path(__file__).resolve().parent.parent
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+SIM = REPO / "hil_configs" / "sim_target1.yaml"
+LAB = REPO / "hil_configs" / "lab_real.yaml"
+
+
+def _start(config: Path, out: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([HILBENCH, "trial", str(config), "--out", str(out), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(predicate, timeout: float = 60.0, what: str = "") -> None:
+    t_end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > t_end:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.005)
+
+
+def _run_dir(out: Path) -> Path | None:
+    dirs = list(out.iterdir()) if out.is_dir() else []
+    return dirs[0] if dirs else None
+
+
+def _journal_rows(out: Path) -> int:
+    d = _run_dir(out)
+    j = d / "trial.journal" if d else None
+    return j.stat().st_size // (8 * 47) if j and j.is_file() else 0  # 2 + 5·9 doubles a row
+
+
+def _finish(proc: subprocess.Popen, sig: int) -> tuple[int, str]:
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, err
+
+
+def _assert_interrupted(rc: int, err: str, sig: int, out: Path) -> TrialLog:
+    name = signal.Signals(sig).name
+    assert rc == 128 + sig, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert "Traceback" not in err
+    assert lines[-1].startswith(f"interrupted by {name}: trial stopped"), err
+    run = _run_dir(out)
+    assert f"log saved in {run}" in lines[-1]
+    result = json.loads((run / "result.json").read_text())
+    assert result["completed"] is False and result["reason"] == f"interrupted by {name}"
+    rebuilt = subprocess.run([HILBENCH, "report", str(run), "--json"], capture_output=True,
+                             text=True, timeout=120)
+    assert rebuilt.returncode == 0, rebuilt.stderr
+    assert (run / "report.html").is_file()
+    log = TrialLog.load(run / "trial.npz")
+    assert [e.message for e in log.events if e.kind == "abort"] == [f"interrupted by {name}"]
+    assert not (run / "trial.journal").exists()  # the record replaced the journal
+    return log
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_signal_during_set_up_and_mid_run_on_the_sim(tmp_path, sig):
+    # during the set-up: as soon as the run directory exists (backend, interlocks, imports)
+    out = tmp_path / "setup"
+    proc = _start(SIM, out)
+    _wait_for(lambda: _run_dir(out) is not None, what="the run directory")
+    rc, err = _finish(proc, sig)
+    _assert_interrupted(rc, err, sig, out)
+    # mid-run: once the journal holds samples
+    out = tmp_path / "run"
+    proc = _start(SIM, out)
+    _wait_for(lambda: _journal_rows(out) > 10, what="samples in the journal")
+    rc, err = _finish(proc, sig)
+    log = _assert_interrupted(rc, err, sig, out)
+    assert len(log) > 10
+    assert [e.message for e in log.events if e.kind == "safe-stop"] == ["holding the measured position"]
+    assert "holding the measured position" in err
+
+
+def test_signal_before_the_trial_starts_moves_nothing_and_writes_nothing(tmp_path):
+    proc = _start(SIM, tmp_path / "out")
+    time.sleep(0.05)  # still importing
+    rc, err = _finish(proc, signal.SIGTERM)
+    assert rc in (128 + signal.SIGTERM, -signal.SIGTERM)
+    assert "Traceback" not in err and _run_dir(tmp_path / "out") is None
+
+
+def test_signal_while_the_report_is_drawn(tmp_path, monkeypatch):
+    """The record is complete before the report: a signal then still leaves a rebuildable run."""
+    from typer.testing import CliRunner
+
+    import bench.report
+    from bench.cli import app
+
+    def drawing(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(1.0)  # the handler raises here
+        raise AssertionError("the signal did not stop the report")
+
+    monkeypatch.setattr(bench.report, "write_trial_report", drawing)
+    res = CliRunner().invoke(app, ["trial", str(REPO / "hil_configs" / "sim_target1_fast.yaml"),
+                                   "--out", str(tmp_path)])
+    assert res.exit_code == 143, res.output
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL  # handlers restored
+    run = _run_dir(tmp_path)
+    assert json.loads((run / "result.json").read_text())["completed"] is True  # the trial itself did
+    assert "interrupted by SIGTERM" in res.output and f"log saved in {run}" in res.output
+    monkeypatch.undo()
+    assert subprocess.run([HILBENCH, "report", str(run)], capture_output=True,
+                          timeout=120).returncode == 0
+
+
+def _emulators_of(config: Path) -> list[int]:
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                cmd = (d / "cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if b"emulate" in cmd and str(config).encode() in cmd:
+                pids.append(int(d.name))
+    return pids
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals and /proc")
+def test_sigterm_on_the_emulated_rig_turns_torque_off_and_leaves_no_child(tmp_path):
+    config = tmp_path / "lab.yaml"
+    shutil.copy(LAB, config)
+    out = tmp_path / "out"
+    proc = _start(config, out, "--emulate")
+    _wait_for(lambda: _journal_rows(out) > 20, timeout=120, what="samples in the journal")
+    assert _emulators_of(config)
+    rc, err = _finish(proc, signal.SIGTERM)
+    log = _assert_interrupted(rc, err, signal.SIGTERM, out)
+    assert [e.message for e in log.events if e.kind == "safe-stop"] == [
+        "torque off, confirmed by reading Torque Enable back from all 9 servos"]
+    _wait_for(lambda: not _emulators_of(config), timeout=10, what="the emulator to exit")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl and /proc")
+def test_sigkill_leaves_a_journal_that_report_recovers_and_no_child(tmp_path):
+    config = tmp_path / "lab.yaml"
+    shutil.copy(LAB, config)
+    out = tmp_path / "out"
+    proc = _start(config, out, "--emulate")
+    _wait_for(lambda: _journal_rows(out) > 100, timeout=120, what="samples in the journal")
+    rows_before = _journal_rows(out)
+    proc.kill()
+    proc.communicate(timeout=30)
+    _wait_for(lambda: not _emulators_of(config), timeout=10, what="the emulator to die with it")
+    run = _run_dir(out)
+    assert not (run / "record.json").exists()
+    rebuilt = subprocess.run([HILBENCH, "report", str(run), "--json"], capture_output=True,
+                             text=True, timeout=120)
+    assert rebuilt.returncode == 0, rebuilt.stderr
+    log = TrialLog.load(run / "trial.npz")
+    assert len(log) >= rows_before  # at most the last flush interval is lost
+    assert any(e.kind == "abort" and "killed" in e.message for e in log.events)
+    assert json.loads((run / "result.json").read_text())["completed"] is False
