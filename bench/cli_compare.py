@@ -97,6 +97,7 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
     from bench.compare import PlanMismatchError
     from bench.compare_session import CompareError, run_comparison
     from bench.config import ConfigError, load_trial_config
+    from bench.interrupts import SignalGuard, TrialInterrupted, signal_name
     from bench.trial import TrialError
     from drivers import ActuatorError
 
@@ -111,11 +112,18 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
         def progress(what: str, fraction: float) -> None:
             bar.update(task, description=what, completed=min(1.0, fraction))
 
-        try:
-            res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
-                                 align=align, progress=progress)
-        except (CompareError, ConfigError, TrialError, PlanMismatchError, ActuatorError) as e:
-            _fail(str(e))
+        with SignalGuard() as guard:
+            try:
+                res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
+                                     align=align, progress=progress, interrupts=guard)
+            except (CompareError, ConfigError, TrialError, PlanMismatchError, ActuatorError) as e:
+                _fail(str(e))
+            except TrialInterrupted as e:
+                bar.stop()
+                _err.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] compare stopped; "
+                           f"the rig got its safe stop ({cfg.backend.safe_stop}); the runs so far "
+                           f"are under {out}", highlight=False, soft_wrap=True)
+                raise typer.Exit(e.exit_code)
     return res.comparison, res.out_dir
 
 

@@ -35,6 +35,8 @@ from typing import Callable, Optional
 import numpy as np
 
 from bench.compare import Comparison, compare_logs
+from bench.interrupts import NO_SIGNALS
+from bench.runner import Interruptible
 from bench.config import ConfigError, PyBulletBackendConfig, TrialConfig
 from bench.log import TrialLog
 from drivers import Actuators
@@ -206,7 +208,8 @@ def _new_out_dir(out: Path, name: str) -> Path:
 
 def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bool = False,
                    retries: Optional[int] = None, align: str = "motion",
-                   progress: Optional[ProgressFn] = None, report: bool = True) -> SessionResult:
+                   progress: Optional[ProgressFn] = None, report: bool = True,
+                   interrupts: Interruptible = NO_SIGNALS) -> SessionResult:
     """Run the plan ``repeats`` times on the rig (or its emulator) and on the sim, compare, report.
 
     ``retries`` (default 3 when emulating, 0 on hardware): how often a rig repeat
@@ -265,14 +268,15 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
         touched = True
         for i in range(repeats):
             res = _rig_repeat(i, repeats, base_cfg, hold_cfg, real_dir, home_dir, retries, lost,
-                              lambda what, f, i=i: progress(what, w_real * (i + f)))
+                              lambda what, f, i=i: progress(what, w_real * (i + f)), interrupts)
             real_runs.append(res.run_dir)
             if not res.completed:
                 notes.append(f"rig repeat {i + 1} stopped early: {res.reason}; the session ended there")
                 break
     except BaseException:
         if touched:
-            _safe_stop(base_cfg)
+            with interrupts.deferred():
+                _safe_stop(base_cfg)
             stopped = True
         raise
     finally:
@@ -286,7 +290,8 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     for i in range(n_sim):
         what = f"sim repeat {i + 1}/{n_sim}"
         res_s = run_trial(sim_cfg, sim_dir, report=False, note=f"compare repeat {i + 1}",
-                          progress=lambda f, i=i, what=what: progress(what, 0.88 + w_sim * (i + f)))
+                          progress=lambda f, i=i, what=what: progress(what, 0.88 + w_sim * (i + f)),
+                          interrupts=interrupts)
         sim_runs.append(res_s.run_dir)
     progress("comparing", 1.0)
     sim_logs = [TrialLog.load(p / "trial.npz") for p in sim_runs]
@@ -322,7 +327,8 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
 
 
 def _rig_repeat(i: int, repeats: int, base_cfg: TrialConfig, hold_cfg: TrialConfig, real_dir: Path,
-                home_dir: Path, retries: int, lost: list[LostAttempt], progress: ProgressFn):
+                home_dir: Path, retries: int, lost: list[LostAttempt], progress: ProgressFn,
+                interrupts: Interruptible = NO_SIGNALS):
     """Home, then one trial (the last with the config's safe stop); a lost bus is retried."""
     from bench.trial import run_trial
     from drivers import ActuatorError, CommunicationError
@@ -337,7 +343,8 @@ def _rig_repeat(i: int, repeats: int, base_cfg: TrialConfig, hold_cfg: TrialConf
             act = home_rig(cfg, home_log)
             try:
                 res = run_trial(cfg, real_dir, report=False, note=f"compare repeat {i + 1}",
-                                progress=lambda f: progress(what, f), backend_factory=lambda prep: act)
+                                progress=lambda f: progress(what, f), backend_factory=lambda prep: act,
+                                interrupts=interrupts)
             finally:
                 act.close()  # already closed by the trial, unless it failed before starting
         except CommunicationError as e:
