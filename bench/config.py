@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
@@ -20,31 +20,48 @@ class ConfigError(ValueError):
     """A configuration file that cannot be used; the message names the field."""
 
 
+#: Longest plan a trial may run (s): longer is a typo (a tiny speed, a huge settle time).
+MAX_PLAN_S = 600.0
+SEED_MAX = 2**63 - 1  # campaigns derive 63-bit trial seeds
+#: A trial's name becomes its run directory's name: a plain file name, nothing else.
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
+SERIAL_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
+
+
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Unknown fields refused, values frozen, every float finite, no control characters."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _printable(cls, value: Any) -> Any:
+        if isinstance(value, (str, Path)) and any(ord(c) < 32 or ord(c) == 127 for c in str(value)):
+            raise ValueError("control characters are not allowed")
+        return value
 
 
 class TargetConfig(Strict):
     """The needle target in the bed frame (README): entry point, depth and angle."""
 
-    x_mm: float
-    y_mm: float
-    z_mm: float
-    depth_mm: float = Field(ge=0)
-    angle_deg: float
-    tilt_deg: float = 0.0
+    x_mm: float = Field(ge=-2000, le=2000)
+    y_mm: float = Field(ge=-2000, le=2000)
+    z_mm: float = Field(ge=-2000, le=2000)
+    depth_mm: float = Field(ge=0, le=300)
+    angle_deg: float = Field(ge=-90, le=90, description="from the downward vertical towards +Y")
+    tilt_deg: float = Field(default=0.0, ge=-90, le=90)
 
 
 class JointOverride(Strict):
     """Per-joint limits that replace the robot model's (SI units)."""
 
-    effort: Optional[float] = Field(default=None, gt=0)
-    velocity: Optional[float] = Field(default=None, gt=0)
+    effort: Optional[float] = Field(default=None, gt=0, le=1e4)
+    velocity: Optional[float] = Field(default=None, gt=0, le=100)
 
 
 class PyBulletBackendConfig(Strict):
     kind: Literal["pybullet"] = "pybullet"
-    physics_hz: float = Field(default=1000.0, gt=0)
+    physics_hz: float = Field(default=1000.0, ge=100, le=10_000)
     position_gain: float = Field(default=1.0, gt=0, le=1.0)
     velocity_gain: float = Field(default=1.0, ge=0, le=2.0)
     solver_iterations: int = Field(default=10, ge=1, le=200)
@@ -59,9 +76,11 @@ class ServoConfig(Strict):
     id: int = Field(ge=0, le=252)
     model: str = "XM430-W350"
     mode: Literal["position", "extended_position", "current_based_position"] = "extended_position"
-    ratio: float = Field(default=1.0, description="joint units (rad or m) per shaft radian")
-    offset: float = Field(default=0.0, description="joint value at 2048 ticks (rad or m)")
-    current_limit_a: Optional[float] = Field(default=None, gt=0)
+    ratio: float = Field(default=1.0, ge=-100, le=100,
+                         description="joint units (rad or m) per shaft radian")
+    offset: float = Field(default=0.0, ge=-100, le=100,
+                          description="joint value at 2048 ticks (rad or m)")
+    current_limit_a: Optional[float] = Field(default=None, gt=0, le=20)
     # Position PID gains written to the servo (register units, as Dynamixel Wizard shows them).
     position_p: Optional[int] = Field(default=None, ge=0, le=16383)
     position_i: Optional[int] = Field(default=None, ge=0, le=16383)
@@ -93,15 +112,34 @@ class UltrasonicConfig(Strict):
     port: str
     baud: int = 9600
     joint: str = "train"
+
+    @field_validator("baud")
+    @classmethod
+    def _serial_baud(cls, v: int) -> int:
+        if v not in SERIAL_BAUDS:
+            raise ValueError(f"baud {v} is not a serial rate; choose from {list(SERIAL_BAUDS)}")
+        return v
+
     standoff_mm: float = Field(default=300.0, ge=0, description="sensor reading when d2 = 0")
     median_window: int = Field(default=5, ge=1, le=51)
-    stale_after_s: float = Field(default=0.25, gt=0)
+    stale_after_s: float = Field(default=0.25, gt=0, le=10)
 
 
 class DynamixelBackendConfig(Strict):
     kind: Literal["dynamixel"] = "dynamixel"
     port: str
     baud: int = Field(default=1_000_000, gt=0)
+
+    @field_validator("baud")
+    @classmethod
+    def _x_series_baud(cls, v: int) -> int:
+        from drivers.emulator.control_table import BAUD_RATES
+
+        if v not in BAUD_RATES.values():
+            raise ValueError(f"baud {v} is not an X-series rate; choose from "
+                             f"{sorted(BAUD_RATES.values())}")
+        return v
+
     return_delay_us: int = Field(default=0, ge=0, le=508)
     fast_sync_read: bool = True
     retries: int = Field(default=3, ge=0, le=20)
@@ -124,33 +162,36 @@ class DynamixelBackendConfig(Strict):
 class EmulatorConfig(Strict):
     """The emulated rig used by `--emulate` and `hilbench emulate` (ignored on real hardware)."""
 
-    physics_hz: float = Field(default=1000.0, gt=0)
+    physics_hz: float = Field(default=1000.0, ge=100, le=10_000)
     wire_timing: bool = False
-    ultrasonic_rate_hz: float = Field(default=50.0, gt=0)
-    ultrasonic_noise_mm: float = Field(default=1.0, ge=0)
+    ultrasonic_rate_hz: float = Field(default=50.0, gt=0, le=100)
+    ultrasonic_noise_mm: float = Field(default=1.0, ge=0, le=100)
     ultrasonic_dropout: float = Field(default=0.0, ge=0, lt=1)
-    deadband_deg: float = Field(default=0.0, ge=0)
+    deadband_deg: float = Field(default=0.0, ge=0, le=10)
     start_torque_on: bool = True  # servos hold their pose at power-up, as a rig left enabled
-    joint_friction: dict[str, float] = Field(default_factory=dict)
-    seed: int = 0
+    joint_friction: dict[str, Annotated[float, Field(ge=0, le=100)]] = Field(
+        default_factory=dict, max_length=32)
+    seed: int = Field(default=0, ge=0, le=SEED_MAX)
 
 
 class PlanConfig(Strict):
     """home -> entry pose -> insertion along the needle axis -> (retract)."""
 
     trajectory: Literal["lspb", "ruckig", "ruckig-online"] = "lspb"
-    velocity_scale: float = Field(default=0.5, gt=0, le=1.0)
-    acceleration_scale: float = Field(default=2.0, gt=0, description="amax = vmax × this (1/s)")
-    jerk_scale: float = Field(default=20.0, gt=0, description="jmax = amax × this (1/s), ruckig only")
-    settle_s: float = Field(default=0.5, ge=0)
+    velocity_scale: float = Field(default=0.5, ge=0.01, le=1.0)
+    acceleration_scale: float = Field(default=2.0, ge=0.1, le=100,
+                                      description="amax = vmax × this (1/s)")
+    jerk_scale: float = Field(default=20.0, ge=0.1, le=1000,
+                              description="jmax = amax × this (1/s), ruckig only")
+    settle_s: float = Field(default=0.5, ge=0, le=60)
     retract: bool = True
 
 
 class AcceptanceConfig(Strict):
     """Seed 000's limits: 5 mm in each of X, Y, Z and depth, 1° in angle."""
 
-    position_mm: float = Field(default=5.0, gt=0)
-    angle_deg: float = Field(default=1.0, gt=0)
+    position_mm: float = Field(default=5.0, gt=0, le=1000)
+    angle_deg: float = Field(default=1.0, gt=0, le=90)
 
 
 class SafetyConfig(Strict):
@@ -158,21 +199,24 @@ class SafetyConfig(Strict):
 
     enabled: bool = True
     on_trip: Literal["hold", "stop"] = "hold"
-    gantry_margin_mm: float = Field(default=20.0, ge=0, description="seed 001's margin")
-    gantry_lookahead_s: float = Field(default=0.03, ge=0, description="braking time checked ahead")
-    joint_limit_tolerance: float = Field(default=0.01, ge=0, description="rad or m beyond a limit")
-    velocity_factor: float = Field(default=1.5, gt=0, description="× each joint's velocity limit")
-    tracking_error_deg: float = Field(default=20.0, gt=0)
-    tracking_error_mm: float = Field(default=20.0, gt=0)
+    gantry_margin_mm: float = Field(default=20.0, ge=0, le=500, description="seed 001's margin")
+    gantry_lookahead_s: float = Field(default=0.03, ge=0, le=1,
+                                      description="braking time checked ahead")
+    joint_limit_tolerance: float = Field(default=0.01, ge=0, le=1,
+                                         description="rad or m beyond a limit")
+    velocity_factor: float = Field(default=1.5, gt=0, le=10,
+                                   description="× each joint's velocity limit")
+    tracking_error_deg: float = Field(default=20.0, gt=0, le=180)
+    tracking_error_mm: float = Field(default=20.0, gt=0, le=1000)
     stale_data: bool = True
 
 
 class TrialConfig(Strict):
-    name: str
+    name: str = Field(pattern=NAME_PATTERN, description="letters, digits, . _ - (the run's folder)")
     robot: Literal["arc-train"] = "arc-train"
     urdf_dir: Path = Path("urdf")
-    control_hz: float = Field(default=500.0, gt=0)
-    seed: int = 0
+    control_hz: float = Field(default=500.0, ge=1, le=2000)
+    seed: int = Field(default=0, ge=0, le=SEED_MAX)
     target: TargetConfig
     plan: PlanConfig = PlanConfig()
     acceptance: AcceptanceConfig = AcceptanceConfig()
@@ -182,7 +226,7 @@ class TrialConfig(Strict):
     emulator: EmulatorConfig = EmulatorConfig()
     # Faults injected around the backend, by name with parameters and target
     # joints; validated by bench.faults (unknown names and parameters refused).
-    faults: list[dict[str, Any]] = Field(default_factory=list)
+    faults: list[dict[str, Any]] = Field(default_factory=list, max_length=64)
     # A calibration file written by `hilbench calibrate` (joint zero offsets that replace
     # the servos' `offset`, the ultrasonic sensor's offset and scale); relative paths are
     # resolved like urdf_dir. Applied when the Dynamixel backend is built, kept in the log.
@@ -207,6 +251,12 @@ class TrialConfig(Strict):
             u = self.backend.ultrasonic
             if u is not None and u.joint not in names:
                 raise ValueError(f"backend.ultrasonic.joint: unknown joint {u.joint!r}")
+        if self.backend.kind == "pybullet":
+            steps = self.backend.physics_hz / self.control_hz
+            if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
+                raise ValueError(f"control_hz {self.control_hz:g} must divide backend.physics_hz "
+                                 f"{self.backend.physics_hz:g} (a control period is a whole number "
+                                 f"of physics steps)")
         if self.faults:
             from bench.faults import parse_faults
 
@@ -230,28 +280,50 @@ class TrialConfig(Strict):
 
 
 def _format_error(path: Path, err: ValidationError) -> str:
+    """One line: the field's path, what is wrong, and for a misspelt field what was meant."""
+    from bench.safe_yaml import quote
+
     first = err.errors()[0]
     where = ".".join(str(p) for p in first["loc"]) or "(top level)"
     msg = first["msg"]
     if first["type"] == "extra_forbidden":
-        msg = "unknown field"
+        msg = "unknown field" + _did_you_mean(str(first["loc"][-1]))
+    elif first["type"] == "string_pattern_mismatch" and first["loc"][-1] == "name":
+        msg = "must be a plain name: letters, digits, '.', '_' or '-', at most 64 characters"
+    elif isinstance(first.get("input"), (str, int, float, bool)) and first["type"] != "missing":
+        msg = f"{msg} (got {quote(first['input'])})"
+    msg = msg.removeprefix("Value error, ")
     extra = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
-    return f"{path}: {where}: {msg}{extra}"
+    return f"{path}: {where}: {msg}{extra}".replace("\n", " ")
+
+
+def _did_you_mean(name: str) -> str:
+    import difflib
+
+    fields = {f for model in _config_models() for f in model.model_fields}
+    close = difflib.get_close_matches(name, sorted(fields), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+def _config_models() -> list[type[BaseModel]]:
+    return [m for m in globals().values()
+            if isinstance(m, type) and issubclass(m, Strict) and m is not Strict]
 
 
 def read_yaml_mapping(path: Path | str, what: str = "config file",
                       error: type[Exception] = ValueError) -> dict:
     """A YAML file whose top level is a mapping, or ``error`` with one line saying why not."""
+    from bench.safe_yaml import YamlRefused, read_mapping
+
     path = Path(path)
     if not path.is_file():
         raise error(f"{what} not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise error(f"{path}: not valid YAML: {e}".replace("\n", " ")) from None
-    if not isinstance(data, dict):
-        raise error(f"{path}: expected a mapping of fields at the top level")
-    return data
+        return read_mapping(path)
+    except YamlRefused as e:
+        raise error(f"{path}: {e}") from None
+    except OSError as e:
+        raise error(f"{path}: cannot read the {what}: {e.strerror}") from None
 
 
 def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialConfig:

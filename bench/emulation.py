@@ -262,10 +262,15 @@ class EmulatorProcess:
         try:
             ports = json.loads(line)
         except json.JSONDecodeError:
+            try:
+                self.proc.wait(5)  # a child that failed is exiting: let it finish its message
+            except subprocess.TimeoutExpired:
+                pass
             self._stderr.seek(0)
-            err = self._stderr.read() if self.proc.poll() is not None else ""
+            err = [ln.strip() for ln in (line + self._stderr.read()).splitlines() if ln.strip()]
             self.close()
-            raise RuntimeError(f"the emulator did not start: {(line + err).strip()}") from None
+            why = err[-1].removeprefix("error: ") if err else f"it exited with {self.proc.returncode}"
+            raise RuntimeError(f"the emulator did not start: {why}") from None
         self.ports = RigPorts(ports["dynamixel_port"], ports.get("ultrasonic_port"))
 
     def _first_line(self, timeout: float) -> str:

@@ -93,7 +93,26 @@ def prepare(config: TrialConfig) -> PreparedTrial:
         raise TrialError(f"target: {e}") from None
     q_entry = q_insert.copy()
     q_entry[robot.joint_names.index(robot.insertion_joint)] = 0.0
-    return PreparedTrial(config, robot, target, q_entry, q_insert)
+    prep = PreparedTrial(config, robot, target, q_entry, q_insert)
+    _check_plan_length(prep)
+    return prep
+
+
+def _check_plan_length(prep: PreparedTrial) -> None:
+    """Refuse a plan that would run longer than MAX_PLAN_S from home (a typo, not a trial)."""
+    from bench.config import MAX_PLAN_S
+    from trajectories import TrajectoryError
+
+    velocity = np.array([r.velocity for r in prep.robot.chain.rows])
+    try:
+        segments = plan(prep, prep.robot.chain.home, velocity)
+    except (TrajectoryError, ValueError) as e:
+        raise TrialError(f"plan: {e}") from None
+    total = sum(s.trajectory.duration + s.settle for s in segments)
+    if not total <= MAX_PLAN_S:
+        raise TrialError(f"plan: the trial would last {total:.0f} s from home, more than the "
+                         f"{MAX_PLAN_S:.0f} s allowed; raise plan.velocity_scale or "
+                         f"plan.acceleration_scale, or shorten plan.settle_s")
 
 
 def make_backend(prep: PreparedTrial, gui: bool = False) -> Actuators:
@@ -223,8 +242,12 @@ def package_versions() -> dict[str, str]:
 
 
 def new_run_dir(out: Path, name: str) -> Path:
+    """A fresh, dated directory for one run, always inside ``out``."""
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = Path(out) / f"{stamp}-{name}"
+    out = Path(out)
+    base = out / f"{stamp}-{name}"
+    if base.resolve().parent != out.resolve():
+        raise TrialError(f"name {name!r} would put the run outside {out}")
     run_dir, i = base, 1
     while run_dir.exists():
         i += 1
