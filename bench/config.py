@@ -120,9 +120,21 @@ class UltrasonicConfig(Strict):
             raise ValueError(f"baud {v} is not a serial rate; choose from {list(SERIAL_BAUDS)}")
         return v
 
-    standoff_mm: float = Field(default=300.0, ge=0, description="sensor reading when d2 = 0")
+    standoff_mm: float = Field(default=300.0, ge=0, le=5000, description="sensor reading when d2 = 0")
     median_window: int = Field(default=5, ge=1, le=51)
-    stale_after_s: float = Field(default=0.25, gt=0, le=10)
+    rate_hz: float = Field(default=6.0, ge=0.5, le=100,
+                           description="nominal reading rate (HRXL-MaxSonar-WR free-runs at 6 Hz); "
+                                       "dropouts and staleness are counted against it")
+    max_range_mm: int = Field(default=5000, ge=1000, le=9999,
+                              description="the sensor's no-target code (5000, or 9999 on 10 m models)")
+    stale_after_s: Optional[float] = Field(default=None, gt=0, le=10,
+                                           description="default: 3 periods of rate_hz + 50 ms")
+
+    def sensor_options(self) -> dict:
+        """Keyword arguments for drivers.ultrasonic.UltrasonicSensor (SI units)."""
+        return {"baud": self.baud, "median_window": self.median_window,
+                "stale_after_s": self.stale_after_s, "expected_rate_hz": self.rate_hz,
+                "range_m": (0.3, self.max_range_mm * 1e-3), "no_target_m": self.max_range_mm * 1e-3}
 
 
 class DynamixelBackendConfig(Strict):
@@ -164,7 +176,8 @@ class EmulatorConfig(Strict):
 
     physics_hz: float = Field(default=1000.0, ge=100, le=10_000)
     wire_timing: bool = False
-    ultrasonic_rate_hz: float = Field(default=50.0, gt=0, le=100)
+    ultrasonic_rate_hz: Optional[float] = Field(
+        default=None, gt=0, le=100, description="default: the sensor's backend.ultrasonic.rate_hz")
     ultrasonic_noise_mm: float = Field(default=1.0, ge=0, le=100)
     ultrasonic_dropout: float = Field(default=0.0, ge=0, lt=1)
     deadband_deg: float = Field(default=0.0, ge=0, le=10)

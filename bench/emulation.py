@@ -121,7 +121,7 @@ class EmulatedRig:
                     q = self.plant.joint_position()[train]
                 return standoff + d2_of(q)
 
-            self.ultrasonic = UltrasonicEmulator(distance, rate_hz=e.ultrasonic_rate_hz,
+            self.ultrasonic = UltrasonicEmulator(distance, rate_hz=e.ultrasonic_rate_hz or u.rate_hz,
                                                  noise_std_m=e.ultrasonic_noise_mm * 1e-3,
                                                  dropout_prob=e.ultrasonic_dropout, seed=e.seed + 1,
                                                  offset_m=planted.ultrasonic_offset_m,

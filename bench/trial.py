@@ -164,8 +164,11 @@ def make_dynamixel_backend(prep: PreparedTrial) -> Actuators:
         u = b.ultrasonic
         standoff = u.standoff_mm * 1e-3
         params = prep.robot.params
+        opts = u.sensor_options()
         ultra = UltrasonicSettings(port=u.port, joint=u.joint, baud=u.baud,
                                    median_window=u.median_window, stale_after_s=u.stale_after_s,
+                                   rate_hz=u.rate_hz, range_m=opts["range_m"],
+                                   no_target_m=opts["no_target_m"],
                                    to_joint=lambda d: float(epsilon_from_d2(
                                        cal.d2(d, standoff) if cal else d - standoff, params)))
     settings = DynamixelSettings(

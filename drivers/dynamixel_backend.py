@@ -82,7 +82,10 @@ class UltrasonicSettings:
     to_joint: Callable[[float], float]  # measured distance (m) -> joint value
     baud: int = 9600
     median_window: int = 5
-    stale_after_s: float = 0.25
+    stale_after_s: Optional[float] = None  # default: from the nominal rate
+    rate_hz: float = 6.0  # the sensor's nominal reading rate
+    range_m: tuple[float, float] = (0.3, 5.0)
+    no_target_m: float = 5.0
     loop_gain: float = 0.5  # 1/s: how fast the host loop removes train error
     max_correction: float = 0.05  # joint units
 
@@ -179,7 +182,9 @@ class DynamixelActuators(ActuatorsBase):
 
                 u = s.ultrasonic
                 self._sensor = UltrasonicSensor(u.port, baud=u.baud, median_window=u.median_window,
-                                                stale_after_s=u.stale_after_s)
+                                                stale_after_s=u.stale_after_s,
+                                                expected_rate_hz=u.rate_hz, range_m=u.range_m,
+                                                no_target_m=u.no_target_m)
             self._last = self._read_bus()
         except BaseException:
             self._shutdown_port()
@@ -369,7 +374,7 @@ class DynamixelActuators(ActuatorsBase):
             except CommunicationError:
                 distance, age = float("nan"), float("inf")
             self._encoder_train = q[self._train]
-            if age > u.stale_after_s or not math.isfinite(distance):
+            if age > self._sensor.stale_after_s or not math.isfinite(distance):
                 flags = (f"stale:{u.joint}",)
             else:
                 q[self._train] = u.to_joint(distance)

@@ -1,5 +1,11 @@
 """Host-side reader for a MaxBotix HR-MaxSonar ultrasonic range finder (``R####\\r`` lines).
 
+The HRXL-MaxSonar-WR family free-runs at about 6 Hz (the default nominal rate)
+and reports millimetres from 300 to 5000 (9999 on the 10 m models): a target
+closer than 300 mm reads ``R0300`` (kept, counted as saturated) and no echo at
+all reads the range's top code, ``R5000`` — counted as *no target* and never
+fed to the filter, since it says nothing about where the train is.
+
 The sensor free-runs, so a background thread drains the serial port and
 keeps the latest readings; :meth:`UltrasonicSensor.read` returns the median
 of the last few in metres together with the age of the newest one, and
@@ -30,6 +36,7 @@ import serial
 from drivers import CommunicationError, ConfigurationError
 
 __all__ = [
+    "DEFAULT_RATE_HZ",
     "DEFAULT_STANDOFF_M",
     "StaleReadingError",
     "UltrasonicCounters",
@@ -37,7 +44,17 @@ __all__ = [
 ]
 
 DEFAULT_STANDOFF_M = 0.30
+#: HRXL-MaxSonar-WR free-run rate (Hz).
+DEFAULT_RATE_HZ = 6.0
+#: Periods without a reading before the stream counts as stale (one missed line is not).
+STALE_PERIODS = 3.0
 _LINE = re.compile(rb"R(\d{4})")
+_MAX_LINE = 16  # 'R####' plus slack: anything longer without a CR is garbage
+
+
+def stale_after(rate_hz: float) -> float:
+    """The default staleness timeout for a sensor reading at ``rate_hz`` (s)."""
+    return STALE_PERIODS / rate_hz + 0.05
 
 
 class StaleReadingError(CommunicationError):
@@ -50,16 +67,19 @@ class UltrasonicCounters:
 
     readings: int = 0  # lines accepted into the filter
     dropouts: int = 0  # lines missing against the expected rate
-    parse_errors: int = 0  # lines that are not R####
+    parse_errors: int = 0  # lines that are not R####, and garbage skipped before an R
     out_of_range: int = 0  # well-formed readings outside range_m, discarded
-    saturated: int = 0  # readings at a range limit (target too close, or none)
+    saturated: int = 0  # readings at the range's floor (target too close)
+    no_target: int = 0  # the no-echo code (R5000 / R9999), discarded
 
 
 class UltrasonicSensor:
     """Background reader: ``with UltrasonicSensor(port) as s: distance, age = s.read()``.
 
-    ``expected_rate_hz`` is the sensor's free-run rate, used to count missing
-    lines (a gap of ``k`` periods means ``k - 1`` dropouts).
+    ``expected_rate_hz`` is the sensor's nominal rate, used to count missing
+    lines (a gap of ``k`` periods means ``k - 1`` dropouts) and, unless
+    ``stale_after_s`` is given, for staleness: :data:`STALE_PERIODS` periods
+    without a reading. ``no_target_m`` is the code the sensor sends for no echo.
     """
 
     def __init__(
@@ -67,19 +87,23 @@ class UltrasonicSensor:
         port: str,
         baud: int = 9600,
         median_window: int = 5,
-        stale_after_s: float = 0.25,
+        stale_after_s: float | None = None,
         range_m: tuple[float, float] = (0.3, 5.0),
-        expected_rate_hz: float = 20.0,
+        expected_rate_hz: float = DEFAULT_RATE_HZ,
+        no_target_m: float = 5.0,
     ) -> None:
+        if not expected_rate_hz > 0:
+            raise ConfigurationError(f"expected_rate_hz must be > 0 Hz, got {expected_rate_hz}")
+        if stale_after_s is None:
+            stale_after_s = stale_after(expected_rate_hz)
         if median_window < 1:
             raise ConfigurationError(f"median_window must be >= 1, got {median_window}")
         if stale_after_s <= 0:
             raise ConfigurationError(f"stale_after_s must be > 0 s, got {stale_after_s}")
         if not 0 <= range_m[0] < range_m[1]:
             raise ConfigurationError(f"range_m must be (low, high) with 0 <= low < high, got {range_m}")
-        if expected_rate_hz <= 0:
-            raise ConfigurationError(f"expected_rate_hz must be > 0 Hz, got {expected_rate_hz}")
         self.port = port
+        self.no_target_m = float(no_target_m)
         self.stale_after_s = float(stale_after_s)
         self.range_m = (float(range_m[0]), float(range_m[1]))
         self.expected_rate_hz = float(expected_rate_hz)
@@ -181,11 +205,23 @@ class UltrasonicSensor:
                     synced = True
                     if not line.startswith(b"R"):
                         continue
-                self._accept(line.strip(), now)
-            if len(pending) > 64:  # no CR for far too long: garbage
+                self._accept(self._resync(line.strip()), now)
+            if len(pending) > _MAX_LINE:  # no CR for far too long: keep only a last 'R...'
+                start = pending.rfind(b"R")
                 with self._lock:
                     self.counters.parse_errors += 1
-                pending.clear()
+                del pending[: start if start > 0 else len(pending)]
+                if len(pending) > _MAX_LINE:
+                    pending.clear()
+
+    def _resync(self, line: bytes) -> bytes:
+        """A line starts at its last 'R': garbage before it is counted once and dropped."""
+        start = line.rfind(b"R")
+        if start > 0:
+            with self._lock:
+                self.counters.parse_errors += 1
+            return line[start:]
+        return line
 
     def _accept(self, line: bytes, now: float) -> None:
         match = _LINE.fullmatch(line)
@@ -200,11 +236,14 @@ class UltrasonicSensor:
                 periods = math.floor((now - self._last_line_time) * self.expected_rate_hz + 0.25)
                 self.counters.dropouts += max(0, periods - 1)
             self._last_line_time = now
+            if distance >= self.no_target_m:
+                self.counters.no_target += 1
+                return
             low, high = self.range_m
             if not low <= distance <= high:
                 self.counters.out_of_range += 1
                 return
-            if distance in (low, high):
+            if distance == low:
                 self.counters.saturated += 1
             self.counters.readings += 1
             self._window.append(distance)

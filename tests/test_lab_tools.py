@@ -124,6 +124,10 @@ def test_doctor_flags_exactly_the_planted_problems(faulty_rig):
     for name in ("servo port", "ultrasonic port", "ultrasonic stream", "ultrasonic range",
                  "ultrasonic vs train servo", "calibration"):
         assert checks[name]["status"] == "pass", checks[name]
+    stream = checks["ultrasonic stream"]["detail"]  # measured against the nominal rate, counted
+    rate = float(stream.split(" readings/s")[0])
+    assert abs(rate - 50) < 10 and "(nominal 50)" in stream
+    assert "0 unreadable line(s), 0 no-target reading(s) (R5000)" in stream
     assert len(checks) == len(report["checks"])  # one line per check, names unique
 
 

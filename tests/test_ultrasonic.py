@@ -117,3 +117,104 @@ def test_close_is_clean_and_idempotent() -> None:
     assert wait_for(lambda: threading.active_count() <= before)
     with pytest.raises(CommunicationError, match="cannot open"):
         UltrasonicSensor("/dev/does-not-exist")
+
+
+class _Pty:
+    """A raw pseudo-terminal peer that writes exactly the bytes a test gives it."""
+
+    def __init__(self) -> None:
+        import os
+        import tty
+
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
+        self.port = os.ttyname(slave)
+        self._slave = slave
+
+    def send(self, data: bytes) -> None:
+        import os
+
+        os.write(self.master, data)
+
+    def close(self) -> None:
+        import os
+
+        os.close(self.master)
+        os.close(self._slave)
+
+
+def _lines(pty: _Pty, lines: list[bytes], rate_hz: float) -> None:
+    for line in lines:
+        pty.send(line)
+        time.sleep(1.0 / rate_hz)
+
+
+def test_no_target_codes_never_reach_the_filter() -> None:
+    """Three R5000 in a window of five would put the train beyond its arc if taken as 5 m."""
+    pty = _Pty()
+    try:
+        with UltrasonicSensor(pty.port, median_window=5, expected_rate_hz=50) as sensor:
+            _lines(pty, [b"R0480\r", b"R0481\r", b"R5000\r", b"R5000\r", b"R5000\r", b"R0482\r"], 50)
+            assert wait_for(lambda: sensor.counters.readings == 3 and sensor.counters.no_target == 3)
+            distance, _ = sensor.read()
+            assert distance == pytest.approx(0.481)
+            assert sensor.counters.out_of_range == 0 and sensor.counters.saturated == 0
+        with UltrasonicSensor(pty.port, expected_rate_hz=50, no_target_m=9.999,
+                              range_m=(0.3, 9.999)) as wide:  # a 10 m model's code
+            _lines(pty, [b"R6000\r", b"R9999\r"], 50)
+            assert wait_for(lambda: wide.counters.readings == 1 and wide.counters.no_target == 1)
+            assert wide.read()[0] == pytest.approx(6.0)
+    finally:
+        pty.close()
+
+
+@pytest.mark.parametrize("rate_hz", [6.0, 10.0, 20.0])
+def test_dropouts_are_counted_against_the_nominal_rate(rate_hz: float) -> None:
+    pty = _Pty()
+    try:
+        with UltrasonicSensor(pty.port, expected_rate_hz=rate_hz, stale_after_s=5.0) as sensor:
+            _lines(pty, [b"R0500\r"] * 12, rate_hz)  # on time: no dropout
+            assert wait_for(lambda: sensor.counters.readings == 12)
+            assert sensor.counters.dropouts == 0
+            time.sleep(3.0 / rate_hz)  # two lines missing, then the next on time
+            _lines(pty, [b"R0500\r"], rate_hz)
+            assert wait_for(lambda: sensor.counters.readings == 13)
+            assert sensor.counters.dropouts == 3
+    finally:
+        pty.close()
+
+
+def test_staleness_follows_the_nominal_rate() -> None:
+    """At 6 Hz one missed line is not stale; three periods without a reading are."""
+    pty = _Pty()
+    try:
+        with UltrasonicSensor(pty.port, expected_rate_hz=6.0) as sensor:
+            assert sensor.stale_after_s == pytest.approx(3 / 6 + 0.05)
+            pty.send(b"R0500\r")
+            assert wait_for(lambda: sensor.counters.readings == 1)
+            time.sleep(2 / 6)  # one line missed
+            assert sensor.read()[0] == pytest.approx(0.5)
+            time.sleep(0.3)
+            with pytest.raises(StaleReadingError, match="stale after 0.550 s"):
+                sensor.read()
+    finally:
+        pty.close()
+
+
+def test_garbage_without_cr_does_not_swallow_the_next_line() -> None:
+    pty = _Pty()
+    try:
+        with UltrasonicSensor(pty.port, expected_rate_hz=50) as sensor:
+            pty.send(b"R0400\r")
+            assert wait_for(lambda: sensor.counters.readings == 1)
+            pty.send(b"\x00\x17zz#R0421\r")  # noise, then a good line
+            assert wait_for(lambda: sensor.counters.readings == 2)
+            assert sensor.read()[0] == pytest.approx(0.4105)  # median of 0.400 and 0.421
+            pty.send(b"x" * 100 + b"R0422\r")  # a burst longer than any line, then a good one
+            assert wait_for(lambda: sensor.counters.readings == 3)
+            pty.send(b"R04230000000000000000\r")  # an overlong line is dropped
+            time.sleep(0.1)
+            assert sensor.counters.readings == 3
+            assert sensor.counters.parse_errors >= 3
+    finally:
+        pty.close()

@@ -222,8 +222,8 @@ def measure_ultrasonic(config: TrialConfig, offsets: dict[str, float], train: in
     still = STILL_ARC_M / params.arc_radius  # arc angle (rad)
     stops: list[UltrasonicStop] = []
     with open_backend(config, ultrasonic=False, offsets=offsets, calibrated=False) as act, \
-            UltrasonicSensor(u.port, baud=u.baud, median_window=1,
-                             stale_after_s=max(u.stale_after_s, 1.0)) as sensor:
+            UltrasonicSensor(u.port, **{**u.sensor_options(), "median_window": 1,
+                                        "stale_after_s": max(u.stale_after_s or 0.0, 1.0)}) as sensor:
         act.enable()
         start = act.read().position
         speed = np.full(len(start), 1e-9)

@@ -224,8 +224,7 @@ def _ultrasonic_checks(add: Add, config: TrialConfig, listen_s: float, train_q: 
     u = config.backend.ultrasonic
     assert u is not None
     try:
-        sensor = UltrasonicSensor(u.port, baud=u.baud, median_window=u.median_window,
-                                  stale_after_s=u.stale_after_s)
+        sensor = UltrasonicSensor(u.port, **u.sensor_options())
     except ActuatorError as e:
         add("ultrasonic stream", "fail", str(e))
         return
@@ -242,19 +241,27 @@ def _ultrasonic_checks(add: Add, config: TrialConfig, listen_s: float, train_q: 
                 values.append(sensor.read(allow_stale=True)[0])
             time.sleep(0.002)
         counters = sensor.counters
+        stale_s = sensor.stale_after_s
+    bad = (f"{counters.parse_errors} unreadable line(s), {counters.no_target} no-target "
+           f"reading(s) (R{u.max_range_mm})")
     if len(stamps) < 2:
-        add("ultrasonic stream", "fail", f"no readings on {u.port} in {listen_s:.1f} s at {u.baud} bps "
-                                         f"(check the sensor's power, cable and backend.ultrasonic.baud)")
+        add("ultrasonic stream", "fail", f"no readings on {u.port} in {listen_s:.1f} s at {u.baud} bps; "
+                                         f"{bad} (check the sensor's power, cable, aim and "
+                                         f"backend.ultrasonic.baud)")
         return
     rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
     gap = max(max(np.diff(stamps)), stamps[0] - t0)
-    text = f"{rate:.1f} readings/s, longest gap {gap * 1e3:.0f} ms"
-    if rate < 1.0 / u.stale_after_s:
-        add("ultrasonic stream", "fail", f"{text}: slower than one reading per stale_after_s "
-                                         f"({u.stale_after_s * 1e3:.0f} ms), trials would see stale readings")
-    elif gap > u.stale_after_s or counters.parse_errors:
-        add("ultrasonic stream", "warn", f"{text}, {counters.parse_errors} unreadable line(s): "
-                                         f"dropouts longer than stale_after_s stop a trial")
+    text = (f"{rate:.1f} readings/s (nominal {u.rate_hz:g}), longest gap {gap * 1e3:.0f} ms, "
+            f"{counters.dropouts} dropout(s), {bad}")
+    if rate < 1.0 / stale_s:
+        add("ultrasonic stream", "fail", f"{text}: slower than one reading per {stale_s * 1e3:.0f} ms "
+                                         f"(stale after), trials would see stale readings")
+    elif gap > stale_s or counters.parse_errors or counters.no_target:
+        add("ultrasonic stream", "warn", f"{text}: dropouts longer than {stale_s * 1e3:.0f} ms stop "
+                                         f"a trial; no-target readings mean the echo is lost")
+    elif abs(rate - u.rate_hz) > 0.2 * u.rate_hz:
+        add("ultrasonic stream", "warn", f"{text}: the measured rate is not the configured "
+                                         f"backend.ultrasonic.rate_hz; set it to the sensor's")
     else:
         add("ultrasonic stream", "pass", text)
 
