@@ -220,6 +220,11 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
     finally:
         if rig is not None:
             rig.close()
+            skipped = rig.stats.get("physics_skipped_s", 0.0)
+            if skipped:
+                err_console.print(f"warning: the emulated rig's physics fell behind real time and "
+                                  f"skipped {skipped:.2f} s; the machine was too busy for a faithful "
+                                  f"rehearsal", highlight=False, soft_wrap=True)
 
 
 def _interrupted(e) -> None:
@@ -275,8 +280,15 @@ def emulate(config: Path = typer.Argument(..., help="A config with backend.kind:
             console.print(f"Dynamixel bus on [bold]{ports.dynamixel_port}[/], ultrasonic sensor on "
                           f"[bold]{ports.ultrasonic_port}[/]; Ctrl-C to stop")
 
+    def report(stats: dict) -> None:
+        if as_json:
+            emit_json({"stats": stats})
+        elif stats.get("physics_skipped_s"):
+            err_console.print(f"warning: the emulator's physics fell behind real time and skipped "
+                              f"{stats['physics_skipped_s']:.2f} s (the machine was too busy)")
+
     try:
-        serve(cfg, announce)
+        serve(cfg, announce, report)
     except (ValueError, RuntimeError) as e:
         fail(str(e))
 

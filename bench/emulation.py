@@ -9,6 +9,7 @@ noise, rate and dropouts. The real driver then talks to it byte for byte.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -169,8 +170,11 @@ def _baud_index(baud: int) -> int:
     raise ValueError(f"baud {baud} is not an X-series rate; choose from {sorted(BAUD_RATES.values())}")
 
 
-def serve(config: TrialConfig, announce) -> None:
-    """Run the rig until SIGINT/SIGTERM; SIGUSR1 unplugs the bus, SIGUSR2 plugs it back."""
+def serve(config: TrialConfig, announce, report=None) -> None:
+    """Run the rig until SIGINT/SIGTERM; SIGUSR1 unplugs the bus, SIGUSR2 plugs it back.
+
+    ``report`` gets the bus's counters at the end (physics skipped when the host starved
+    the emulator of CPU, packets, errors), so a rehearsal never hides a slow rig."""
     stop = threading.Event()
     with EmulatedRig(config) as rig:
         previous = {}
@@ -191,6 +195,9 @@ def serve(config: TrialConfig, announce) -> None:
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
+            if report is not None:
+                with rig.bus.lock:
+                    report(dataclasses.asdict(rig.bus.stats))
 
 
 EMULATOR_TIMEOUT_MS = 50.0
@@ -272,6 +279,8 @@ class EmulatorProcess:
             why = err[-1].removeprefix("error: ") if err else f"it exited with {self.proc.returncode}"
             raise RuntimeError(f"the emulator did not start: {why}") from None
         self.ports = RigPorts(ports["dynamixel_port"], ports.get("ultrasonic_port"))
+        #: The bus's counters, read when the emulator has stopped (see :func:`serve`).
+        self.stats: dict = {}
 
     def _first_line(self, timeout: float) -> str:
         out: list[str] = []
@@ -302,6 +311,11 @@ class EmulatorProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        try:
+            for line in self.proc.stdout:
+                self.stats = json.loads(line).get("stats", self.stats)
+        except (OSError, ValueError, AttributeError):
+            pass
         for stream in (self.proc.stdin, self.proc.stdout, self._stderr):
             try:
                 stream.close()

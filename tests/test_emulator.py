@@ -560,3 +560,25 @@ def test_goal_position_writes_answer_as_the_general_write_path_does(mode):
         if expected == 0:
             assert servo.get("Goal Position") == value
     assert servo.write(116, (3001).to_bytes(4, "little")) == (StatusError.DATA_LIMIT if mode == 3 else 0)
+
+
+def test_the_emulator_reports_the_physics_it_could_not_keep_up_with():
+    """A rig starved of CPU (here: stopped for a second) counts what it skipped, and says so."""
+    import os
+    import signal as _signal
+    import time as _time
+    from pathlib import Path as _Path
+
+    from bench.emulation import EmulatorProcess
+
+    lab = _Path(__file__).resolve().parent.parent / "hil_configs" / "lab_real.yaml"
+    rig = EmulatorProcess(lab)
+    try:
+        os.kill(rig.proc.pid, _signal.SIGSTOP)
+        _time.sleep(1.2)
+        os.kill(rig.proc.pid, _signal.SIGCONT)
+        _time.sleep(0.3)
+    finally:
+        rig.close()
+    assert rig.stats["physics_steps"] > 0
+    assert 0.4 < rig.stats["physics_skipped_s"] < 1.5
