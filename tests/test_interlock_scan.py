@@ -99,3 +99,28 @@ def test_scan_skips_the_per_cycle_checks_when_far_from_every_limit():
     gantry.clearance.check = lambda q: calls.append(1) or original(q)
     assert il.scan(np.arange(k) * 0.002, P, np.zeros((k, n)), np.zeros((k, n)), P.copy()) is None
     assert len(calls) == 1  # the first cycle, which has nothing to carry forward
+
+
+@pytest.mark.parametrize("robot_name", ["arc-train", "zerobot"])
+def test_the_fused_check_changes_no_trip_and_no_gantry_state(robot_name):
+    """Interlocks.check proves most cycles clear in one pass; every trip and every exact
+    gantry check is still the one the interlocks make checking one by one."""
+    robot = get_robot(robot_name)
+    shared = GantryClearanceInterlock(robot, 0.020).clearance
+    rng = np.random.default_rng(12)
+    fused_hits = 0
+    for _ in range(40):
+        times, P, V, E, C = _walk(robot, rng, 80)
+        fused, plain = _interlocks(robot, shared), _interlocks(robot, shared)
+        assert fused._clear is not None
+        plain._clear = None
+        for i, t in enumerate(times):
+            st = JointState(float(t), P[i], V[i], E[i])
+            fused_hits += fused._clear(st, C[i])
+            a, b = fused.check(float(t), st, C[i]), plain.check(float(t), st, C[i])
+            assert repr(a) == repr(b)
+            ga, gb = fused.interlocks[-1], plain.interlocks[-1]
+            assert ga._last_d == gb._last_d
+            if a is not None:
+                break
+    assert fused_hits > 500  # it does clear most cycles on its own
