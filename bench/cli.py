@@ -170,6 +170,8 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
             res, name = _trial(config, out, gui, note, emulate, guard)
         except TrialInterrupted as e:
             _interrupted(e)
+    if not res.passed:
+        err_console.print(f"[bold red]trial failed:[/] {res.why_not}", highlight=False, soft_wrap=True)
     if as_json:
         emit_json(res.summary())
     else:

@@ -31,6 +31,18 @@ class NeedleOutcome:
     def as_dict(self) -> dict:
         return asdict(self)
 
+    def failures(self) -> str:
+        """What is over its limit, e.g. "tip Y -6.20 mm, angle +1.30° (limits 5 mm, 1°)"."""
+        lim_mm, lim_deg = self.position_limit_mm, self.angle_limit_deg
+        over = [f"{what} {axis} {v:+.2f} mm"
+                for what, dev in (("entry", self.entry_deviation_mm), ("tip", self.tip_deviation_mm))
+                for axis, v in zip("XYZ", dev) if abs(v) > lim_mm]
+        if abs(self.depth_deviation_mm) > lim_mm:
+            over.append(f"depth {self.depth_deviation_mm:+.2f} mm")
+        if abs(self.angle_deviation_deg) > lim_deg:
+            over.append(f"angle {self.angle_deviation_deg:+.2f}°")
+        return f"{', '.join(over) or 'none'} (limits {lim_mm:g} mm, {lim_deg:g}°)"
+
 
 def settled_position(log: TrialLog, segment: str, window: float = SETTLED_WINDOW_S) -> np.ndarray:
     """Median measured joint position over the last ``window`` s of ``segment``."""

@@ -58,6 +58,17 @@ class TrialResult:
     def passed(self) -> bool:
         return self.completed and self.outcome is not None and self.outcome.passed
 
+    @property
+    def why_not(self) -> str:
+        """Why the trial did not pass, in one line ("" when it passed)."""
+        if self.passed:
+            return ""
+        if not self.completed:
+            return f"stopped early: {self.reason}"
+        if self.outcome is None:
+            return "no settled insertion to measure"
+        return f"outside the acceptance limits: {self.outcome.failures()}"
+
     def summary(self) -> dict:
         o = self.outcome
         return {
@@ -66,6 +77,8 @@ class TrialResult:
             "depth_deviation_mm": o.depth_deviation_mm if o else None,
             "angle_deviation_deg": o.angle_deviation_deg if o else None,
             "passed": self.passed,
+            "completed": self.completed,
+            "reason": self.why_not,
         }
 
 

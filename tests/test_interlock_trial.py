@@ -37,7 +37,9 @@ def test_plan_through_the_gantry_halts_outside_the_margin_and_holds(tmp_path):
     cfg.write_text(yaml.safe_dump(INTO_GANTRY))
     out = subprocess.run([HILBENCH, "trial", str(cfg), "--out", str(tmp_path / "runs")],
                          capture_output=True, text=True, timeout=300)
-    assert out.returncode == 1, out.stderr  # the trial fails ...
+    assert out.returncode == 1, out.stderr  # the trial fails, and says why in one line ...
+    assert out.stderr.strip().startswith("trial failed: stopped early: interlock gantry_clearance:")
+    assert out.stderr.strip().count("\n") == 0
     run = next((tmp_path / "runs").iterdir())
     log = TrialLog.load(run / "trial.npz")  # ... and nothing is lost
     trips = [e for e in log.events if e.kind == "interlock"]
