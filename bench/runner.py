@@ -49,7 +49,9 @@ class TripCheck(Protocol):
 
 @runtime_checkable
 class BlockExecution(Protocol):
-    """A backend that runs many control cycles per call and can rewind to any of them."""
+    """A backend that runs many control cycles per call and can rewind to any of them
+    (see drivers.pybullet_backend.PyBulletActuators.execute_block); :func:`runs_blocks`
+    decides whether the runner uses it."""
 
     def execute_block(self, position: np.ndarray, velocity: np.ndarray, ends: np.ndarray): ...
 
@@ -99,7 +101,7 @@ class Runner:
     def __init__(self, actuators: Actuators, control_period: float,
                  interlocks: Optional[TripCheck] = None,
                  on_trip: Literal["hold", "stop"] = "hold", hold_after_trip: float = 0.25,
-                 progress: Optional[ProgressFn] = None, interrupts: "Interruptible" = NO_SIGNALS) -> None:
+                 progress: Optional[ProgressFn] = None, interrupts: Interruptible = NO_SIGNALS) -> None:
         if control_period <= 0:
             raise ValueError(f"control period must be positive, got {control_period}")
         self.act = actuators
@@ -132,7 +134,7 @@ class Runner:
         self._report_every = max(1, self._total // 200)
         if not act.enabled:
             act.enable()
-        blocks = runs_blocks(act, self.interlocks)
+        run_chunk = self._run_blocks if runs_blocks(act, self.interlocks) else self._run_cycles
         t_next = act.now()
         q_c = None
         try:
@@ -141,10 +143,9 @@ class Runner:
                 log.event(act.now(), "segment", f"start {seg.name} ({seg.trajectory.duration:.3f} s"
                           f" + {seg.settle:.3f} s settle)")
                 for q_all, qd_all in sample_chunks(seg.trajectory, n, dt):
-                    step = self._run_blocks if blocks else self._run_cycles
-                    t_next, trip = step(si, q_all, qd_all, t_next, log)
-                    if trip is not None:
-                        return trip
+                    t_next, stopped = run_chunk(si, q_all, qd_all, t_next, log)
+                    if stopped is not None:
+                        return stopped
                     q_c = q_all[-1]
             st = act.read()
             log.append(st.time, len(segments) - 1, st.position if q_c is None else q_c,
