@@ -28,8 +28,9 @@ from drivers import CommunicationError, ConfigurationError
 from drivers.dxl_models import model_name, register_layout
 from drivers.dxl_protocol import (
     BROADCAST_ID, MAX_ID, Instruction, Packet, PacketParser, build_instruction,
-    decode_hardware_error, describe_status_error,
+    decode_hardware_error, describe_status_error, reply_mismatch,
 )
+from drivers.timing import drain_until_quiet
 
 __all__ = ["BAUD_RATES", "MODE_NAMES", "PingReply", "ServoBus", "ServoStatus", "open_error"]
 
@@ -110,6 +111,9 @@ class ServoBus:
             raise ConfigurationError(open_error(port, getattr(exc, "__cause__", None) or exc)) from None
         self._fd = self._ser.fileno()
         self._byte_s = 10.0 / baud
+        self._heard = False  # bytes arrived during the last receive
+        self._trailing = False  # and more came after its first status
+        self.last_problem = ""  # what was wrong with the replies of the last failed transaction
 
     # -- port ---------------------------------------------------------------------
     @property
@@ -150,7 +154,7 @@ class ServoBus:
         self._send(build_instruction(BROADCAST_ID, Instruction.PING, b""))
         found: dict[int, PingReply] = {}
         for pkt in self._receive(time.monotonic() + wait):
-            if len(pkt.params) >= 3 and pkt.id <= max_id:
+            if len(pkt.params) == 3 and pkt.id <= max_id:  # a PING answer is exactly 3 bytes
                 found[pkt.id] = PingReply(pkt.id, pkt.params[0] | (pkt.params[1] << 8), pkt.params[2])
         for reply in found.values():
             self._models[reply.id] = reply.model
@@ -159,7 +163,7 @@ class ServoBus:
     def ping(self, sid: int, tries: Optional[int] = None) -> Optional[PingReply]:
         """The servo with this ID, or None if it does not answer at this speed."""
         pkt = self._transact(sid, Instruction.PING, b"", 3, required=False, tries=tries)
-        if pkt is None or len(pkt.params) < 3:
+        if pkt is None:
             return None
         reply = PingReply(sid, pkt.params[0] | (pkt.params[1] << 8), pkt.params[2])
         self._models[sid] = reply.model
@@ -175,10 +179,7 @@ class ServoBus:
         params = address.to_bytes(2, "little") + size.to_bytes(2, "little")
         pkt = self._transact(sid, Instruction.READ, params, size)
         assert pkt is not None
-        if len(pkt.params) < size:
-            raise CommunicationError(f"servo ID {sid}: reading {name} returned {len(pkt.params)} of "
-                                     f"{size} bytes")
-        return int.from_bytes(pkt.params[:size], "little", signed=name in _SIGNED)
+        return int.from_bytes(pkt.params, "little", signed=name in _SIGNED)
 
     def write(self, sid: int, name: str, value: int) -> None:
         address, size = self._where(sid, name)
@@ -244,7 +245,7 @@ class ServoBus:
     def _model(self, sid: int) -> int:
         if sid not in self._models and self.ping(sid) is None:
             raise CommunicationError(f"servo ID {sid} did not answer a ping on {self.port} at "
-                                     f"{self.baud} bps")
+                                     f"{self.baud} bps ({self.last_problem})")
         return self._models[sid]
 
     def _where(self, sid: int, name: str) -> tuple[int, int]:
@@ -256,28 +257,49 @@ class ServoBus:
 
     def _transact(self, sid: int, instruction: int, params: bytes, reply_params: int,
                   required: bool = True, tries: Optional[int] = None) -> Optional[Packet]:
-        """Send one instruction and return the servo's status packet (reads and writes repeat safely)."""
+        """Send one instruction and return the servo's status packet (reads and writes repeat safely).
+
+        The reply must come from ``sid`` with exactly ``reply_params`` parameters and
+        nothing after it; anything else is retried after the line falls quiet, so a
+        late answer to an earlier request is never taken for this one's.
+        """
         packet = build_instruction(sid, instruction, params)
         wait = (len(packet) + 11 + reply_params) * self._byte_s + _LATENCY_S
+        problem = "no reply"
         for _ in range(self.tries if tries is None else max(1, tries)):
             self._drain()
             self._send(packet)
-            for pkt in self._receive(time.monotonic() + wait, until_id=sid):
-                if pkt.id != sid:
-                    continue
-                if pkt.error and pkt.error & 0x7F:
-                    raise ConfigurationError(f"servo ID {sid} refused {Instruction(instruction).name} "
-                                             f"{params.hex(' ')}: {describe_status_error(pkt.error)}")
-                return pkt
+            replies = self._receive(time.monotonic() + wait, until_any=True)
+            if not replies:
+                problem = "a corrupt reply" if self._heard else "no reply"
+                if self._heard:  # the rest of a broken reply may still be on its way
+                    drain_until_quiet(self._fd, wait, 4 * wait)
+                continue
+            pkt = replies[0]
+            problem = reply_mismatch(pkt, sid, reply_params) or (
+                "bytes after the status (a duplicated or late reply)"
+                if self._trailing or self._pending() else None)
+            if problem is not None:
+                drain_until_quiet(self._fd, wait, 4 * wait)
+                continue
+            if pkt.error and pkt.error & 0x7F:
+                raise ConfigurationError(f"servo ID {sid} refused {Instruction(instruction).name} "
+                                         f"{params.hex(' ')}: {describe_status_error(pkt.error)}")
+            return pkt
+        self.last_problem = problem
         if required:
             raise CommunicationError(f"servo ID {sid} did not answer {Instruction(instruction).name} "
-                                     f"on {self.port} at {self.baud} bps")
+                                     f"on {self.port} at {self.baud} bps ({problem})")
         return None
 
-    def _receive(self, deadline: float, until_id: Optional[int] = None) -> list[Packet]:
-        """Status packets until the deadline (or the first from ``until_id``)."""
+    def _pending(self) -> bool:
+        return bool(select.select([self._fd], [], [], 0)[0])
+
+    def _receive(self, deadline: float, until_any: bool = False) -> list[Packet]:
+        """Status packets until the deadline (or the first one, with ``until_any``)."""
         parser = PacketParser(stuffed=True, resync_on_header=False)
         got: list[Packet] = []
+        self._heard = self._trailing = False
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0 or not select.select([self._fd], [], [], remaining)[0]:
@@ -288,10 +310,13 @@ class ServoBus:
                 continue
             except OSError as exc:
                 raise CommunicationError(f"reading {self.port} failed: {exc}") from None
-            for event in parser.feed(data):
+            self._heard = self._heard or bool(data)
+            events = parser.feed(data)
+            for k, event in enumerate(events):
                 if isinstance(event, Packet) and event.is_status:
                     got.append(event)
-                    if event.id == until_id:
+                    if until_any:
+                        self._trailing = k + 1 < len(events) or parser.pending > 0
                         return got
 
     def _send(self, packet: bytes) -> None:

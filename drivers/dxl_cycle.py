@@ -20,9 +20,10 @@ import numpy as np
 
 from drivers import CommunicationError
 from drivers.dxl_protocol import (
-    BROADCAST_ID, HEADER, Instruction, PacketParser, build_instruction,
+    BROADCAST_ID, HEADER, Instruction, Packet, PacketParser, build_instruction, reply_mismatch,
 )
 from drivers.dxl_protocol import crc16_bytes as _crc
+from drivers.timing import drain_until_quiet
 
 _STATUS = Instruction.STATUS
 _TRIPLE = b"\xff\xff\xfd"  # a header inside the parameters: the packet needs stuffing
@@ -64,6 +65,7 @@ class SyncCycle:
         self._write_prefix = HEADER + bytes(
             (BROADCAST_ID, length & 0xFF, length >> 8, Instruction.SYNC_WRITE))
         self._id_bytes = bytes(self.ids)
+        self._id_set = frozenset(self.ids)
         self._no_errors = bytes(n)
         # The head each unstuffed Sync Read status must carry: header, ID, LEN, 0x55.
         self._sync_heads = b"".join(
@@ -73,6 +75,10 @@ class SyncCycle:
         else:
             self._expect = n * (11 + STATE_LENGTH)
         self._byte_time = 10.0 / baud
+        #: Reads that failed, and fast statuses found after stray bytes (for the record).
+        self.failures = 0
+        self.resyncs = 0
+        self._servo_refused = False  # the last status parsed carried a servo's error
         # Late answers are expected after this long: wire time of the reply, plus slack.
         self.timeout_s = latency_s + 3 * (self._expect + len(self._read_packet)) * self._byte_time + 0.003
         self.last_error = ""
@@ -116,8 +122,54 @@ class SyncCycle:
         self._send(self._read_packet)
         raw = self._receive(self._expect)
         if raw is None:
-            return None
-        return self._parse_fast(raw) if self.fast else self._parse_sync(raw)
+            state = None
+        elif self.fast:
+            state = self._parse_fast(raw)
+            if state is None and not self._servo_refused:
+                state = self._resync_fast(raw)  # stray bytes, an echo or a duplicate before it
+        else:
+            state = self._parse_sync(raw)
+        if state is not None and select.select([self.fd], [], [], 0)[0]:
+            self.last_error = "more bytes after the status (a late or duplicated reply)"
+            state = None
+        if state is None:
+            self.failures += 1
+            # A late answer to this request must not pass for the next one's: wait for a
+            # quiet line, briefly (the cycle's retries must still end well inside a second).
+            quiet = min(self.timeout_s / 4, 0.02)
+            drain_until_quiet(self.fd, quiet, 4 * quiet)
+        return state
+
+    def _resync_fast(self, raw: bytes) -> np.ndarray | None:
+        """Stray bytes before the status: hunt for its header, read the rest, parse from there."""
+        deadline = time.monotonic() + self.timeout_s
+        buf, first_error = raw, self.last_error
+        start = 1
+        while True:
+            k = buf.find(_FAST_HEAD, start)
+            if k < 0:
+                more = b"" if len(buf) > 4 * self._expect else self._receive_more(deadline)
+                if not more:
+                    self.last_error = f"{first_error}; no status header in {len(buf)} bytes"
+                    return None
+                start = max(0, len(buf) - len(_FAST_HEAD) + 1)
+                buf += more
+                continue
+            while len(buf) - k < self._expect:
+                more = self._receive_more(deadline)
+                if not more:
+                    self.last_error = (f"fast sync read: {len(buf) - k} of {self._expect} status "
+                                       f"bytes after {k} stray bytes within "
+                                       f"{self.timeout_s * 1e3:.1f} ms")
+                    return None
+                buf += more
+            state = self._parse_fast(buf[k:])
+            if state is not None:
+                self.resyncs += 1
+                return state
+            if len(buf) > k + self._expect:
+                return None  # bytes after it as well: out of step, retry from a quiet line
+            start = k + 1  # a header inside the garbage: look further
 
     def _drain(self) -> None:
         """Drop bytes left from an earlier, failed transaction."""
@@ -156,8 +208,13 @@ class SyncCycle:
 
     def _parse_fast(self, raw: bytes) -> np.ndarray | None:
         n = self.n
+        self._servo_refused = False
         if raw[:5] != _FAST_HEAD or raw[7] != _STATUS:
             self.last_error = "fast sync read: bad header"
+            return None
+        if len(raw) > self._expect:
+            self.last_error = (f"fast sync read: {len(raw) - self._expect} bytes after the status "
+                               f"(a duplicated or late reply)")
             return None
         declared, expected = raw[5] | (raw[6] << 8), self._expect - 7  # LEN: instruction .. CRC
         if declared != expected:
@@ -190,7 +247,8 @@ class SyncCycle:
     def _state(self, blocks: np.ndarray, errors: bytes) -> np.ndarray | None:
         """Position, velocity and current rows of the parsed blocks, unless a servo reports an error."""
         # 0x80 is the hardware-error alert, not a failed instruction: only the low 7 bits count
-        if errors.translate(_LOW_7_BITS) != self._no_errors:
+        self._servo_refused = errors.translate(_LOW_7_BITS) != self._no_errors
+        if self._servo_refused:
             k = next(k for k, e in enumerate(errors) if e & 0x7F)
             self.last_error = f"servo {self.ids[k]} answered with error 0x{errors[k]:02X}"
             return None
@@ -202,19 +260,34 @@ class SyncCycle:
         got: dict[int, bytes] = {}
         data = raw
         deadline = time.monotonic() + self.timeout_s
+        fed = bytearray()
         while True:
-            for ev in parser.feed(data):
-                params = getattr(ev, "params", None)
-                if params is not None and getattr(ev, "instruction", None) == _STATUS:
-                    if ev.error and ev.error & 0x7F:
-                        self.last_error = f"servo {ev.id} answered with error 0x{ev.error:02X}"
-                        return None
-                    got[ev.id] = params
-                elif params is None:
+            events = parser.feed(data)
+            fed += data
+            if len(got) + len(events) > self.n or (
+                    len(got) + len(events) == self.n and not fed.endswith(events[-1].raw)):
+                self.last_error = ("sync read: more bytes than the statuses asked for "
+                                   "(a late or duplicated reply)")
+                return None
+            for ev in events:
+                if not isinstance(ev, Packet):
                     self.last_error = f"sync read: {type(ev).__name__}"
                     return None
-            if all(sid in got for sid in self.ids):
-                return unpack_state([got[sid][:STATE_LENGTH] for sid in self.ids])
+                if ev.instruction != _STATUS:
+                    continue  # an echo of an instruction is not an answer
+                problem = (reply_mismatch(ev, ev.id, STATE_LENGTH) if ev.id in self._id_set
+                           else f"a status from ID {ev.id}, which was not asked")
+                if problem is None and ev.id in got:
+                    problem = f"two statuses from ID {ev.id} (a late or duplicated reply)"
+                if problem is not None:
+                    self.last_error = f"sync read: {problem}"
+                    return None
+                if ev.error and ev.error & 0x7F:
+                    self.last_error = f"servo {ev.id} answered with error 0x{ev.error:02X}"
+                    return None
+                got[ev.id] = ev.params
+            if len(got) == self.n:
+                return unpack_state([got[sid] for sid in self.ids])
             more = self._receive_more(deadline)
             if not more:
                 missing = [sid for sid in self.ids if sid not in got]

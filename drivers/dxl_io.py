@@ -8,7 +8,12 @@
   subclass frames with :mod:`drivers.dxl_protocol` both ways; the SDK's group
   classes (GroupSyncRead/Write, GroupBulkRead/Write, fast sync/bulk read)
   work through it unchanged because it keeps the SDK's list-based
-  ``txPacket``/``rxPacket`` contract.
+  ``txPacket``/``rxPacket`` contract. Its ``txRxPacket`` never trusts a
+  reply: the status must come from the ID asked, with exactly the
+  parameters asked for (3 for a PING), and nothing after it; anything else
+  is ``COMM_RX_CORRUPT`` (the SDK otherwise hands a short reply's CRC bytes
+  to the caller as register values), and after any failure the line is
+  drained until quiet so a late answer cannot pass for the next one.
 * :class:`BlockingPortHandler` — the SDK's ``PortHandler`` opens the port with
   ``timeout=0`` and the packet handler spins on ``readPort`` until the packet
   deadline, burning a core per bus. This subclass sleeps in ``select`` until
@@ -24,6 +29,7 @@ import time
 import serial
 from dynamixel_sdk import PortHandler, Protocol2PacketHandler
 from dynamixel_sdk.protocol2_packet_handler import (
+    PKT_ERROR,
     PKT_ID,
     PKT_INSTRUCTION,
     PKT_LENGTH_H,
@@ -39,18 +45,25 @@ from dynamixel_sdk.robotis_def import (
     COMM_SUCCESS,
     COMM_TX_ERROR,
     COMM_TX_FAIL,
+    INST_ACTION,
+    INST_BULK_READ,
+    INST_SYNC_READ,
     MAX_ID,
 )
 
+from drivers import CommunicationError, ConfigurationError
 from drivers.dxl_protocol import (
     HEADER,
     Instruction,
     Packet,
     PacketParser,
     build_instruction,
+    reply_mismatch,
+    reply_params_expected,
 )
+from drivers.timing import drain_until_quiet
 
-__all__ = ["BlockingPortHandler", "StuffingPacketHandler"]
+__all__ = ["BlockingPortHandler", "RegisterAccess", "StuffingPacketHandler"]
 
 
 class StuffingPacketHandler(Protocol2PacketHandler):
@@ -92,9 +105,46 @@ class StuffingPacketHandler(Protocol2PacketHandler):
             return COMM_TX_FAIL
         return COMM_SUCCESS
 
+    #: Why the last unicast transaction failed (empty after a success).
+    last_problem: str = ""
+    _last_packet: Packet | None = None
+
+    def txRxPacket(  # noqa: N802 - SDK name
+        self, port: PortHandler, txpacket: list[int]
+    ) -> tuple[list[int] | None, int, int]:
+        sid, instruction = txpacket[PKT_ID], txpacket[PKT_INSTRUCTION]
+        if sid == BROADCAST_ID or instruction in (INST_ACTION, INST_BULK_READ, INST_SYNC_READ):
+            return super().txRxPacket(port, txpacket)  # no single status to check
+        length = txpacket[PKT_LENGTH_L] | (txpacket[PKT_LENGTH_H] << 8)
+        try:
+            wanted = reply_params_expected(instruction, txpacket[PKT_INSTRUCTION + 1:
+                                                                 PKT_INSTRUCTION + length - 2])
+        except ValueError:
+            return None, COMM_TX_ERROR, 0
+        result = self.txPacket(port, txpacket)
+        if result != COMM_SUCCESS:
+            return None, result, 0
+        port.setPacketTimeout(wanted + 11)  # as the SDK: the reply's bytes plus latency
+        self._last_packet = None
+        rxpacket, result = self.rxPacket(port, False, accept_id=sid)
+        packet = self._last_packet
+        if result == COMM_SUCCESS and packet is not None:
+            problem = reply_mismatch(packet, sid, wanted)
+            if problem is None and _pending(port):
+                problem = f"bytes after the status from ID {sid} (a duplicated or late reply)"
+        else:
+            problem = "no reply" if result == COMM_RX_TIMEOUT else "a corrupt reply"
+        if problem is not None:
+            self.last_problem = problem
+            _quiet_line(port)
+            return [], (COMM_RX_TIMEOUT if result == COMM_RX_TIMEOUT else COMM_RX_CORRUPT), 0
+        self.last_problem = ""
+        return rxpacket, COMM_SUCCESS, rxpacket[PKT_ERROR]
+
     def rxPacket(  # noqa: N802 - SDK name
-        self, port: PortHandler, fast_option: bool
+        self, port: PortHandler, fast_option: bool, accept_id: int | None = None
     ) -> tuple[list[int], int]:
+        """One status frame; with ``accept_id`` the first status of any ID, for the caller to check."""
         max_id = BROADCAST_ID if fast_option else MAX_ID
         parser = PacketParser(
             stuffed=not fast_option, resync_on_header=False, max_length=RXPACKET_MAX_LEN
@@ -113,8 +163,10 @@ class StuffingPacketHandler(Protocol2PacketHandler):
                     if not isinstance(event, Packet):
                         result = COMM_RX_CORRUPT  # bad CRC or bad stuffing
                         break
-                    if event.instruction != Instruction.STATUS or event.id > max_id:
-                        continue  # not an answer for us; keep listening, as the SDK does
+                    if event.instruction != Instruction.STATUS or (
+                            accept_id is None and event.id > max_id):
+                        continue  # not an answer (an echo, say); keep listening, as the SDK does
+                    self._last_packet = event
                     rxpacket = list(event.raw) if fast_option else _sdk_layout(event)
                     result = COMM_SUCCESS
                     break
@@ -122,6 +174,29 @@ class StuffingPacketHandler(Protocol2PacketHandler):
                 result = COMM_RX_CORRUPT if received_any else COMM_RX_TIMEOUT
         port.is_using = False
         return rxpacket, result
+
+
+def _pending(port: PortHandler) -> bool:
+    """Bytes already waiting after a reply: a servo sends one status per request, never more."""
+    ser = getattr(port, "ser", None)
+    if ser is None:
+        return False
+    try:
+        return bool(select.select([ser.fileno()], [], [], 0)[0])
+    except (OSError, ValueError):
+        return False
+
+
+def _quiet_line(port: PortHandler) -> None:
+    """After a failed transaction: wait (bounded) for the line to fall silent."""
+    ser = getattr(port, "ser", None)
+    if ser is None:
+        return
+    quiet_s = max(float(getattr(port, "packet_timeout", 0.0)) / 1000.0, 0.002)
+    try:
+        drain_until_quiet(ser.fileno(), quiet_s, 4 * quiet_s)
+    except (OSError, ValueError):
+        pass
 
 
 def _sdk_layout(packet: Packet) -> list[int]:
@@ -191,3 +266,51 @@ class BlockingPortHandler(PortHandler):
                 break
             buf += chunk  # past the deadline select() no longer waits: drain, then stop
         return bytes(buf)
+
+
+class RegisterAccess:
+    """Register reads and writes on one port, each retried, each reply checked by the handler.
+
+    A read returns the value the servo sent for exactly that register, or raises
+    :class:`~drivers.CommunicationError` saying what was wrong with the replies;
+    a servo refusing a write is a :class:`~drivers.ConfigurationError`.
+    """
+
+    def __init__(self, port: PortHandler, handler: StuffingPacketHandler, retries: int) -> None:
+        self.port, self.ph, self.tries = port, handler, max(0, int(retries)) + 1
+
+    def ping(self, sid: int, tries: int) -> tuple[int | None, str]:
+        """The model number of servo ``sid`` (None if no good answer in ``tries``), and why not."""
+        for attempt in range(tries):
+            model, result, _ = self.ph.ping(self.port, sid)
+            if result == COMM_SUCCESS:
+                return model, ""
+            time.sleep(0.01 * attempt)  # a bus just plugged in may be slow
+        return None, self._why(result)
+
+    def read(self, sid: int, address: int, size: int, what: str, signed: bool = False) -> int:
+        result = COMM_TX_FAIL
+        for _ in range(self.tries):
+            data, result, _ = self.ph.readTxRx(self.port, sid, address, size)
+            if result == COMM_SUCCESS:
+                return int.from_bytes(bytes(data), "little", signed=signed)
+        raise CommunicationError(f"servo ID {sid}: reading {what} failed after {self.tries} "
+                                 f"tries: {self._why(result)}")
+
+    def write(self, sid: int, address: int, size: int, value: int, what: str) -> None:
+        data = list((int(value) & ((1 << (8 * size)) - 1)).to_bytes(size, "little"))
+        result = COMM_TX_FAIL
+        for _ in range(self.tries):
+            result, err = self.ph.writeTxRx(self.port, sid, address, size, data)
+            if result == COMM_SUCCESS:
+                if err & 0x7F:
+                    raise ConfigurationError(f"servo ID {sid}: writing {what} = {value} refused: "
+                                             f"{self.ph.getRxPacketError(err)}")
+                return
+        raise CommunicationError(f"servo ID {sid}: writing {what} failed after {self.tries} "
+                                 f"tries: {self._why(result)}")
+
+    def _why(self, result: int) -> str:
+        """The SDK's words for a failed transaction, with what was wrong with the reply."""
+        text = self.ph.getTxRxResult(result)
+        return f"{text} ({self.ph.last_problem})" if self.ph.last_problem else text

@@ -48,6 +48,8 @@ __all__ = [
     "crc16",
     "decode_hardware_error",
     "describe_status_error",
+    "reply_mismatch",
+    "reply_params_expected",
     "parse_fast_status",
     "stuff",
     "unstuff",
@@ -509,3 +511,40 @@ class PacketParser:
                 return MalformedPacket(packet_id, frame, "status packet without an error byte")
             return Packet(packet_id, instruction, bytes(body[2:]), body[1], frame)
         return Packet(packet_id, instruction, bytes(body[1:]), None, frame)
+
+
+# -- matching a reply to its request ----------------------------------------
+
+
+def reply_params_expected(instruction: int, params: bytes | bytearray | Sequence[int]) -> int:
+    """How many parameters the status answering this (unicast) instruction must carry.
+
+    PING: model number and firmware (exactly 3); READ: the length it asked
+    for; every other unicast instruction: none.
+    """
+    if instruction == Instruction.PING:
+        return 3
+    if instruction == Instruction.READ:
+        if len(params) < 4:
+            raise ValueError(f"READ needs address and length (4 bytes), got {len(params)}")
+        return params[2] | (params[3] << 8)
+    return 0
+
+
+def reply_mismatch(packet: Packet, sid: int, n_params: int) -> str | None:
+    """Why ``packet`` cannot be servo ``sid``'s answer carrying ``n_params`` parameters.
+
+    ``None`` when it can. A status packet carries neither the instruction nor
+    a sequence number, so the ID, the status instruction and the exact
+    parameter count are all a host can hold a reply to: a short reply would
+    otherwise have its CRC bytes taken as data, and a late answer to another
+    request would be taken as this one's.
+    """
+    if packet.instruction != Instruction.STATUS:
+        return f"an instruction packet (0x{packet.instruction:02X}) where a status was due"
+    if packet.id != sid:
+        return f"a status from ID {packet.id} where ID {sid} was asked"
+    if len(packet.params) != n_params:
+        return (f"a status from ID {sid} with {len(packet.params)} parameter bytes where "
+                f"{n_params} were asked")
+    return None

@@ -126,7 +126,7 @@ class DynamixelActuators(ActuatorsBase):
     def __init__(self, settings: DynamixelSettings) -> None:
         import dynamixel_sdk as sdk
 
-        from drivers.dxl_io import BlockingPortHandler, StuffingPacketHandler
+        from drivers.dxl_io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
 
         self.settings = s = settings
         self._sdk = sdk
@@ -160,6 +160,7 @@ class DynamixelActuators(ActuatorsBase):
         self.models: dict[int, int] = {}
         self.port = BlockingPortHandler(s.port)
         self.ph = StuffingPacketHandler()
+        self._regs = RegisterAccess(self.port, self.ph, s.retries)
         self._sensor = None
         self._correction = 0.0
         self._train = names.index(s.ultrasonic.joint) if s.ultrasonic else None
@@ -226,13 +227,10 @@ class DynamixelActuators(ActuatorsBase):
         s = self.settings
         missing = []
         for sv in s.servos:
-            for attempt in range(max(s.retries, 3) + 1):  # a bus just plugged in may be slow
-                model, result, err = self.ph.ping(self.port, sv.id)
-                if result == self._sdk.COMM_SUCCESS:
-                    break
-                time.sleep(0.01 * attempt)
-            if result != self._sdk.COMM_SUCCESS:
-                missing.append(f"{sv.id} ({sv.joint})")
+            model, _ = self._regs.ping(sv.id, tries=max(s.retries, 3) + 1)
+            if model is None:
+                missing.append(f"{sv.id} ({sv.joint})" + (f" [{self.ph.last_problem}]"
+                                                          if self.ph.last_problem != "no reply" else ""))
                 continue
             if model != sv.model:
                 raise ConfigurationError(
@@ -305,26 +303,11 @@ class DynamixelActuators(ActuatorsBase):
     # -- register access with retries ----------------------------------------
     def _read(self, sid: int, name: str) -> int:
         addr, size = ADDR[name]
-        fn = {1: self.ph.read1ByteTxRx, 2: self.ph.read2ByteTxRx, 4: self.ph.read4ByteTxRx}[size]
-        for _ in range(self.settings.retries + 1):
-            value, result, err = fn(self.port, sid, addr)
-            if result == self._sdk.COMM_SUCCESS:
-                return _signed(value, size) if name in ("Homing Offset",) else value
-        raise CommunicationError(f"servo ID {sid}: reading {name} failed: "
-                                 f"{self.ph.getTxRxResult(result)}")
+        return self._regs.read(sid, addr, size, name, signed=name == "Homing Offset")
 
     def _write(self, sid: int, name: str, value: int) -> None:
         addr, size = ADDR[name]
-        fn = {1: self.ph.write1ByteTxRx, 2: self.ph.write2ByteTxRx, 4: self.ph.write4ByteTxRx}[size]
-        for _ in range(self.settings.retries + 1):
-            result, err = fn(self.port, sid, addr, int(value) & ((1 << (8 * size)) - 1))
-            if result == self._sdk.COMM_SUCCESS:
-                if err & 0x7F:
-                    raise ConfigurationError(f"servo ID {sid}: writing {name} = {value} refused: "
-                                             f"{self.ph.getRxPacketError(err)}")
-                return
-        raise CommunicationError(f"servo ID {sid}: writing {name} failed: "
-                                 f"{self.ph.getTxRxResult(result)}")
+        self._regs.write(sid, addr, size, value, name)
 
     # -- the Actuators interface ----------------------------------------------
     @property
@@ -499,12 +482,6 @@ def _port_hint(port: str) -> str:
     if not os.access(port, os.R_OK | os.W_OK):
         return " (no permission: add yourself to the dialout group, `sudo usermod -aG dialout $USER`)"
     return ""
-
-
-def _signed(value: int, size: int) -> int:
-    bits = 8 * size
-    value &= (1 << bits) - 1
-    return value - (1 << bits) if value >> (bits - 1) else value
 
 
 def _model_name(number: int) -> str:

@@ -9,6 +9,8 @@ wire, asks for 1 ns.
 from __future__ import annotations
 
 import ctypes
+import os
+import select
 import sys
 import time
 
@@ -36,3 +38,34 @@ def sleep_until(deadline: float, spin_s: float) -> None:
         if remaining <= 0:
             return
         time.sleep(remaining - spin_s if remaining > spin_s else 0)
+
+
+def drain_until_quiet(fd: int, quiet_s: float, max_s: float) -> int:
+    """Discard what arrives on ``fd`` until it has been silent for ``quiet_s``; bytes discarded.
+
+    After a failed transaction a servo's late answer may still be on its way;
+    taken as the answer to the next request it would be a plausible, wrong
+    value. Waiting for a quiet line (at most ``max_s``, so a babbling peer
+    cannot hold the host) lets the next request start in step.
+    """
+    end = time.monotonic() + max_s
+    dropped = 0
+    while True:
+        remaining = end - time.monotonic()
+        if remaining <= 0:
+            return dropped
+        try:
+            ready = select.select([fd], [], [], min(quiet_s, remaining))[0]
+        except (OSError, ValueError):
+            return dropped
+        if not ready:
+            return dropped
+        try:
+            chunk = os.read(fd, 4096)
+        except BlockingIOError:
+            continue
+        except OSError:
+            return dropped
+        if not chunk:
+            return dropped
+        dropped += len(chunk)
