@@ -55,10 +55,12 @@ class EmulatedRig:
 
     def __init__(self, config: TrialConfig, initial_position: Optional[np.ndarray] = None,
                  realtime: bool = True, planted: Optional[Planted] = None,
-                 warm_start_s: float = 0.0) -> None:
+                 warm_start_s: float = 0.0, rest_after_s: Optional[float] = None) -> None:
         """``warm_start_s`` > 0 starts the rig as a previous session left it: the servos
         hold their pose with the config's PID gains written, and the physics has run that
-        long (integrators charged, gravity sag gone) before the ports open."""
+        long (integrators charged, gravity sag gone) before the ports open.
+        ``rest_after_s``: pause the physics once nothing has moved or been written for
+        that long (``hilbench emulate`` does, so an idle rig costs no CPU)."""
         from bench.robots import get_robot
         from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
         from drivers.emulator.pybullet_plant import PyBulletPlant
@@ -104,7 +106,8 @@ class EmulatedRig:
             joints[sc.id] = j
         self.bus = DynamixelBusEmulator(servos, self.plant, joints=joints,
                                         physics_dt=1.0 / e.physics_hz,
-                                        wire_timing=e.wire_timing, seed=e.seed, realtime=realtime)
+                                        wire_timing=e.wire_timing, seed=e.seed, realtime=realtime,
+                                        rest_after_s=rest_after_s)
         if e.start_torque_on:
             for servo in servos.values():
                 servo.set("Torque Enable", 1)
@@ -176,7 +179,7 @@ def serve(config: TrialConfig, announce, report=None) -> None:
     ``report`` gets the bus's counters at the end (physics skipped when the host starved
     the emulator of CPU, packets, errors), so a rehearsal never hides a slow rig."""
     stop = threading.Event()
-    with EmulatedRig(config) as rig:
+    with EmulatedRig(config, rest_after_s=REST_AFTER_S) as rig:
         previous = {}
 
         def on_stop(signum, frame):  # noqa: ARG001
@@ -201,6 +204,8 @@ def serve(config: TrialConfig, announce, report=None) -> None:
 
 
 EMULATOR_TIMEOUT_MS = 50.0
+#: An emulated rig left alone (servos still, no writes) pauses its physics after this long.
+REST_AFTER_S = 0.5
 
 BUS_FAULT_FIELDS = ("drop_prob", "corrupt_crc_prob", "delay_s", "silent")
 

@@ -582,3 +582,56 @@ def test_the_emulator_reports_the_physics_it_could_not_keep_up_with():
         rig.close()
     assert rig.stats["physics_steps"] > 0
     assert 0.4 < rig.stats["physics_skipped_s"] < 1.5
+
+
+def test_an_idle_bus_rests_its_physics_and_a_write_wakes_it():
+    """Nothing commanded, servos still: the physics pauses; the next write moves the servo at once."""
+    plant = InertiaPlant(1, inertia=0.01, viscous=0.02)
+    with make_bus((1,), plant=plant, rest_after_s=0.2) as bus:
+        port = open_port(bus)
+        ph = StuffingPacketHandler()
+        ok(ph.write1ByteTxRx(port, 1, TORQUE, 1))
+        assert wait_for(lambda: bus._resting, timeout=3.0), "a still servo must let the physics rest"
+        with bus.lock:
+            steps = bus.stats.physics_steps
+        time.sleep(0.3)
+        start = s32(ph.read4ByteTxRx(port, 1, PRESENT_POS)[0])  # reads do not wake it
+        with bus.lock:
+            assert bus.stats.physics_steps == steps
+        ok(ph.write4ByteTxRx(port, 1, GOAL_POS, start + 300))
+        assert wait_for(lambda: abs(s32(ph.read4ByteTxRx(port, 1, PRESENT_POS)[0]) - start - 300) <= 3,
+                        timeout=2.0), "the write must wake the physics and the servo reach its goal"
+        with bus.lock:
+            assert bus.stats.rest_s >= 0.3
+            assert bus.stats.physics_skipped_s < 0.05  # the rest is not a backlog
+        port.closePort()
+
+
+def test_hilbench_emulate_idles_below_a_tenth_of_a_core():
+    """The emulated rig left alone (servos holding, nothing written) costs next to no CPU."""
+    import json
+    import os
+    import signal as _signal
+    import subprocess
+    import sys
+    from pathlib import Path as _Path
+
+    repo = _Path(__file__).resolve().parent.parent
+    exe = _Path(sys.executable).with_name("hilbench")
+    proc = subprocess.Popen([str(exe), "emulate", str(repo / "hil_configs" / "lab_real.yaml"),
+                             "--json"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+
+    def cpu_s() -> float:
+        fields = _Path(f"/proc/{proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    try:
+        json.loads(proc.stdout.readline())
+        time.sleep(2.0)  # start-up, the servos settling under gravity, the rest beginning
+        c0, t0 = cpu_s(), time.monotonic()
+        time.sleep(3.0)
+        share = (cpu_s() - c0) / (time.monotonic() - t0)
+    finally:
+        proc.send_signal(_signal.SIGTERM)
+        proc.wait(10)
+    assert share < 0.10, f"the idle emulator took {share:.0%} of a core"

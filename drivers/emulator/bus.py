@@ -99,6 +99,12 @@ _STATE_READS = frozenset(_READ_INSTRUCTIONS - {Instruction.PING})
 #: keeping real time, and it is then caught up after the answer, as without wire timing.
 _READ_WAITS_FOR_STEPS = 3
 _BY_ID = itemgetter(0)
+#: Instructions that can set something moving: they end a rest.
+_WAKING = frozenset(Instruction) - _READ_INSTRUCTIONS - {Instruction.STATUS}
+#: Present Position range (ticks) within which a servo counts as still: the hunt of a
+#: holding servo is ±1 tick.
+_STILL_TICKS = 3
+_REST_POLL_S = 0.05
 
 
 @dataclass
@@ -125,6 +131,7 @@ class BusStats:
     status_dropped: int = 0  # by faults, unplug, or a full pty buffer
     physics_steps: int = 0
     physics_skipped_s: float = 0.0  # wall time the physics could not keep up with
+    rest_s: float = 0.0  # wall time the physics was paused because nothing moved
 
 
 def _baud_constants() -> dict[int, int]:
@@ -163,6 +170,7 @@ class DynamixelBusEmulator:
         realtime: bool = True,
         max_catchup_s: float = 0.5,
         max_batch_s: float | None = None,
+        rest_after_s: float | None = None,
     ) -> None:
         if not servos:
             raise ValueError("a bus needs at least one servo")
@@ -192,6 +200,16 @@ class DynamixelBusEmulator:
         #: port (None: all that is due), so the servos keep answering while the
         #: physics catches up after the host was busy.
         self.max_batch_s = max_batch_s
+        #: After this long with no write instruction and every servo still (its Present
+        #: Position within a few ticks), the physics pauses until the next write: an idle
+        #: rig then costs next to no CPU. None: the physics never pauses (code that moves
+        #: the plant or the servos directly, as tests do, needs that).
+        self.rest_after_s = rest_after_s
+        self._resting = False
+        self._rest_since = 0.0
+        self._still_since = 0.0
+        self._still_lo: np.ndarray | None = None
+        self._still_hi: np.ndarray | None = None
         self.faults = BusFaults()
         self.stats = BusStats()
         self.rng = np.random.default_rng(seed)
@@ -323,7 +341,10 @@ class DynamixelBusEmulator:
         idle = min(0.005, max(self.physics_dt, 0.001))
         while not self._stop.is_set():
             try:
-                ready, _, _ = select.select([self._master, self._wake_r], [], [], idle)
+                # At rest nothing falls due: wake for bytes, or now and then for the
+                # inter-byte timeout of a partial frame.
+                ready, _, _ = select.select([self._master, self._wake_r], [], [],
+                                            _REST_POLL_S if self._resting else idle)
             except (OSError, ValueError):
                 return
             if self._stop.is_set():
@@ -396,6 +417,9 @@ class DynamixelBusEmulator:
 
     def _due_steps(self, now: float) -> int:
         """Physics steps due by ``now``; beyond ``max_catchup_s`` the backlog is skipped."""
+        if self._resting:
+            self._sim_wall = max(self._sim_wall, now)  # nothing moves: no steps fall due
+            return 0
         steps = int((now - self._sim_wall) / self.physics_dt)
         if steps <= 0:
             return 0
@@ -449,6 +473,31 @@ class DynamixelBusEmulator:
         self._sim_wall += steps * self.physics_dt
         self._step_costs.append((time.perf_counter() - t0) / steps)
         self._step_cost = 1.25 * sorted(self._step_costs)[len(self._step_costs) // 2]
+        if self.rest_after_s is not None:
+            self._watch_for_rest()
+
+    def _watch_for_rest(self) -> None:
+        """Pause the physics once every servo has stayed still for ``rest_after_s``."""
+        ticks = np.fromiter((servo.get("Present Position") for servo, _ in self._servos),
+                            float, len(self._servos))
+        if self._still_lo is None or self._still_hi is None:
+            self._still_lo, self._still_hi, self._still_since = ticks, ticks.copy(), self._sim_wall
+            return
+        np.minimum(self._still_lo, ticks, out=self._still_lo)
+        np.maximum(self._still_hi, ticks, out=self._still_hi)
+        if float(np.max(self._still_hi - self._still_lo)) > _STILL_TICKS:
+            self._still_lo, self._still_hi, self._still_since = ticks, ticks.copy(), self._sim_wall
+        elif self._sim_wall - self._still_since >= self.rest_after_s:
+            self._resting, self._rest_since = True, time.perf_counter()
+
+    def _wake(self) -> None:
+        """A write instruction arrived: the physics resumes from now (the rest skipped no motion)."""
+        self._still_lo = self._still_hi = None
+        if self._resting:
+            now = time.perf_counter()
+            self._resting = False
+            self.stats.rest_s += now - self._rest_since
+            self._sim_wall = now
 
     def _physics(self, steps: int) -> None:
         dt = self.physics_dt
@@ -494,6 +543,8 @@ class DynamixelBusEmulator:
         if event.is_status:
             return  # another device's answer
         self.stats.packets += 1
+        if self.rest_after_s is not None and event.instruction in _WAKING:
+            self._wake()
         listening = self._listening()
         broadcast = event.id == BROADCAST_ID
         if not broadcast and event.id not in listening:
