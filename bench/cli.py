@@ -152,6 +152,35 @@ def ik(name: str = typer.Argument(..., help="arc-train"),
 
 
 @app.command()
+def check(config: Path = typer.Argument(..., help="A trial config to check."),
+          emulate: bool = typer.Option(False, "--emulate", help="Do not check the configured serial ports (the emulated rig brings its own)."),
+          as_json: bool = typer.Option(False, "--json", help="Print the checks as one JSON line.")) -> None:
+    """Check a config as a trial would before moving, without moving anything.
+
+    Schema and bounds, target reachability and needle direction, plan length,
+    the trial's interlocks along the planned path, and the serial ports of a real
+    backend. Exit 0 when a trial would start, 2 when it would be refused.
+    """
+    from bench.preflight import check_config
+
+    results = check_config(config, emulate=emulate)
+    ok = all(r.ok for r in results)
+    failed = next((r for r in results if not r.ok), None)
+    if as_json:
+        emit_json({"config": str(config), "ok": ok,
+                   "checks": [{"name": r.name, "ok": r.ok, "detail": r.detail} for r in results],
+                   "reason": failed.detail if failed else ""})
+    else:
+        for r in results:
+            mark = "[green]ok[/]  " if r.ok else "[red]FAIL[/]"
+            console.print(f"{mark} {r.name}: {r.detail}", highlight=False, soft_wrap=True)
+    if failed is not None:
+        line = failed.detail if as_json else f"a trial would be refused ({failed.name}, above)"
+        err_console.print(f"[bold red]error:[/] {line}", highlight=False, soft_wrap=True)
+        raise typer.Exit(2)
+
+
+@app.command()
 def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_configs/sim_target1.yaml."),
           out: Path = typer.Option(Path("runs"), "--out", help="Directory for the run directory."),
           gui: bool = typer.Option(False, "--gui", help="Show the PyBullet window (sim backend)."),

@@ -222,6 +222,9 @@ class SafetyConfig(Strict):
     tracking_error_deg: float = Field(default=20.0, gt=0, le=180)
     tracking_error_mm: float = Field(default=20.0, gt=0, le=1000)
     stale_data: bool = True
+    refuse_planned_trips: bool = Field(
+        default=True, description="refuse a trial whose planned path, followed perfectly, trips "
+                                  "an interlock (off only to test the interlocks themselves)")
 
 
 class TrialConfig(Strict):

@@ -25,7 +25,8 @@ from bench.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
 from bench.outcome import NeedleOutcome, needle_outcome, settled_position
 from bench.interrupts import NO_SIGNALS, TrialInterrupted
 from bench.runner import Interruptible, Runner, Segment, abort_reason
-from drivers import Actuators, ActuatorError
+from bench.preflight import limits_of, needle_direction_problem, planned_path_trip
+from drivers import Actuators, ActuatorError, JointLimits
 
 PACKAGES = ("needle-hil-bench", "numpy", "pybullet", "ruckig", "dynamixel-sdk", "pyserial", "pydantic")
 
@@ -107,18 +108,22 @@ def prepare(config: TrialConfig) -> PreparedTrial:
     q_entry = q_insert.copy()
     q_entry[robot.joint_names.index(robot.insertion_joint)] = 0.0
     prep = PreparedTrial(config, robot, target, q_entry, q_insert)
-    _check_plan_length(prep)
+    problem = needle_direction_problem(robot, q_insert, config.target.angle_deg)
+    if problem:
+        raise TrialError(problem)
+    _check_plan(prep)
     return prep
 
 
-def _check_plan_length(prep: PreparedTrial) -> None:
-    """Refuse a plan that would run longer than MAX_PLAN_S from home (a typo, not a trial)."""
+def _check_plan(prep: PreparedTrial) -> None:
+    """Refuse a plan that would run longer than MAX_PLAN_S from home (a typo, not a trial),
+    or whose path from home, followed perfectly, would trip the trial's interlocks."""
     from bench.config import MAX_PLAN_S
     from trajectories import TrajectoryError
 
-    velocity = np.array([r.velocity for r in prep.robot.chain.rows])
+    limits = planned_limits(prep)
     try:
-        segments = plan(prep, prep.robot.chain.home, velocity)
+        segments = plan(prep, prep.robot.chain.home, limits.velocity)
     except (TrajectoryError, ValueError) as e:
         raise TrialError(f"plan: {e}") from None
     total = sum(s.trajectory.duration + s.settle for s in segments)
@@ -126,6 +131,16 @@ def _check_plan_length(prep: PreparedTrial) -> None:
         raise TrialError(f"plan: the trial would last {total:.0f} s from home, more than the "
                          f"{MAX_PLAN_S:.0f} s allowed; raise plan.velocity_scale or "
                          f"plan.acceleration_scale, or shorten plan.settle_s")
+    if not prep.config.safety.refuse_planned_trips:
+        return
+    trip = planned_path_trip(segments, interlocks_for(prep, limits), prep.config.control_period)
+    if trip is not None:
+        raise TrialError(trip.message())
+
+
+def planned_limits(prep: PreparedTrial) -> JointLimits:
+    """The joint limits the backend will have: the robot's, with the backend's overrides."""
+    return limits_of(prep.robot.chain.rows, getattr(prep.config.backend, "joints", None))
 
 
 def make_backend(prep: PreparedTrial, gui: bool = False) -> Actuators:
@@ -136,10 +151,8 @@ def make_backend(prep: PreparedTrial, gui: bool = False) -> Actuators:
 
         b = cfg.backend
         chain = prep.robot.chain
-        effort = [b.joints.get(r.name).effort if b.joints.get(r.name) and b.joints[r.name].effort
-                  else r.effort for r in chain.rows]
-        velocity = [b.joints.get(r.name).velocity if b.joints.get(r.name) and b.joints[r.name].velocity
-                    else r.velocity for r in chain.rows]
+        limits = planned_limits(prep)
+        effort, velocity = limits.effort.tolist(), limits.velocity.tolist()
         d = cfg.resolve(cfg.urdf_dir)
         scene = [SceneObject(d / "ct_gantry.urdf", collide=b.gantry_in_physics),
                  SceneObject(d / "ct_bed.urdf"), SceneObject(d / "phantom.urdf")]
@@ -219,8 +232,10 @@ def plan(prep: PreparedTrial, q_start: np.ndarray, limits_velocity: np.ndarray) 
     return segs
 
 
-def interlocks_for(prep: PreparedTrial, act: Actuators):
-    """The configured interlocks for this robot and backend (None when disabled)."""
+def interlocks_for(prep: PreparedTrial, act: Actuators | JointLimits):
+    """The configured interlocks for this robot and backend (None when disabled).
+
+    ``act``: the backend, or the limits it will have (to replay a plan before it exists)."""
     from bench.safety import (
         GantryClearanceInterlock, Interlocks, JointLimitInterlock, StaleDataInterlock,
         TrackingErrorInterlock, VelocityLimitInterlock,
@@ -231,7 +246,7 @@ def interlocks_for(prep: PreparedTrial, act: Actuators):
         return None
     names = list(prep.robot.joint_names)
     kinds = [r.kind for r in prep.robot.chain.rows]
-    lim = act.limits
+    lim = act if isinstance(act, JointLimits) else act.limits
     tol = s.joint_limit_tolerance
     bound = [np.radians(s.tracking_error_deg) if k == "revolute" else s.tracking_error_mm * 1e-3
              for k in kinds]

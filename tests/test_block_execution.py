@@ -95,7 +95,8 @@ def test_runner_blocks_trip_at_the_cycle_checking_every_cycle_trips(on_trip, mon
     from bench.trial import interlocks_for, make_backend, plan, prepare
     from test_interlock_trial import INTO_GANTRY
 
-    cfg = TrialConfig.model_validate({**INTO_GANTRY, "safety": {"on_trip": on_trip}})
+    cfg = TrialConfig.model_validate({**INTO_GANTRY, "safety": {**INTO_GANTRY["safety"],
+                                                                 "on_trip": on_trip}})
 
     def run(blocks: bool) -> TrialLog:
         prep = prepare(cfg)

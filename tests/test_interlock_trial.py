@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from bench.contact import GantryContact
@@ -19,17 +20,22 @@ HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 # carriage into the lower-left part of the gantry's bore (exact distance < 0).
 INTO_GANTRY = {"name": "into-gantry", "robot": "arc-train", "control_hz": 500,
                "target": {"x_mm": -57.6, "y_mm": -166.9, "z_mm": -64.2, "depth_mm": 20.0,
-                          "angle_deg": -3.8}}
+                          "angle_deg": -3.8},
+               # the run-time interlock is what is tested here: no refusal before moving
+               "safety": {"refuse_planned_trips": False}}
 
 
 def test_target_really_is_inside_the_gantry():
     robot = ArcTrainRobot()
     from bench.config import TrialConfig
-    from bench.trial import prepare
+    from bench.trial import TrialError, prepare
 
     prep = prepare(TrialConfig.model_validate(INTO_GANTRY))
     report = GantryContact(robot, 0.020).check(prep.q_entry)
     assert report.contact and report.distance <= 0.0  # touching or through the gantry
+    refused = {**INTO_GANTRY, "safety": {}}
+    with pytest.raises(TrialError, match="planned path trips the gantry_clearance interlock"):
+        prepare(TrialConfig.model_validate(refused))  # by default it never starts
 
 
 def test_plan_through_the_gantry_halts_outside_the_margin_and_holds(tmp_path):

@@ -41,6 +41,17 @@ def _run_dir(out: Path) -> Path | None:
     return dirs[0] if dirs else None
 
 
+def _slow_sim(tmp_path: Path) -> Path:
+    """Target 1 on the sim at a tenth of the speed: a run of a few seconds."""
+    import yaml
+
+    data = yaml.safe_load(SIM.read_text())
+    data["plan"]["velocity_scale"] = 0.05
+    path = tmp_path / "slow_sim.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
 def _journal_rows(out: Path) -> int:
     d = _run_dir(out)
     j = d / "trial.journal" if d else None
@@ -81,9 +92,10 @@ def test_signal_during_set_up_and_mid_run_on_the_sim(tmp_path, sig):
     _wait_for(lambda: _run_dir(out) is not None, what="the run directory")
     rc, err = _finish(proc, sig)
     _assert_interrupted(rc, err, sig, out)
-    # mid-run: once the journal holds samples
+    # mid-run: once the journal holds samples (a slow plan: the sim runs Target 1 in a
+    # fraction of a second, less than the journal's flush interval)
     out = tmp_path / "run"
-    proc = _start(SIM, out)
+    proc = _start(_slow_sim(tmp_path), out)
     _wait_for(lambda: _journal_rows(out) > 10, what="samples in the journal")
     rc, err = _finish(proc, sig)
     log = _assert_interrupted(rc, err, sig, out)

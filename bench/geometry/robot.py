@@ -23,6 +23,9 @@ from bench.kinematics.dh import DHChain, joint_split
 __all__ = ["RobotGeometry", "ChainPoser"]
 
 
+#: RobotGeometry.for_model results; the geometry is never changed once built.
+_GEOMETRY_CACHE: dict = {}
+
 class ChainPoser:
     """World poses of a chain's URDF links: ``base_link``, one per row, and the tool."""
 
@@ -226,7 +229,17 @@ class RobotGeometry:
             from bench.scene import URDF_DIR
 
             urdf = URDF_DIR / f"{model.name.replace('-', '_')}.urdf"
-        return cls(model.chain, urdf, sample_radius, patch_size)
+        # Built once per chain and mesh file: every trial (and the plan replay before it)
+        # needs the same geometry, and building it costs tens of milliseconds.
+        try:
+            stamp = Path(urdf).stat().st_mtime_ns
+        except OSError:
+            stamp = None
+        key = (cls, repr(model.chain.rows), str(urdf), stamp, sample_radius, patch_size)
+        geometry = _GEOMETRY_CACHE.get(key)
+        if geometry is None:
+            geometry = _GEOMETRY_CACHE[key] = cls(model.chain, urdf, sample_radius, patch_size)
+        return geometry
 
     def link_frames(self, q: np.ndarray) -> np.ndarray:
         """World frames (L, 4, 4) of :attr:`links` at joint vector ``q``."""
