@@ -204,6 +204,9 @@ def serve(config: TrialConfig, announce, report=None) -> None:
 
 
 EMULATOR_TIMEOUT_MS = 50.0
+#: Staleness allowance for the emulated ultrasonic sensor (s): its reader thread and the
+#: emulator share a loaded host's CPU, so a line can come a few periods late.
+EMULATOR_STALE_S = 0.5
 #: An emulated rig left alone (servos still, no writes) pauses its physics after this long.
 REST_AFTER_S = 0.5
 
@@ -357,5 +360,7 @@ def retarget(config: TrialConfig, ports: RigPorts) -> TrialConfig:
         # The emulator is a Python process sharing the CPU: its answers can come
         # milliseconds late where a servo's come in microseconds.
         "timeout_ms": max(b.timeout_ms or 0.0, EMULATOR_TIMEOUT_MS),
-        "ultrasonic": u.model_copy(update={"port": ports.ultrasonic_port}) if u else None})
+        "ultrasonic": u.model_copy(update={
+            "port": ports.ultrasonic_port,
+            "stale_after_s": max(u.stale_after_s or 0.0, EMULATOR_STALE_S)}) if u else None})
     return config.model_copy(update={"backend": backend})

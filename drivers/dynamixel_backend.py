@@ -186,6 +186,7 @@ class DynamixelActuators(ActuatorsBase):
                                                 stale_after_s=u.stale_after_s,
                                                 expected_rate_hz=u.rate_hz, range_m=u.range_m,
                                                 no_target_m=u.no_target_m)
+                self._sensor.wait_for_reading()
             self._last = self._read_bus()
         except BaseException:
             self._shutdown_port()

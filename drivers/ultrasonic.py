@@ -112,6 +112,7 @@ class UltrasonicSensor:
         self._last_line_time: float | None = None  # any well-formed line (rate bookkeeping)
         self._last_time: float | None = None  # newest reading accepted into the filter
         self._lock = threading.Lock()
+        self._first_reading = threading.Event()
         self._stop = threading.Event()
         self._closed = False
         try:
@@ -144,6 +145,19 @@ class UltrasonicSensor:
                 f"(stale after {self.stale_after_s:.3f} s)"
             )
         return distance, age
+
+    def wait_for_reading(self, timeout_s: float | None = None) -> None:
+        """Block until the first reading is in the filter, so a trial never starts blind.
+
+        Waits up to ``timeout_s`` (default: the staleness timeout plus one period, room
+        for the partial line dropped on opening); raises :class:`StaleReadingError` after.
+        """
+        if timeout_s is None:
+            timeout_s = self.stale_after_s + 1.0 / self.expected_rate_hz
+        if not self._first_reading.wait(timeout_s):
+            raise StaleReadingError(
+                f"ultrasonic sensor on {self.port}: no reading within {timeout_s:.2f} s of opening "
+                f"it (expected {self.expected_rate_hz:g} Hz); is it connected and powered?")
 
     @property
     def is_stale(self) -> bool:
@@ -248,3 +262,4 @@ class UltrasonicSensor:
             self.counters.readings += 1
             self._window.append(distance)
             self._last_time = now
+        self._first_reading.set()

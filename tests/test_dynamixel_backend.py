@@ -107,6 +107,21 @@ def test_wrong_model_stops_before_torque(cold_rig):
     assert not any(s.torque_enabled for s in r.bus.servos.values())
 
 
+def test_silent_ultrasonic_sensor_stops_before_torque_and_a_live_one_is_read_at_once(cold_rig):
+    r, cfg = cold_rig
+    r.ultrasonic.pause()
+    t0 = time.monotonic()
+    with pytest.raises(CommunicationError, match="ultrasonic sensor on .*: no reading within"):
+        backend_for(cfg)
+    assert time.monotonic() - t0 < 5.0
+    assert not any(s.torque_enabled for s in r.bus.servos.values())
+    r.ultrasonic.resume()
+    for _ in range(5):  # the backend never hands out a first sample without the train's reading
+        with backend_for(cfg) as act:
+            st = act.read()
+            assert not st.flags and np.isfinite(st.position[0])
+
+
 def test_hardware_error_refused_unless_reboot_allowed(cold_rig):
     r, cfg = cold_rig
     r.bus.servo(4).raise_hardware_error("overload")

@@ -28,9 +28,13 @@ def _start(config: Path, out: Path, *extra: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def _wait_for(predicate, timeout: float = 60.0, what: str = "") -> None:
+def _wait_for(predicate, timeout: float = 60.0, what: str = "",
+              proc: subprocess.Popen | None = None) -> None:
     t_end = time.monotonic() + timeout
     while not predicate():
+        if proc is not None and proc.poll() is not None:
+            _, err = proc.communicate()
+            raise AssertionError(f"the trial ended (exit {proc.returncode}) before {what}: {err}")
         if time.monotonic() > t_end:
             raise AssertionError(f"timed out waiting for {what}")
         time.sleep(0.005)
@@ -96,7 +100,8 @@ def test_signal_during_set_up_and_mid_run_on_the_sim(tmp_path, sig):
     # fraction of a second, less than the journal's flush interval)
     out = tmp_path / "run"
     proc = _start(_slow_sim(tmp_path), out)
-    _wait_for(lambda: _journal_rows(out) > 10, what="samples in the journal")
+    _wait_for(lambda: _journal_rows(out) > 10, what="samples in the journal",
+              proc=proc)
     rc, err = _finish(proc, sig)
     log = _assert_interrupted(rc, err, sig, out)
     assert len(log) > 10
@@ -156,7 +161,8 @@ def test_sigterm_on_the_emulated_rig_turns_torque_off_and_leaves_no_child(tmp_pa
     shutil.copy(LAB, config)
     out = tmp_path / "out"
     proc = _start(config, out, "--emulate")
-    _wait_for(lambda: _journal_rows(out) > 20, timeout=120, what="samples in the journal")
+    _wait_for(lambda: _journal_rows(out) > 20, timeout=120, what="samples in the journal",
+              proc=proc)
     assert _emulators_of(config)
     rc, err = _finish(proc, signal.SIGTERM)
     log = _assert_interrupted(rc, err, signal.SIGTERM, out)
@@ -171,7 +177,8 @@ def test_sigkill_leaves_a_journal_that_report_recovers_and_no_child(tmp_path):
     shutil.copy(LAB, config)
     out = tmp_path / "out"
     proc = _start(config, out, "--emulate")
-    _wait_for(lambda: _journal_rows(out) > 100, timeout=120, what="samples in the journal")
+    _wait_for(lambda: _journal_rows(out) > 100, timeout=120, what="samples in the journal",
+              proc=proc)
     rows_before = _journal_rows(out)
     proc.kill()
     proc.communicate(timeout=30)

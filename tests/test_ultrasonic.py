@@ -93,6 +93,24 @@ def test_reader_reports_staleness_when_the_emulator_stops() -> None:
     assert not sensor._thread.is_alive()
 
 
+def test_wait_for_reading_returns_with_the_first_line_or_raises_after_its_timeout() -> None:
+    emu = UltrasonicEmulator(lambda: 0.5, rate_hz=20)
+    emu.pause()
+    emu.start()
+    try:
+        with UltrasonicSensor(emu.port, expected_rate_hz=20) as sensor:
+            t0 = time.monotonic()
+            with pytest.raises(StaleReadingError, match=r"no reading within 0\.25 s"):
+                sensor.wait_for_reading()  # stale after 3 periods + 50 ms, plus one period
+            assert 0.24 < time.monotonic() - t0 < 1.0
+            emu.resume()
+            sensor.wait_for_reading()
+            distance, age = sensor.read()
+            assert distance == pytest.approx(0.5) and age < 0.2
+    finally:
+        emu.stop()
+
+
 def test_reader_counts_parse_errors_and_out_of_range() -> None:
     with UltrasonicEmulator(lambda: 0.8, rate_hz=50) as emu:
         with UltrasonicSensor(emu.port, range_m=(0.3, 0.7), expected_rate_hz=50) as sensor:
