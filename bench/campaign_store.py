@@ -11,6 +11,7 @@ so a row is either whole or untouched. A process killed mid-campaign leaves
 from __future__ import annotations
 
 import csv
+import datetime as dt
 import json
 import sqlite3
 import time
@@ -185,9 +186,20 @@ class CampaignStore:
             w = csv.writer(f)
             w.writerow(cols + labels + ["faults"])
             for r in rows:
-                w.writerow([r[c] for c in cols] + [r["params"].get(k) for k in labels]
-                           + [json.dumps(r["faults"])])
+                w.writerow([_iso(r[c]) if c in _TIME_COLUMNS else r[c] for c in cols]
+                           + [r["params"].get(k) for k in labels] + [json.dumps(r["faults"])])
         return path
+
+
+#: Columns holding wall-clock instants (epoch seconds in the database, ISO 8601 in a CSV).
+_TIME_COLUMNS = frozenset({"started_at", "finished_at"})
+
+
+def _iso(epoch: float | None) -> str | None:
+    """Epoch seconds as ISO 8601 UTC to the millisecond (what a spreadsheet parses)."""
+    if epoch is None:
+        return None
+    return dt.datetime.fromtimestamp(epoch, dt.timezone.utc).isoformat(timespec="milliseconds")
 
 
 def _int(v: Any) -> int | None:

@@ -8,6 +8,7 @@ line on stderr and exit code 2, before anything moves.
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Optional
@@ -17,7 +18,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+app = typer.Typer(no_args_is_help=True,
                   help="Hardware-in-the-loop test bench for CT-guided needle-placement robots.")
 urdf_app = typer.Typer(no_args_is_help=True, help="Generate or check the URDF scene files.")
 app.add_typer(urdf_app, name="urdf")
@@ -35,6 +36,24 @@ def fail(message: str, code: int = 2) -> "typer.Exit":
 def emit_json(obj: object) -> None:
     sys.stdout.write(json.dumps(obj) + "\n")
     sys.stdout.flush()
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            v = version("needle-hil-bench")
+        except PackageNotFoundError:  # run from a source tree that was never installed
+            v = "unknown"
+        console.print(f"hilbench {v}", highlight=False)
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                       help="Print the version and exit.")) -> None:
+    """Hardware-in-the-loop test bench for CT-guided needle-placement robots."""
 
 
 def _robot(name: str):
@@ -194,6 +213,10 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
     """
     from bench.interrupts import SignalGuard, TrialInterrupted
 
+    if gui and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                         or os.environ.get("WAYLAND_DISPLAY")):
+        fail("--gui needs a display and DISPLAY is not set; run without --gui (the report has "
+             "the pictures) or under xvfb-run")
     with SignalGuard() as guard:  # first, so no signal can land before it
         try:
             res, name = _trial(config, out, gui, note, emulate, guard)
@@ -281,11 +304,17 @@ def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=Non
 
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeRemainingColumn(), console=err_console, transient=True) as bar:
-        task = bar.add_task(f"trial {cfg.name}", total=1.0)
+        task = bar.add_task(f"trial {cfg.name}: checking", total=None)
+
+        def on_phase(what: str) -> None:
+            moving = what not in ("connecting", "planning", "report")  # a segment of the plan
+            bar.update(task, description=f"trial {cfg.name}: {what}",
+                       total=1.0 if moving else None)
+
         try:
             return run_trial(cfg, out, gui=gui, note=note, backend_factory=backend_factory,
                              progress=lambda f: bar.update(task, completed=f),
-                             interrupts=guard or NO_SIGNALS)
+                             interrupts=guard or NO_SIGNALS, phase=on_phase)
         except (TrialError, ConfigError, ActuatorError) as e:
             fail(str(e))
 
@@ -340,6 +369,38 @@ def report(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
         console.print(f"rebuilt {res.run_dir / 'report.md'} and {res.run_dir / 'report.html'}")
 
 
+@app.command()
+def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory trials wrote into."),
+         as_json: bool = typer.Option(False, "--json", help="Print the runs as one JSON line.")) -> None:
+    """List past trials: date, config, verdict, deviations and report, oldest first."""
+    from bench.runs import list_runs
+
+    found = list_runs(out)
+    if as_json:
+        emit_json({"out": str(out), "runs": [r.as_dict() for r in found]})
+        return
+    if not found:
+        console.print(f"no trial runs in {out}", highlight=False)
+        return
+    colour = {"passed": "green", "failed": "red", "stopped": "red", "incomplete": "yellow"}
+    t = Table(title=f"trials in {out}", title_justify="left")
+    t.add_column("run (started, config)", no_wrap=True)
+    t.add_column("backend", no_wrap=True)
+    t.add_column("verdict", no_wrap=True)
+    t.add_column("tip mm", justify="right", no_wrap=True)
+    t.add_column("angle °", justify="right", no_wrap=True)
+    for r in found:
+        tip = "" if r.tip_deviation_mm is None else f"{r.tip_deviation_mm:.2f}"
+        angle = "" if r.angle_deviation_deg is None else f"{r.angle_deviation_deg:+.3f}"
+        t.add_row(Path(r.run_dir).name, r.backend or "?", f"[{colour[r.status]}]{r.status}[/]",
+                  tip, angle)
+    console.print(t)
+    for r in found:
+        if r.reason:
+            console.print(f"{Path(r.run_dir).name}: {r.reason}", highlight=False, soft_wrap=True)
+    console.print(f"{len(found)} runs; reports: {out}/RUN/report.html", highlight=False)
+
+
 @urdf_app.command("build")
 def urdf_build(check: bool = typer.Option(False, "--check", help="Fail if the files differ instead of writing.")) -> None:
     """Write urdf/ from the parameter sets in bench/kinematics and bench/scene.py."""
@@ -381,9 +442,29 @@ from bench.cli_compare import compare  # noqa: E402  (kept in its own module)
 app.command()(compare)
 
 
+def _tidy_help(command) -> None:
+    """Help texts without type placeholders on flags, and arguments in capitals."""
+    import typer._click as click_core
+
+    ctx = click_core.Context(command)
+    params = list(command.params)
+    help_option = command.get_help_option(ctx)
+    if help_option is not None:
+        params.append(help_option)
+    for p in params:
+        if getattr(p, "is_flag", False):
+            p.metavar = ""
+        elif p.param_type_name == "argument" and p.metavar is None:
+            p.metavar = p.name.upper()
+    for sub in getattr(command, "commands", {}).values():
+        _tidy_help(sub)
+
+
 def main() -> None:  # pragma: no cover - console entry point
-    app()
+    command = typer.main.get_command(app)
+    _tidy_help(command)
+    command()
 
 
 if __name__ == "__main__":  # pragma: no cover
-    app()
+    main()

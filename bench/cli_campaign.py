@@ -138,27 +138,38 @@ def rerun(campaign_dir: Path = typer.Argument(...), trial_id: int = typer.Argume
         console.print(f"trial {res['trial']} ({res['name']}, seed {res['seed']}): "
                       + ("identical to the record" if res["identical"] else
                          f"differs from the record (stored status {res['stored_status']})"), highlight=False)
+        unmeasured = [k for k in res["stored"] if res["stored"][k] is None and res["rerun"][k] is None]
         for k in res["stored"]:
-            console.print(f"  {k:>14}: {res['stored'][k]!s:>12}  ->  {res['rerun'][k]!s}", highlight=False)
+            if k not in unmeasured:
+                console.print(f"  {k:>14}: {res['stored'][k]!s:>12}  ->  {res['rerun'][k]!s}",
+                              highlight=False)
+        if unmeasured:
+            console.print(f"  not measured in either: {', '.join(unmeasured)}", highlight=False)
         console.print(f"report: {Path(res['run_dir']) / 'report.html'}", highlight=False)
     raise typer.Exit(0 if res["identical"] else 1)
 
 
 @campaign_app.command("export")
 def export(campaign_dir: Path = typer.Argument(...),
-           csv: Path = typer.Option(..., "--csv", help="CSV file to write.")) -> None:
-    """Write the trials table as CSV (one row per trial, one column per varying parameter)."""
+           csv: Path = typer.Option(..., "--csv", help="CSV file to write."),
+           as_json: bool = typer.Option(False, "--json", help='Print {"csv": PATH}.')) -> None:
+    """Write the trials table as CSV (one row per trial, one column per varying parameter;
+    times in ISO 8601 UTC)."""
     from bench.campaign import CampaignError, export_csv
 
     try:
         path = export_csv(campaign_dir, csv)
     except CampaignError as e:
         _fail(str(e))
-    err_console.print(f"wrote {path}", highlight=False)
+    if as_json:
+        _emit({"csv": str(path)})
+    else:
+        err_console.print(f"wrote {path}", highlight=False)
 
 
 @campaign_app.command("report")
-def report_cmd(campaign_dir: Path = typer.Argument(...)) -> None:
+def report_cmd(campaign_dir: Path = typer.Argument(...),
+               as_json: bool = typer.Option(False, "--json", help='Print {"markdown", "html"}: the paths.')) -> None:
     """Write report.md and report.html from the database as it stands."""
     from bench.campaign import CampaignError, open_store
     from bench.campaign_report import write_campaign_report
@@ -168,7 +179,10 @@ def report_cmd(campaign_dir: Path = typer.Argument(...)) -> None:
     except CampaignError as e:
         _fail(str(e))
     paths = write_campaign_report(campaign_dir)
-    console.print(f"report: {paths['html']}", highlight=False)
+    if as_json:
+        _emit({k: str(v) for k, v in paths.items()})
+    else:
+        console.print(f"report: {paths['html']}", highlight=False)
 
 
 @campaign_app.command("status")

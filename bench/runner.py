@@ -93,6 +93,7 @@ class RunResult:
 
 
 ProgressFn = Callable[[float], None]  # called with the fraction done (0..1)
+PhaseFn = Callable[[str], None]  # called with each segment's name as it starts
 
 
 class Runner:
@@ -101,7 +102,8 @@ class Runner:
     def __init__(self, actuators: Actuators, control_period: float,
                  interlocks: Optional[TripCheck] = None,
                  on_trip: Literal["hold", "stop"] = "hold", hold_after_trip: float = 0.25,
-                 progress: Optional[ProgressFn] = None, interrupts: Interruptible = NO_SIGNALS) -> None:
+                 progress: Optional[ProgressFn] = None, interrupts: Interruptible = NO_SIGNALS,
+                 phase: Optional[PhaseFn] = None) -> None:
         if control_period <= 0:
             raise ValueError(f"control period must be positive, got {control_period}")
         self.act = actuators
@@ -110,6 +112,7 @@ class Runner:
         self.on_trip = on_trip
         self.hold_after_trip = hold_after_trip
         self.progress = progress
+        self.phase = phase
         self.interrupts = interrupts
 
     def _cycles(self, seg: Segment) -> int:
@@ -140,6 +143,8 @@ class Runner:
         try:
             for si, seg in enumerate(segments):
                 n = self._cycles(seg)
+                if self.phase is not None:
+                    self.phase(seg.name)
                 log.event(act.now(), "segment", f"start {seg.name} ({seg.trajectory.duration:.3f} s"
                           f" + {seg.settle:.3f} s settle)")
                 for q_all, qd_all in sample_chunks(seg.trajectory, n, dt):

@@ -292,13 +292,18 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
               backend_factory: Optional[Callable[[PreparedTrial], Actuators]] = None,
               wrap: Optional[Callable[[Actuators], Actuators]] = None,
               note: str = "", report: bool = True,
-              interrupts: Interruptible = NO_SIGNALS) -> TrialResult:
+              interrupts: Interruptible = NO_SIGNALS,
+              phase: Optional[Callable[[str], None]] = None) -> TrialResult:
     """Run one trial and write its run directory; the log is saved on every exit path.
+
+    ``phase`` hears what the trial is doing ("connecting", "planning", each segment's
+    name, "report"), for a progress display.
 
     ``report=False`` writes only the log and ``result.json`` (no figures), for campaigns.
     ``interrupts`` (a :class:`bench.interrupts.SignalGuard`) turns stop signals into
     :class:`TrialInterrupted`, raised once the actuators are safe and the record written.
     """
+    tell = phase or (lambda _: None)
     prep = prepare(config)
     interrupts.check()
     log = TrialLog(list(prep.robot.joint_names), metadata=_metadata(prep, note))
@@ -308,6 +313,7 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
         log_path = run_dir / "trial.npz"
         log.journal_to(run_dir)
     backend = None
+    tell("connecting")
     try:
         backend = (backend_factory or (lambda p: make_backend(p, gui)))(prep)
         act = _wrapped(backend, prep, wrap)
@@ -335,12 +341,14 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
                 log.metadata["servos"] = backend.servo_info()
             if getattr(getattr(backend, "settings", None), "warnings", None):
                 log.metadata["warnings"] = list(backend.settings.warnings)
+            tell("planning")
             q_start = act.read().position
             segments = plan(prep, q_start, act.limits.velocity)
             interlocks = interlocks_for(prep, act)  # built (and imported) before anything moves
             interrupts.check()  # a signal swallowed during the set-up still stops here
             runner = Runner(act, config.control_period, interlocks=interlocks,
-                            on_trip=config.safety.on_trip, progress=progress, interrupts=interrupts)
+                            on_trip=config.safety.on_trip, progress=progress, interrupts=interrupts,
+                            phase=phase)
             runner.run(segments, log)
         finally:
             with interrupts.deferred():  # the safe stop always runs to its end
@@ -368,6 +376,7 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
         if report:
             from bench.report import write_trial_report
 
+            tell("report")
             write_trial_report(res, log, prep)
         interrupts.check()
     except KeyboardInterrupt as e:  # the record is complete; the report can be rebuilt from it

@@ -206,6 +206,14 @@ def test_local_campaign_runs_every_trial_once_and_reports(local_campaign, tmp_pa
     csv_path = export_csv(d, tmp_path / "t.csv")
     lines = csv_path.read_text().splitlines()
     assert len(lines) == 9 and "torque_limit[theta5].scale" in lines[0].split(",")
+    import csv as csv_module
+    import datetime as dt
+
+    for row in csv_module.DictReader(lines):  # wall-clock instants in ISO 8601 UTC
+        started = dt.datetime.fromisoformat(row["started_at"])
+        finished = dt.datetime.fromisoformat(row["finished_at"])
+        assert started.utcoffset() == dt.timedelta(0) and started <= finished
+        assert abs((dt.datetime.now(dt.timezone.utc) - started).total_seconds()) < 3600
     # the report: pass rates, the distribution beside Table 3, the worst trials with their logs
     md = (d / "report.md").read_text()
     assert "## Deviation against seed 000 Table 3" in md and "## Worst trials" in md

@@ -1,0 +1,90 @@
+"""The CLI's everyday basics: --version, help without placeholders, `runs`, labelled progress,
+--gui without a display."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bench.config import load_trial_config
+from bench.log import TrialLog
+from bench.trial import run_trial
+
+REPO = Path(__file__).resolve().parent.parent
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+SIM = REPO / "hil_configs" / "sim_target1.yaml"
+
+
+def _cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=120,
+                          env=env, cwd=REPO)
+
+
+def test_version_matches_the_installed_package():
+    from importlib.metadata import version
+
+    res = _cli("--version")
+    assert res.returncode == 0 and res.stdout.strip() == f"hilbench {version('needle-hil-bench')}"
+
+
+def test_help_shows_no_type_placeholders_on_flags_and_names_arguments():
+    res = _cli("trial", "--help")
+    assert res.returncode == 0
+    assert "<bool>" not in res.stdout and "{config}" not in res.stdout
+    assert "CONFIG" in res.stdout and "--json" in res.stdout
+    assert "--install-completion" in _cli("--help").stdout  # shell completion is on offer
+
+
+def test_runs_lists_passed_stopped_and_killed_trials_with_their_verdicts(tmp_path):
+    out = tmp_path / "runs"
+    cfg = load_trial_config(SIM)
+    phases: list[str] = []
+    passed = run_trial(cfg, out, phase=phases.append)
+    # the progress display hears every phase in order, the plan's segments included
+    assert phases == ["connecting", "planning", *passed_segments(passed.run_dir), "report"]
+    stopped = run_trial(cfg.model_copy(update={"name": "stopped", "safety": cfg.safety.model_copy(
+        update={"tracking_error_deg": 1e-6})}), out, report=False)
+    assert not stopped.completed
+    killed = out / "20000101-000000-killed"  # what SIGKILL leaves: the journal only
+    killed.mkdir()
+    log = TrialLog(["a"], metadata={"config": {"name": "killed"}, "backend": "pybullet",
+                                    "start_time": "2000-01-01T00:00:00+00:00"})
+    log.journal_to(killed)
+    log.append(0.0, 0, [0.0], [0.0], [0.0], [0.0], [0.0])
+    log.flush()
+    (out / "compare-x").mkdir()  # not a trial: left out
+
+    res = _cli("runs", "--out", str(out), "--json")
+    assert res.returncode == 0, res.stderr
+    runs = json.loads(res.stdout)["runs"]
+    assert [r["status"] for r in runs] == ["incomplete", "passed", "stopped"]
+    assert [r["config"] for r in runs] == ["killed", cfg.name, "stopped"]
+    assert runs[1]["tip_deviation_mm"] == round(float(np.linalg.norm(passed.outcome.tip_deviation_mm)), 3)
+    assert runs[1]["report"].endswith("report.html") and runs[2]["report"] is None
+    assert runs[2]["reason"] == stopped.reason and "interlock" in stopped.reason
+    text = _cli("runs", "--out", str(out), env={**os.environ, "COLUMNS": "80"})
+    assert text.returncode == 0
+    table = [ln for ln in text.stdout.splitlines() if ": " not in ln]  # reasons wrap as the terminal likes
+    assert len(table) >= 7 and all(len(line) <= 80 for line in table)
+    assert passed.run_dir.name in text.stdout  # a run's name is never broken mid-value
+    assert f"{stopped.run_dir.name}: {stopped.reason}" in text.stdout
+    empty = _cli("runs", "--out", str(tmp_path / "none"))
+    assert empty.returncode == 0 and "no trial runs" in empty.stdout
+
+
+def passed_segments(run_dir: Path) -> list[str]:
+    return TrialLog.load(run_dir / "trial.npz").segment_names
+
+
+def test_gui_without_a_display_is_refused_with_one_line(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    res = _cli("trial", str(SIM), "--gui", "--out", str(tmp_path / "o"), env=env)
+    assert res.returncode == 2
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "--gui needs a display" in lines[0]
+    assert not (tmp_path / "o").exists()
