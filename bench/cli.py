@@ -401,6 +401,21 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
     console.print(f"{len(found)} runs; reports: {out}/RUN/report.html", highlight=False)
 
 
+@app.command()
+def schema(markdown: bool = typer.Option(False, "--markdown", help="The field reference (docs/config.md) instead."),
+           out: Optional[Path] = typer.Option(None, "--out", help="Write to this file instead of stdout.")) -> None:
+    """The trial config's JSON Schema, generated from the models (or its Markdown reference)."""
+    from bench.config_reference import json_schema, markdown_reference
+
+    text = markdown_reference() if markdown else json.dumps(json_schema(), indent=2) + "\n"
+    if out is None:
+        sys.stdout.write(text)
+        return
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    err_console.print(f"wrote {out}", highlight=False)
+
+
 @urdf_app.command("build")
 def urdf_build(check: bool = typer.Option(False, "--check", help="Fail if the files differ instead of writing.")) -> None:
     """Write urdf/ from the parameter sets in bench/kinematics and bench/scene.py."""

@@ -44,47 +44,74 @@ class Strict(BaseModel):
 class TargetConfig(Strict):
     """The needle target in the bed frame (README): entry point, depth and angle."""
 
-    x_mm: float = Field(ge=-2000, le=2000)
-    y_mm: float = Field(ge=-2000, le=2000)
-    z_mm: float = Field(ge=-2000, le=2000)
-    depth_mm: float = Field(ge=0, le=300)
-    angle_deg: float = Field(ge=-90, le=90, description="from the downward vertical towards +Y")
-    tilt_deg: float = Field(default=0.0, ge=-90, le=90)
+    x_mm: float = Field(ge=-2000, le=2000, description="entry point X, along the bed (mm)")
+    y_mm: float = Field(ge=-2000, le=2000, description="entry point Y, across the bed (mm)")
+    z_mm: float = Field(ge=-2000, le=2000, description="entry point Z, up from the bed (mm)")
+    depth_mm: float = Field(ge=0, le=300, description="insertion depth beyond the entry point (mm)")
+    angle_deg: float = Field(ge=-90, le=90, description="needle angle from the downward vertical "
+                                                        "towards +Y (°); the needle points down")
+    tilt_deg: float = Field(default=0.0, ge=-90, le=90,
+                            description="out of the axial plane, towards +X (°)")
 
 
 class JointOverride(Strict):
     """Per-joint limits that replace the robot model's (SI units)."""
 
-    effort: Optional[float] = Field(default=None, gt=0, le=1e4)
-    velocity: Optional[float] = Field(default=None, gt=0, le=100)
+    effort: Optional[float] = Field(default=None, gt=0, le=1e4,
+                                    description="torque or force limit (N·m or N)")
+    velocity: Optional[float] = Field(default=None, gt=0, le=100,
+                                      description="velocity limit (rad/s or m/s)")
+
+
+SafeStop = Literal["torque_off", "hold"]
+SAFE_STOP_MEANING = ("on every exit: torque_off (motors free) or hold (hold the measured position, "
+                     "torque on)")
 
 
 class PyBulletBackendConfig(Strict):
-    kind: Literal["pybullet"] = "pybullet"
-    physics_hz: float = Field(default=1000.0, ge=100, le=10_000)
-    position_gain: float = Field(default=1.0, gt=0, le=1.0)
-    velocity_gain: float = Field(default=1.0, ge=0, le=2.0)
-    solver_iterations: int = Field(default=10, ge=1, le=200)
-    gantry_in_physics: bool = False
-    safe_stop: Literal["hold", "off"] = "hold"
-    joints: dict[str, JointOverride] = Field(default_factory=dict)
+    """The simulated robot: PyBullet joints in the CT room (no hardware)."""
+
+    kind: Literal["pybullet"] = Field(default="pybullet", description="the simulator backend")
+    physics_hz: float = Field(default=1000.0, ge=100, le=10_000,
+                              description="physics steps per second (control_hz must divide it)")
+    position_gain: float = Field(default=1.0, gt=0, le=1.0,
+                                 description="PyBullet position motor gain (kp, 0..1]")
+    velocity_gain: float = Field(default=1.0, ge=0, le=2.0,
+                                 description="PyBullet position motor velocity gain (kd)")
+    solver_iterations: int = Field(default=10, ge=1, le=200,
+                                   description="constraint solver iterations per step")
+    gantry_in_physics: bool = Field(default=False, description="load the CT gantry as a colliding "
+                                                               "body (the interlock sees it anyway)")
+    safe_stop: SafeStop = Field(default="hold", description=SAFE_STOP_MEANING)
+    joints: dict[str, JointOverride] = Field(default_factory=dict,
+                                             description="per-joint limits that replace the model's")
+
+    @field_validator("safe_stop", mode="before")
+    @classmethod
+    def _old_off(cls, v: Any) -> Any:
+        return "torque_off" if v == "off" else v  # the older spelling of the same stop
 
 
 class ServoConfig(Strict):
     """One servo on the bus and its transmission: joint = offset + ratio · shaft angle."""
 
-    id: int = Field(ge=0, le=252)
-    model: str = "XM430-W350"
-    mode: Literal["position", "extended_position", "current_based_position"] = "extended_position"
+    id: int = Field(ge=0, le=252, description="the servo's ID on the bus")
+    model: str = Field(default="XM430-W350", description="checked against the servo's model number")
+    mode: Literal["position", "extended_position", "current_based_position"] = Field(
+        default="extended_position", description="operating mode written to the servo")
     ratio: float = Field(default=1.0, ge=-100, le=100,
                          description="joint units (rad or m) per shaft radian")
     offset: float = Field(default=0.0, ge=-100, le=100,
                           description="joint value at 2048 ticks (rad or m)")
-    current_limit_a: Optional[float] = Field(default=None, gt=0, le=20)
+    current_limit_a: Optional[float] = Field(default=None, gt=0, le=20,
+                                             description="Current Limit written to the servo (A)")
     # Position PID gains written to the servo (register units, as Dynamixel Wizard shows them).
-    position_p: Optional[int] = Field(default=None, ge=0, le=16383)
-    position_i: Optional[int] = Field(default=None, ge=0, le=16383)
-    position_d: Optional[int] = Field(default=None, ge=0, le=16383)
+    position_p: Optional[int] = Field(default=None, ge=0, le=16383,
+                                      description="Position P Gain (register units)")
+    position_i: Optional[int] = Field(default=None, ge=0, le=16383,
+                                      description="Position I Gain (register units)")
+    position_d: Optional[int] = Field(default=None, ge=0, le=16383,
+                                      description="Position D Gain (register units)")
 
     @model_validator(mode="after")
     def _known_model(self) -> "ServoConfig":
@@ -109,9 +136,9 @@ def model_number(name: str) -> int:
 class UltrasonicConfig(Strict):
     """The distance sensor that measures the train's d2 (MaxBotix-style 'R####' lines in mm)."""
 
-    port: str
-    baud: int = 9600
-    joint: str = "train"
+    port: str = Field(description="the sensor's serial port, e.g. /dev/ttyUSB1")
+    baud: int = Field(default=9600, description="serial rate (MaxBotix: 9600)")
+    joint: str = Field(default="train", description="the joint whose position it measures")
 
     @field_validator("baud")
     @classmethod
@@ -121,7 +148,7 @@ class UltrasonicConfig(Strict):
         return v
 
     standoff_mm: float = Field(default=300.0, ge=0, le=5000, description="sensor reading when d2 = 0")
-    median_window: int = Field(default=5, ge=1, le=51)
+    median_window: int = Field(default=5, ge=1, le=51, description="readings in the median filter")
     rate_hz: float = Field(default=6.0, ge=0.5, le=100,
                            description="nominal reading rate (HRXL-MaxSonar-WR free-runs at 6 Hz); "
                                        "dropouts and staleness are counted against it")
@@ -138,9 +165,11 @@ class UltrasonicConfig(Strict):
 
 
 class DynamixelBackendConfig(Strict):
-    kind: Literal["dynamixel"] = "dynamixel"
-    port: str
-    baud: int = Field(default=1_000_000, gt=0)
+    """The real robot: Dynamixel X-series servos (Protocol 2.0) and the ultrasonic sensor."""
+
+    kind: Literal["dynamixel"] = Field(default="dynamixel", description="the real-servo backend")
+    port: str = Field(description="the servo bus's serial port, e.g. /dev/ttyUSB0 (U2D2)")
+    baud: int = Field(default=1_000_000, gt=0, description="must match every servo's Baud Rate")
 
     @field_validator("baud")
     @classmethod
@@ -152,15 +181,21 @@ class DynamixelBackendConfig(Strict):
                              f"{sorted(BAUD_RATES.values())}")
         return v
 
-    return_delay_us: int = Field(default=0, ge=0, le=508)
-    fast_sync_read: bool = True
-    retries: int = Field(default=3, ge=0, le=20)
+    return_delay_us: int = Field(default=0, ge=0, le=508,
+                                 description="Return Delay Time written to each servo (µs)")
+    fast_sync_read: bool = Field(default=True, description="one status packet for all servos "
+                                                           "(firmware 45+)")
+    retries: int = Field(default=3, ge=0, le=20,
+                         description="tries after a failed transaction before the trial stops")
     timeout_ms: Optional[float] = Field(default=None, gt=0, le=1000,
                                         description="per transaction; default from the wire time")
-    safe_stop: Literal["torque_off", "hold"] = "torque_off"
-    reboot_on_hardware_error: bool = False
-    servos: dict[str, ServoConfig]
-    ultrasonic: Optional[UltrasonicConfig] = None
+    safe_stop: SafeStop = Field(default="torque_off", description=SAFE_STOP_MEANING)
+    reboot_on_hardware_error: bool = Field(
+        default=False, description="reboot a servo reporting a hardware error at start-up "
+                                   "(else the trial is refused)")
+    servos: dict[str, ServoConfig] = Field(description="one entry per joint, keyed by joint name")
+    ultrasonic: Optional[UltrasonicConfig] = Field(
+        default=None, description="the train's distance sensor (the train is then measured by it)")
 
     @model_validator(mode="after")
     def _unique_ids(self) -> "DynamixelBackendConfig":
@@ -174,79 +209,105 @@ class DynamixelBackendConfig(Strict):
 class EmulatorConfig(Strict):
     """The emulated rig used by `--emulate` and `hilbench emulate` (ignored on real hardware)."""
 
-    physics_hz: float = Field(default=1000.0, ge=100, le=10_000)
-    wire_timing: bool = False
+    physics_hz: float = Field(default=1000.0, ge=100, le=10_000,
+                              description="the emulated robot's physics steps per second")
+    wire_timing: bool = Field(default=False,
+                              description="answer after the real wire time at the bus's baud")
     ultrasonic_rate_hz: Optional[float] = Field(
         default=None, gt=0, le=100, description="default: the sensor's backend.ultrasonic.rate_hz")
-    ultrasonic_noise_mm: float = Field(default=1.0, ge=0, le=100)
-    ultrasonic_dropout: float = Field(default=0.0, ge=0, lt=1)
-    deadband_deg: float = Field(default=0.0, ge=0, le=10)
-    start_torque_on: bool = True  # servos hold their pose at power-up, as a rig left enabled
+    ultrasonic_noise_mm: float = Field(default=1.0, ge=0, le=100,
+                                       description="standard deviation of each reading (mm)")
+    ultrasonic_dropout: float = Field(default=0.0, ge=0, lt=1,
+                                      description="probability that a reading is not sent")
+    deadband_deg: float = Field(default=0.0, ge=0, le=10,
+                                description="each servo's position deadband (°)")
+    start_torque_on: bool = Field(default=True, description="servos hold their pose at power-up, "
+                                                            "as a rig left enabled")
     joint_friction: dict[str, Annotated[float, Field(ge=0, le=100)]] = Field(
-        default_factory=dict, max_length=32)
-    seed: int = Field(default=0, ge=0, le=SEED_MAX)
+        default_factory=dict, max_length=32,
+        description="extra Coulomb friction per joint (N·m or N), keyed by joint name")
+    seed: int = Field(default=0, ge=0, le=SEED_MAX, description="seed of the emulator's noise")
 
 
 class PlanConfig(Strict):
     """home -> entry pose -> insertion along the needle axis -> (retract)."""
 
-    trajectory: Literal["lspb", "ruckig", "ruckig-online"] = "lspb"
-    velocity_scale: float = Field(default=0.5, ge=0.01, le=1.0)
+    trajectory: Literal["lspb", "ruckig", "ruckig-online"] = Field(
+        default="lspb", description="parabolic blends, or ruckig's jerk-limited profiles "
+                                    "(offline, or re-planned online every cycle)")
+    velocity_scale: float = Field(default=0.5, ge=0.01, le=1.0,
+                                  description="vmax = each joint's velocity limit × this")
     acceleration_scale: float = Field(default=2.0, ge=0.1, le=100,
                                       description="amax = vmax × this (1/s)")
     jerk_scale: float = Field(default=20.0, ge=0.1, le=1000,
                               description="jmax = amax × this (1/s), ruckig only")
-    settle_s: float = Field(default=0.5, ge=0, le=60)
-    retract: bool = True
+    settle_s: float = Field(default=0.5, ge=0, le=60,
+                            description="hold after each segment before measuring (s)")
+    retract: bool = Field(default=True, description="pull the needle back out at the end")
 
 
 class AcceptanceConfig(Strict):
     """Seed 000's limits: 5 mm in each of X, Y, Z and depth, 1° in angle."""
 
-    position_mm: float = Field(default=5.0, gt=0, le=1000)
-    angle_deg: float = Field(default=1.0, gt=0, le=90)
+    position_mm: float = Field(default=5.0, gt=0, le=1000,
+                               description="tip deviation limit on each axis and on depth (mm)")
+    angle_deg: float = Field(default=1.0, gt=0, le=90, description="needle angle deviation limit (°)")
 
 
 class SafetyConfig(Strict):
     """Interlocks checked every control cycle (bench/safety.py); a trip fails the trial."""
 
-    enabled: bool = True
-    on_trip: Literal["hold", "stop"] = "hold"
-    gantry_margin_mm: float = Field(default=20.0, ge=0, le=500, description="seed 001's margin")
+    enabled: bool = Field(default=True, description="check the interlocks (off: tests only)")
+    on_trip: Literal["hold", "stop"] = Field(
+        default="hold", description="after a trip: hold the measured pose briefly, or stop at once")
+    gantry_margin_mm: float = Field(default=20.0, ge=0, le=500, description="clearance kept from the CT gantry (seed 001: 20 mm)")
     gantry_lookahead_s: float = Field(default=0.03, ge=0, le=1,
-                                      description="braking time checked ahead")
+                                      description="braking time checked ahead of the motion (s)")
     joint_limit_tolerance: float = Field(default=0.01, ge=0, le=1,
-                                         description="rad or m beyond a limit")
+                                         description="trip this far beyond a joint limit (rad or m)")
     velocity_factor: float = Field(default=1.5, gt=0, le=10,
-                                   description="× each joint's velocity limit")
-    tracking_error_deg: float = Field(default=20.0, gt=0, le=180)
-    tracking_error_mm: float = Field(default=20.0, gt=0, le=1000)
-    stale_data: bool = True
+                                   description="trip above each joint's velocity limit × this")
+    tracking_error_deg: float = Field(default=20.0, gt=0, le=180,
+                                      description="trip when a revolute joint lags its command by more (°)")
+    tracking_error_mm: float = Field(default=20.0, gt=0, le=1000,
+                                     description="trip when a prismatic joint lags its command by more (mm)")
+    stale_data: bool = Field(default=True, description="trip on a reading the backend flags stale")
     refuse_planned_trips: bool = Field(
         default=True, description="refuse a trial whose planned path, followed perfectly, trips "
                                   "an interlock (off only to test the interlocks themselves)")
 
 
 class TrialConfig(Strict):
+    """One trial: a robot, a target, a plan, the limits it is judged by and where it runs."""
+
     name: str = Field(pattern=NAME_PATTERN, description="letters, digits, . _ - (the run's folder)")
-    robot: Literal["arc-train"] = "arc-train"
-    urdf_dir: Path = Path("urdf")
-    control_hz: float = Field(default=500.0, ge=1, le=2000)
-    seed: int = Field(default=0, ge=0, le=SEED_MAX)
-    target: TargetConfig
-    plan: PlanConfig = PlanConfig()
-    acceptance: AcceptanceConfig = AcceptanceConfig()
-    safety: SafetyConfig = SafetyConfig()
+    robot: Literal["arc-train"] = Field(default="arc-train", description="the robot driven")
+    urdf_dir: Path = Field(default=Path("urdf"), description="the scene's URDFs (relative: to the "
+                                                             "config's folder, then the project)")
+    control_hz: float = Field(default=500.0, ge=1, le=2000, description="control cycles per second")
+    seed: int = Field(default=0, ge=0, le=SEED_MAX, description="seed of every random fault")
+    target: TargetConfig = Field(description="where the needle goes")
+    plan: PlanConfig = Field(default=PlanConfig(), description="how it gets there")
+    acceptance: AcceptanceConfig = Field(default=AcceptanceConfig(),
+                                         description="what counts as a pass")
+    safety: SafetyConfig = Field(default=SafetyConfig(), description="the interlocks")
     backend: Annotated[Union[PyBulletBackendConfig, DynamixelBackendConfig],
-                       Field(discriminator="kind")] = PyBulletBackendConfig()
-    emulator: EmulatorConfig = EmulatorConfig()
+                       Field(discriminator="kind")] = Field(
+        default=PyBulletBackendConfig(), description="what runs the joints: pybullet or dynamixel")
+    emulator: EmulatorConfig = Field(default=EmulatorConfig(),
+                                     description="the emulated rig (--emulate only)")
     # Faults injected around the backend, by name with parameters and target
     # joints; validated by bench.faults (unknown names and parameters refused).
-    faults: list[dict[str, Any]] = Field(default_factory=list, max_length=64)
+    faults: list[dict[str, Any]] = Field(
+        default_factory=list, max_length=64,
+        description="faults injected around the backend: {name, joints, parameters} "
+                    "(README, Faults)")
     # A calibration file written by `hilbench calibrate` (joint zero offsets that replace
     # the servos' `offset`, the ultrasonic sensor's offset and scale); relative paths are
     # resolved like urdf_dir. Applied when the Dynamixel backend is built, kept in the log.
-    calibration: Optional[Path] = None
+    calibration: Optional[Path] = Field(
+        default=None, description="a calibration file from `hilbench calibrate` (zero offsets, "
+                                  "ultrasonic offset and scale)")
 
     # Where the file came from, to resolve relative paths; not part of the file.
     source: Optional[Path] = Field(default=None, exclude=True)

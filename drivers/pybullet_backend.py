@@ -61,7 +61,7 @@ class PyBulletSettings:
     initial_position: Sequence[float] | None = None  # default: zero, clipped to limits
     gravity: float = -9.81
     gui: bool = False
-    safe_stop: Literal["hold", "off"] = "hold"
+    safe_stop: Literal["hold", "torque_off"] = "hold"
     joint_damping: float = 0.02  # N·m·s/rad: gearbox and bearing losses
     # Constraint-solver iterations per step: the motors are constraints, and
     # PyBullet's default of 50 costs twice the time of 10 for no visible gain
@@ -319,7 +319,7 @@ class PyBulletActuators(ActuatorsBase):
             self.safe_stop_report = "holding the measured position"
         else:
             self._motors_off()
-            self.safe_stop_report = "motors off"
+            self.safe_stop_report = "torque off (motors free)"
 
     def _motors_off(self) -> None:
         n = len(self._joint_index)
