@@ -187,14 +187,33 @@ def _check_shape(name: str, names: Sequence[str], arr: np.ndarray, what: str) ->
                          f"for joints {list(names)}")
 
 
+def _amount(value: float, kind: str | None, rate: bool = False) -> str:
+    """A joint quantity in the words a technician reads: degrees or mm (per second for rates)."""
+    if kind == "revolute":
+        return f"{np.degrees(value):.2f} °/s" if rate else f"{np.degrees(value):.2f}°"
+    if kind == "prismatic":
+        return f"{value * 1e3:.1f} mm/s" if rate else f"{value * 1e3:.1f} mm"
+    return f"{value:.6g}" + (" rad/s or m/s" if rate else "")
+
+
+def _kinds(kinds: Sequence[str] | None, names: Sequence[str]) -> list[str | None]:
+    if kinds is None:
+        return [None] * len(names)
+    if len(kinds) != len(names):
+        raise ValueError(f"kinds needs one entry per joint ({len(names)}), got {len(kinds)}")
+    return list(kinds)
+
+
 class JointLimitInterlock:
     """Measured (and commanded) positions must stay within [lower − tol, upper + tol]."""
 
     name = "joint_limits"
 
     def __init__(self, lower: Sequence[float], upper: Sequence[float], names: Sequence[str],
-                 tolerance: float | Sequence[float] = 0.0, check_commanded: bool = True) -> None:
+                 tolerance: float | Sequence[float] = 0.0, check_commanded: bool = True,
+                 kinds: Sequence[str] | None = None) -> None:
         self.names = list(names)
+        self.kinds = _kinds(kinds, self.names)  # "revolute" | "prismatic": for the messages
         self.lower = _per_joint(lower, self.names, "lower")
         self.upper = _per_joint(upper, self.names, "upper")
         self.tolerance = _per_joint(tolerance, self.names, "tolerance")
@@ -232,9 +251,11 @@ class JointLimitInterlock:
         for label, q in sources:
             i = self._first_out(q)
             if i is not None:
-                return Trip(self.name, f"{label} {self.names[i]} = {q[i]:.6g} is outside "
-                            f"[{self.lower[i]:.6g}, {self.upper[i]:.6g}] "
-                            f"(tolerance {self.tolerance[i]:.3g})", t, self.names[i], float(q[i]))
+                k = self.kinds[i]
+                tol = f" (tolerance {_amount(self.tolerance[i], k)})" if self.tolerance[i] else ""
+                return Trip(self.name, f"{label} {self.names[i]} at {_amount(q[i], k)} is outside "
+                            f"its range [{_amount(self.lower[i], k)}, {_amount(self.upper[i], k)}]"
+                            f"{tol}", t, self.names[i], float(q[i]))
         return None
 
 
@@ -243,8 +264,10 @@ class VelocityLimitInterlock:
 
     name = "velocity_limits"
 
-    def __init__(self, limits: Sequence[float], names: Sequence[str], factor: float = 1.2) -> None:
+    def __init__(self, limits: Sequence[float], names: Sequence[str], factor: float = 1.2,
+                 kinds: Sequence[str] | None = None) -> None:
         self.names = list(names)
+        self.kinds = _kinds(kinds, self.names)
         self.limits = _per_joint(limits, self.names, "velocity limits")
         if np.any(self.limits <= 0):
             raise ValueError(f"velocity limits must be positive, got {self.limits}")
@@ -264,8 +287,10 @@ class VelocityLimitInterlock:
         if not bad.any():
             return None
         i = int(np.argmax(bad))
-        return Trip(self.name, f"{self.names[i]} moves at {v[i]:.6g}, beyond {self.factor:g} × its "
-                    f"limit {self.limits[i]:.6g}", t, self.names[i], float(v[i]))
+        k = self.kinds[i]
+        return Trip(self.name, f"{self.names[i]} moves at {_amount(v[i], k, rate=True)}, beyond "
+                    f"{self.factor:g} × its limit of {_amount(self.limits[i], k, rate=True)}", t,
+                    self.names[i], float(v[i]))
 
 
 class TrackingErrorInterlock:
@@ -273,8 +298,10 @@ class TrackingErrorInterlock:
 
     name = "tracking_error"
 
-    def __init__(self, bound: float | Sequence[float], names: Sequence[str]) -> None:
+    def __init__(self, bound: float | Sequence[float], names: Sequence[str],
+                 kinds: Sequence[str] | None = None) -> None:
         self.names = list(names)
+        self.kinds = _kinds(kinds, self.names)
         self.bound = _per_joint(bound, self.names, "tracking-error bound")
         if np.any(self.bound <= 0):
             raise ValueError(f"tracking-error bounds must be positive, got {self.bound}")
@@ -291,8 +318,9 @@ class TrackingErrorInterlock:
         if not bad.any():
             return None
         i = int(np.argmax(bad))
-        return Trip(self.name, f"{self.names[i]} lags its command by {err[i]:.6g} "
-                    f"(bound {self.bound[i]:.6g})", t, self.names[i], float(err[i]))
+        k = self.kinds[i]
+        return Trip(self.name, f"{self.names[i]} is {_amount(abs(err[i]), k)} off its command "
+                    f"(limit {_amount(self.bound[i], k)})", t, self.names[i], float(err[i]))
 
 
 class StaleDataInterlock:

@@ -250,9 +250,9 @@ def interlocks_for(prep: PreparedTrial, act: Actuators | JointLimits):
     tol = s.joint_limit_tolerance
     bound = [np.radians(s.tracking_error_deg) if k == "revolute" else s.tracking_error_mm * 1e-3
              for k in kinds]
-    checks = [JointLimitInterlock(lim.lower - tol, lim.upper + tol, names),
-              VelocityLimitInterlock(lim.velocity, names, s.velocity_factor),
-              TrackingErrorInterlock(bound, names)]
+    checks = [JointLimitInterlock(lim.lower - tol, lim.upper + tol, names, kinds=kinds),
+              VelocityLimitInterlock(lim.velocity, names, s.velocity_factor, kinds=kinds),
+              TrackingErrorInterlock(bound, names, kinds=kinds)]
     if s.stale_data:
         checks.append(StaleDataInterlock())
     if s.gantry_margin_mm > 0:

@@ -113,15 +113,25 @@ def test_targets_outside_workspace_error_never_wrong(arc_train):
     assert reached > 0 and refused > 0
 
 
-@pytest.mark.parametrize("target, words", [
-    (NeedleTarget(np.array([0.0, 0.0882, 0.666]), 0.0301, 47 * DEG), "eq 19"),
-    (NeedleTarget(np.array([0.0, 0.0882, 0.066]), 0.250, 47 * DEG), "insertion depth"),
-    (NeedleTarget(np.array([0.4, 0.0882, 0.066]), 0.0301, 47 * DEG), "eq 4"),
-    (NeedleTarget(np.array([0.0, 0.0882, 0.066]), 0.0301, 170 * DEG), "theta8"),
+@pytest.mark.parametrize("target, words, equations", [
+    (NeedleTarget(np.array([0.0, 0.0882, 0.666]), 0.0301, 47 * DEG),
+     r"the needle guide would be 315\.1 mm out of the arm's reach", "eq 19"),
+    (NeedleTarget(np.array([0.0, 0.0882, 0.066]), 0.250, 47 * DEG), "insertion depth 250.0 mm", ""),
+    (NeedleTarget(np.array([0.4, 0.0882, 0.066]), 0.0301, 47 * DEG),
+     r"d9 \(the travel along the bed\) would need 457\.5 mm, outside its range \[0\.0 mm, 100\.0 mm\]",
+     "eq 4"),
+    (NeedleTarget(np.array([0.0, 0.0882, 0.066]), 0.0301, 170 * DEG),
+     r"theta8 \(the needle angle on the train\) would need 136\.5°, outside its range \[-90\.0°",
+     "eqs 8-9"),
+    (NeedleTarget(np.array([0.0, 0.9, 0.066]), 0.0301, 47 * DEG), "faces the entry point's Y = 900.0 mm",
+     "eq 11"),
 ])
-def test_unreachable_names_the_failed_constraint(arc_train, target, words):
-    with pytest.raises(UnreachableError, match=words):
+def test_unreachable_says_why_in_mm_and_degrees_and_keeps_the_equations_apart(
+        arc_train, target, words, equations):
+    with pytest.raises(UnreachableError, match=words) as e:
         arc_train.ik(target)
+    assert equations in e.value.equations
+    assert "eq" not in str(e.value)  # equation numbers belong in e.equations, not the message
 
 
 def test_arc_mapping_continuous_at_top_and_inverts(arc_train):

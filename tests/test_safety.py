@@ -26,7 +26,7 @@ def test_joint_limits_measured_and_commanded():
     assert il.check(0.0, state([1.005, 0.05, 0]), np.zeros(3)) is None  # within tolerance
     trip = il.check(2.0, state([0, 0.2, 0]), np.zeros(3))
     assert trip == Trip("joint_limits", trip.cause, 2.0, "b", 0.2)
-    assert "measured b = 0.2" in trip.cause and "[0, 0.1]" in trip.cause
+    assert trip.cause == "measured b at 0.2 is outside its range [0, 0.1] (tolerance 0.01)"
     trip = il.check(0.0, state([0, 0.05, 0]), np.array([0, 0.05, -3.0]))
     assert trip.joint == "c" and trip.cause.startswith("commanded c")
     assert JointLimitInterlock([-1, 0, -2], [1, 0.1, 2], NAMES, check_commanded=False).check(
@@ -46,7 +46,11 @@ def test_velocity_limits_with_factor():
     assert il.check(0.0, state([0, 0, 0], [1.19, -0.059, 2.3]), np.zeros(3)) is None
     trip = il.check(0.5, state([0, 0, 0], [0.0, -0.07, 0.0]), np.zeros(3))
     assert (trip.interlock, trip.joint, trip.value, trip.time) == ("velocity_limits", "b", -0.07, 0.5)
-    assert "beyond 1.2 × its limit 0.05" in trip.cause
+    assert "beyond 1.2 × its limit of 0.05" in trip.cause
+    # with the joints' kinds, in the units a technician reads
+    named = VelocityLimitInterlock([1.0, 0.05, 2.0], NAMES, 1.5, kinds=["revolute", "prismatic", "revolute"])
+    trip = named.check(0.0, state([0, 0, 0], [0.0, -0.750609, 0.0]), np.zeros(3))
+    assert trip.cause == "b moves at -750.6 mm/s, beyond 1.5 × its limit of 50.0 mm/s"
     assert il.check(0.0, state([0, 0, 0], [np.inf, 0, 0]), np.zeros(3)).joint == "a"
     with pytest.raises(ValueError, match="positive"):
         VelocityLimitInterlock([1.0, 0.0, 1.0], NAMES)
@@ -57,7 +61,13 @@ def test_tracking_error_per_joint():
     assert il.check(0.0, state([0.0, 0.0, 0.0]), np.array([0.09, -0.009, 0.0])) is None
     trip = il.check(0.0, state([0.0, 0.0, 0.0]), np.array([0.0, 0.0, -0.2]))
     assert (trip.interlock, trip.joint) == ("tracking_error", "c")
-    assert trip.value == pytest.approx(-0.2) and "lags its command by -0.2" in trip.cause
+    assert trip.value == pytest.approx(-0.2) and "is 0.2 off its command (limit 0.1)" in trip.cause
+    named = TrackingErrorInterlock([np.radians(5), 0.02, 0.1], NAMES, kinds=["revolute", "prismatic", "revolute"])
+    trip = named.check(0.0, state([np.radians(-8.02), 0.0, 0.0]), np.zeros(3))
+    assert trip.cause == "a is 8.02° off its command (limit 5.00°)"
+    limits = JointLimitInterlock([-1.0, 0.0, -2.0], [1.0, 0.1, 2.0], NAMES, kinds=["revolute", "prismatic", "revolute"])
+    trip = limits.check(0.0, state([0.0, 0.1234, 0.0]), np.zeros(3))
+    assert trip.cause == "measured b at 123.4 mm is outside its range [0.0 mm, 100.0 mm]"
     assert TrackingErrorInterlock(0.05, NAMES).bound.tolist() == [0.05] * 3
     with pytest.raises(ValueError, match="commanded position has shape"):
         il.check(0.0, state([0, 0, 0]), np.zeros(4))

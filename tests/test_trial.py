@@ -78,7 +78,7 @@ def test_cli_trial_json(tmp_path):
     ({"plan.trajectory": "cubic"}, "plan.trajectory"),
     ({"control_hz": -5}, "control_hz"),
     ({"urdf_dir": "/nonexistent/urdf"}, "URDF not found"),
-    ({"target.z_mm": 666.0}, "eq 19"),
+    ({"target.z_mm": 666.0}, "out of the arm's reach"),
     ({"target.depth_mm": 250.0}, "insertion depth"),
     ({"backend.joints": {"theta9": {"effort": 1.0}}}, "theta9"),
 ])

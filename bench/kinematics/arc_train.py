@@ -259,6 +259,7 @@ class ArcTrainRobot:
         eps = np.atleast_1d(np.asarray(eps, dtype=float))
         n = eps.size
         fail = np.full(n, "", dtype=object)
+        equation = np.full(n, "", dtype=object)
         violation = np.zeros(n)
         lim = p.revolute_limit
         q = np.zeros((n, 9))
@@ -273,16 +274,23 @@ class ArcTrainRobot:
         r = np.einsum("nji,nj->ni", F1[:, :3, :3], guide - F1[:, :3, 3])
         rx, ry, rz = r[:, 0], r[:, 1], r[:, 2]
 
-        def check(bad_amount: np.ndarray, reason: str) -> None:
+        def check(bad_amount: np.ndarray, eq: str, words) -> None:
+            """``words(k)``: the reason at train position k, worded only for one position."""
             bad = bad_amount > 1e-12
             violation[:] += np.maximum(bad_amount, 0.0)
-            fail[bad & (fail == "")] = reason
+            first = bad & (fail == "")
+            if first.any():
+                fail[first] = words(0) if n == 1 else eq
+                equation[first] = eq
 
-        check(np.abs(rx) - p.l5,
-              "eq 19: the target is further from the arc than link l5 can swing (|radial| > l5)")
+        check(np.abs(rx) - p.l5, "eq 19", lambda k: (
+            f"the needle guide would be {(abs(rx[k]) - p.l5) * 1e3:.1f} mm out of the arm's "
+            f"reach from the train (it reaches {p.l5 * 1e3:.0f} mm)"))
         theta6 = np.arcsin(np.clip(rx / p.l5, -1, 1))
         reach = p.l4 + p.l6 + p.l5 * np.cos(theta6)
-        check(np.abs(ry) - reach, "eq 20: the target is further across the bed than the arm reaches")
+        check(np.abs(ry) - reach, "eq 20", lambda k: (
+            f"the needle guide would be {(abs(ry[k]) - reach[k]) * 1e3:.1f} mm further across "
+            f"the bed than the arm reaches"))
         theta7 = np.arcsin(np.clip(-ry / reach, -1, 1))
         d9 = rz - p.d3 - p.d8 - reach * np.cos(theta7)
         q[:, 1] = 0.0  # eq 7
@@ -293,15 +301,17 @@ class ArcTrainRobot:
         q[:, 6] = theta8
         q[:, 7] = d9
         q[:, 8] = target.depth
-        for val, lo, hi, what in (
-            (theta6, -lim, lim, "eq 19: theta6 (= -theta5)"),
-            (theta7, -lim, lim, "eq 20: theta7 (= theta4)"),
-            (theta8, -lim, lim, "insertion angle: theta8"),
-            (d9, 0.0, p.d9_stroke, "eq 4: d9 (X travel)"),
+        for val, lo, hi, what, eq, scale, unit in (
+            (theta6, -lim, lim, "theta5/theta6 (the sideways swing)", "eq 19", np.degrees(1), "°"),
+            (theta7, -lim, lim, "theta4/theta7 (the reach across the bed)", "eq 20", np.degrees(1), "°"),
+            (theta8, -lim, lim, "theta8 (the needle angle on the train)", "eqs 8-9", np.degrees(1), "°"),
+            (d9, 0.0, p.d9_stroke, "d9 (the travel along the bed)", "eq 4", 1e3, " mm"),
         ):
-            check(np.maximum(lo - val, val - hi),
-                  f"{what} would be outside its limits [{lo:.4g}, {hi:.4g}]")
-        return q, fail, violation
+            check(np.maximum(lo - val, val - hi), eq, lambda k, val=val, lo=lo, hi=hi, what=what,
+                  scale=scale, unit=unit: (
+                      f"{what} would need {val[k] * scale:.1f}{unit}, outside its range "
+                      f"[{lo * scale:.1f}{unit}, {hi * scale:.1f}{unit}]"))
+        return q, fail, violation, equation
 
     def ik(self, target: NeedleTarget) -> np.ndarray:
         """Joint values that put the needle on ``target``; raises UnreachableError."""
@@ -314,20 +324,22 @@ class ArcTrainRobot:
             raise UnreachableError(f"target is not finite: {target}")
         if abs(target.tilt) > 1e-12:
             raise UnreachableError(
-                "eqs 7-9: the arc-and-train robot keeps the needle in the axial plane (tilt 0)")
+                "the arc-and-train robot keeps the needle in the axial plane: tilt_deg must be 0",
+                "eqs 7-9")
         eps0 = epsilon_for_target_y(float(target.entry[1]), p)  # eq 11
         if 0.0 <= eps0 <= p.arc_span:
-            q, fail, _ = self._closed_form(target, np.array([eps0]))
+            q, fail, _, eq = self._closed_form(target, np.array([eps0]))
             if fail[0] == "":
                 return self._verified(q[0], target)
-            reason = fail[0]
+            reason, equations = fail[0], f"eq 11, {eq[0]}"
         else:
-            reason = (f"eq 11: the train position for Y = {target.entry[1] * 1e3:.1f} mm "
-                      f"is off the arc")
+            reason = (f"no train position on the arc faces the entry point's "
+                      f"Y = {target.entry[1] * 1e3:.1f} mm")
+            equations = "eq 11"
         # Numerical fallback: search the arc for the train position closest to
         # eq 11's choice where the closed form has an answer.
         grid = np.linspace(0.0, p.arc_span, 1201)
-        q, fail, violation = self._closed_form(target, grid)
+        q, fail, violation, _ = self._closed_form(target, grid)
         ok = np.flatnonzero(fail == "")
         if ok.size:
             best = ok[np.argmin(np.abs(grid[ok] - eps0))]
@@ -344,12 +356,12 @@ class ArcTrainRobot:
             lo, hi = max(grid[i] - step, 0.0), min(grid[i] + step, p.arc_span)
             res = minimize_scalar(lambda e: self._closed_form(target, np.array([e]))[2][0],
                                   bounds=(lo, hi), method="bounded", options={"xatol": 1e-13})
-            qq, ff, _ = self._closed_form(target, np.array([res.x]))
+            qq, ff, _, _ = self._closed_form(target, np.array([res.x]))
             if ff[0] == "":
                 return self._verified(qq[0], target)
         raise UnreachableError(
-            f"target unreachable: {reason}, and no train position on the arc satisfies "
-            f"eqs 19-20 within the joint limits")
+            f"target unreachable: {reason}, and no train position on the arc reaches it within "
+            f"the joint limits; move the target or the bed", f"{equations}; eqs 19-20 searched along the arc")
 
     def _verified(self, q: np.ndarray, target: NeedleTarget) -> np.ndarray:
         pose = self.needle(q)

@@ -14,7 +14,15 @@ import numpy as np
 
 
 class UnreachableError(ValueError):
-    """The target cannot be reached; the message names the constraint that failed."""
+    """The target cannot be reached; the message says why in mm and degrees.
+
+    ``equations`` names the paper's equations behind the refusal (for a report or a
+    developer); the message itself speaks to the person who wrote the target.
+    """
+
+    def __init__(self, message: str, equations: str = "") -> None:
+        super().__init__(message)
+        self.equations = equations
 
 
 def needle_direction(angle: float, tilt: float = 0.0) -> np.ndarray:
