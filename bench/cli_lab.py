@@ -9,11 +9,12 @@ found while working ends with one line and exit code 1, torque off.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn, Optional
+from typing import TYPE_CHECKING, Iterator, NoReturn, Optional
 
 import typer
 from rich.console import Console
@@ -50,6 +51,28 @@ def _load(config: Path, tool: str) -> "TrialConfig":
     except (ConfigError, ConfigurationError) as e:
         _fail(str(e))
     return cfg
+
+
+_EMULATE = typer.Option(False, "--emulate", help="Work on the config's emulated rig "
+                                                 "(its own servo bus and sensor) instead of the ports.")
+
+
+@contextlib.contextmanager
+def _rig(config: Path, cfg: "TrialConfig", emulate: bool) -> Iterator["TrialConfig"]:
+    """The config as given, or pointed at an emulated rig that lives as long as the block."""
+    if not emulate:
+        yield cfg
+        return
+    from bench.emulation import EmulatorProcess
+
+    try:
+        rig = EmulatorProcess(config)
+    except RuntimeError as e:
+        _fail(str(e))
+    try:
+        yield rig.retarget(cfg)
+    finally:
+        rig.close()
 
 
 # ---------------------------------------------------------------------------
@@ -125,19 +148,35 @@ def scan(port: str = typer.Option(..., "--port", help="Serial port of the servo 
 def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: dynamixel."),
            listen_s: float = typer.Option(1.0, "--listen", min=0.2,
                                           help="Seconds to listen to the ultrasonic sensor."),
+           verbose: bool = typer.Option(False, "--verbose", "-v",
+                                        help="Print every check, the passed ones too."),
+           emulate: bool = _EMULATE,
            as_json: bool = typer.Option(False, "--json",
                                         help='Print {"checks": [...], "ok": bool} as one line.')) -> None:
-    """Check a rig before a trial: ports, latency timer, servos, ultrasonic sensor, calibration."""
+    """Check a rig before a trial: ports, latency timer, servos, ultrasonic sensor, calibration.
+
+    Prints the problems as they are found (every check with --verbose), then one
+    count line; exit 0 when ready for a trial, 1 when a check failed.
+    """
+    from rich.status import Status
+
     from bench.lab.doctor import run_doctor
 
     cfg = _load(config, "doctor")
+    counts = {"pass": 0, "warn": 0, "fail": 0}
+    spinner = Status("doctor: checking", console=err) if not as_json else contextlib.nullcontext()
 
     def show(c) -> None:
-        if not as_json:
+        counts[c.status] += 1
+        if as_json:
+            return
+        spinner.update(f"doctor: {sum(counts.values())} checks, last: {c.name}")
+        if verbose or c.status != "pass":
             err.print(f"{_STATUS[c.status]}  {c.name}: {c.detail}", soft_wrap=True)
 
     try:
-        checks = run_doctor(cfg, listen_s=listen_s, on_check=show)
+        with _rig(config, cfg, emulate) as cfg, spinner:
+            checks = run_doctor(cfg, listen_s=listen_s, on_check=show)
     except KeyboardInterrupt:
         _fail("interrupted", 130)
     ok = not any(c.status == "fail" for c in checks)
@@ -170,6 +209,10 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
                                                  "<config dir>/calibration/<name>-<date>.yaml)."),
               yes: bool = typer.Option(False, "--yes",
                                        help="Do not ask: the robot is already at its reference."),
+              accept_large: bool = typer.Option(
+                  False, "--accept-large-offsets",
+                  help="Write zeros that moved more than 2° (2 mm) from the config's too."),
+              emulate: bool = _EMULATE,
               as_json: bool = typer.Option(False, "--json",
                                            help="Print the result as one JSON line.")) -> None:
     """Calibrate joint zero offsets and the ultrasonic sensor; write a dated calibration file."""
@@ -187,10 +230,11 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
         _fail(f"--stops must be 0 (no ultrasonic fit) or at least 3, got {stops}")
     if not yes and not sys.stdin.isatty():
         _fail("calibrate asks the technician at each step: run it in a terminal, or pass --yes")
-    try:
-        check_ports(cfg, ultrasonic=stops > 0)
-    except ActuatorError as e:
-        _fail(str(e))
+    if not emulate:
+        try:
+            check_ports(cfg, ultrasonic=stops > 0)
+        except ActuatorError as e:
+            _fail(str(e))
 
     def confirm(message: str) -> bool:
         if yes:
@@ -206,10 +250,16 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
             "--write homing stores the zeros in each servo's Homing Offset (EEPROM, torque off "
             "for the write); the calibration file then holds no joint offsets"):
         _fail("calibration cancelled; nothing written", 1)
+    if out is None and emulate:  # an emulated rig's calibration is not the rig's: keep them apart
+        from bench.lab.calibrate import default_output
+
+        default = default_output(cfg)
+        out = default.with_name("emulated-" + default.name)
     try:
-        res = run_calibration(cfg, write=write, stops=stops, samples=samples, out=out,
-                              confirm=confirm, note=note,
-                              span=math.radians(span_deg) if span_deg is not None else None)
+        with _rig(config, cfg, emulate) as rig_cfg:
+            res = run_calibration(rig_cfg, write=write, stops=stops, samples=samples, out=out,
+                                  confirm=confirm, note=note, accept_large=accept_large,
+                                  span=math.radians(span_deg) if span_deg is not None else None)
     except KeyboardInterrupt:
         _fail("interrupted: no calibration file written", 130)
     except (ActuatorError, ValueError) as e:
@@ -218,7 +268,7 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
     if as_json:
         _emit({"file": str(res.path), "write": write,
                "joints": {j: {"offset": z.offset, "change": z.change} for j, z in res.zeros.items()},
-               "homing_offsets": f.homing_offsets,
+               "homing_offsets": f.homing_offsets, "refused": res.refused,
                "ultrasonic": None if f.ultrasonic is None else {
                    "offset_mm": f.ultrasonic.offset_mm, "scale": f.ultrasonic.scale,
                    "residual_mm": f.ultrasonic.residual_mm}})
@@ -228,18 +278,21 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
     t = Table(title=f"joint zero offsets ({where})")
     for col in ("joint", "configured", "measured", "change"):
         t.add_column(col, justify="right")
-    for j, z in res.zeros.items():
+    for j, z in res.measured.items():
         rev = robot.chain.rows[robot.joint_names.index(j)].kind == "revolute"
 
         def fmt(v: float, sign: str = "") -> str:
             return f"{math.degrees(v):{sign}.3f}°" if rev else f"{v * 1e3:{sign}.3f} mm"
 
-        t.add_row(j, fmt(z.configured), fmt(z.offset), fmt(z.change, "+"))
+        t.add_row(j, fmt(z.configured), fmt(z.offset),
+                  fmt(z.change, "+") + (" [yellow](not written)[/]" if j in res.refused else ""))
     err.print(t)
     if f.ultrasonic is not None:
         err.print(f"ultrasonic: reading = {f.ultrasonic.offset_mm:.2f} mm + {f.ultrasonic.scale:.5f} · d2 "
                   f"(config standoff {cfg.backend.ultrasonic.standoff_mm:.1f} mm), residual "
                   f"{f.ultrasonic.residual_mm:.2f} mm RMS over {len(f.ultrasonic.stops)} stops")
+    for joint, why in res.refused.items():
+        err.print(f"[yellow]warning:[/] {joint}: zero not written: {why}", soft_wrap=True)
     err.print(f"calibration written: [bold]{res.path}[/]; use it with `calibration: {res.path}` in {config}")
 
 
@@ -248,7 +301,8 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
 # ---------------------------------------------------------------------------
 
 
-def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dynamixel.")) -> None:
+def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dynamixel."),
+        emulate: bool = _EMULATE) -> None:
     """Move one joint at a time in small steps within limits (keys: 1-9, +/-, s, q); torque off on exit."""
     from rich.live import Live
 
@@ -261,15 +315,17 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
     if not (sys.stdin.isatty() and sys.stderr.isatty()):
         _fail("jog reads keys from a terminal: stdin and stderr must be a TTY "
               "(not a pipe, a file or a script)")
-    try:
-        check_ports(cfg)
-    except ActuatorError as e:
-        _fail(str(e))
+    if not emulate:
+        try:
+            check_ports(cfg)
+        except ActuatorError as e:
+            _fail(str(e))
     robot = get_robot(cfg.robot)
     revolute = [row.kind == "revolute" for row in robot.chain.rows]
     reason = "error"
     try:
-        with open_backend(cfg) as act:  # torque off when this block is left, however it is left
+        with _rig(config, cfg, emulate) as cfg, \
+                open_backend(cfg) as act:  # torque off when this block is left, however it is left
             act.enable()
             with RawKeys(sys.stdin.fileno()) as keys, \
                     Live(console=err, auto_refresh=False, transient=False) as live:

@@ -61,28 +61,12 @@ def _pyplot():
 def gravity_loads(comparison: Comparison) -> Optional[np.ndarray]:
     """Static gravity torque/force per joint at the commanded insertion pose (N·m or N),
     from PyBullet's inverse dynamics on the robot's URDF; None when it cannot be computed."""
-    from bench.config import REPO_ROOT
+    from bench.dynamics import gravity_torques
 
-    log = comparison.subject.logs[0]
-    meta = log.metadata
+    meta = comparison.subject.logs[0].metadata
     try:
-        urdf_dir = Path((meta.get("config") or {}).get("urdf_dir", "urdf"))
-        urdf = (urdf_dir if urdf_dir.is_absolute() else REPO_ROOT / urdf_dir) / \
-            f"{str(meta['robot']).replace('-', '_')}.urdf"
-        q = np.asarray(meta["q_insert"], dtype=float)
-        from drivers._quiet import quiet_pybullet
-
-        pb = quiet_pybullet()
-        c = pb.connect(pb.DIRECT)
-        try:
-            body = pb.loadURDF(str(urdf), useFixedBase=True, flags=pb.URDF_USE_INERTIA_FROM_FILE,
-                               physicsClientId=c)
-            pb.setGravity(0, 0, -9.81, physicsClientId=c)
-            tau = pb.calculateInverseDynamics(body, q.tolist(), [0.0] * q.size, [0.0] * q.size,
-                                              physicsClientId=c)
-        finally:
-            pb.disconnect(c)
-        return np.abs(np.asarray(tau, dtype=float))
+        return np.abs(gravity_torques(str(meta["robot"]), np.asarray(meta["q_insert"], dtype=float),
+                                      (meta.get("config") or {}).get("urdf_dir", "urdf")))
     except Exception:  # noqa: BLE001 - a column of the report, never worth losing the report for
         return None
 

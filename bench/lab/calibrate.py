@@ -77,6 +77,9 @@ class CalibrationResult:
     file: CalibrationFile
     zeros: dict[str, JointZero] = field(default_factory=dict)
     fit: Optional[UltrasonicFit] = None
+    #: joints whose measured zero was implausible and not written: joint -> why
+    refused: dict[str, str] = field(default_factory=dict)
+    measured: dict[str, JointZero] = field(default_factory=dict)  # written or refused
 
 
 def fit_ultrasonic(d2: np.ndarray, distance: np.ndarray) -> UltrasonicFit:
@@ -121,14 +124,54 @@ def default_output(config: TrialConfig, now: Optional[dt.datetime] = None) -> Pa
     return base / "calibration" / f"{config.name}-{now.strftime('%Y%m%d-%H%M%S')}.yaml"
 
 
+#: A zero offset further than this from the config's is implausible for a servo horn that
+#: was mounted by hand (rad for revolute joints, m for prismatic): more is a joint read
+#: while it sagged under load, or not at its reference.
+PLAUSIBLE_CHANGE = {"revolute": math.radians(2.0), "prismatic": 2e-3}
+
+
+def implausible_zeros(config: TrialConfig, robot, zeros: dict[str, "JointZero"]) -> dict[str, str]:
+    """The zeros that moved further than :data:`PLAUSIBLE_CHANGE`, each with the likely cause:
+    the gravity load the joint carries at its reference (from the URDF)."""
+    from bench.dynamics import gravity_torques
+
+    load = None
+    out: dict[str, str] = {}
+    for joint, z in zeros.items():
+        kind = robot.chain.rows[robot.joint_names.index(joint)].kind
+        if abs(z.change) <= PLAUSIBLE_CHANGE[kind]:
+            continue
+        if load is None:
+            try:
+                load = gravity_torques(config.robot, robot.chain.home, config.urdf_dir)
+            except Exception:  # noqa: BLE001 - the warning still stands without the load figure
+                load = np.full(len(robot.joint_names), np.nan)
+        tau = load[robot.joint_names.index(joint)]
+        unit = "N·m" if kind == "revolute" else "N"
+        why = (f"{_value(robot, joint, z.change, signed=True)} from the config is more than "
+               f"{_value(robot, joint, PLAUSIBLE_CHANGE[kind])}")
+        if np.isfinite(tau) and abs(tau) > 0.05:
+            why += (f"; the joint carries {abs(tau):.2f} {unit} of gravity at its reference, so it "
+                    f"sags unless supported: hold it at its reference (or give the servo integral "
+                    f"gain, position_i) and calibrate again")
+        else:
+            why += "; check that the joint is at its reference"
+        out[joint] = why
+    return out
+
+
 def calibrate(config: TrialConfig, *, write: WriteMode = "config", stops: int = 5,
               span: Optional[float] = None, samples: int = STOP_SAMPLES, out: Optional[Path] = None,
+              accept_large: bool = False,
               confirm: Callable[[str], bool] = lambda message: True,
               note: Callable[[str], None] = lambda message: None) -> CalibrationResult:
     """Run the whole calibration and write the file (and the registers, for ``homing``).
 
     ``confirm(message)`` asks the technician to do something and returns False
-    to skip it; ``note(message)`` reports progress, one line each.
+    to skip it; ``note(message)`` reports progress, one line each. A zero that moved
+    implausibly far (:data:`PLAUSIBLE_CHANGE`) is left out of the file, with a warning,
+    unless ``accept_large``. The arm is left held (torque on) after the ultrasonic
+    stops, never dropped.
     """
     from bench.lab.session import check_ports, require_dynamixel
     from bench.robots import get_robot
@@ -149,6 +192,10 @@ def calibrate(config: TrialConfig, *, write: WriteMode = "config", stops: int = 
     path = Path(out) if out is not None else default_output(config)
 
     zeros = measure_zeros(config, robot, confirm, note)
+    refused = {} if accept_large else implausible_zeros(config, robot, zeros)
+    measured = dict(zeros)  # the refused ones too, for the technician's table
+    for joint in refused:
+        del zeros[joint]
     offsets = {j: z.offset for j, z in zeros.items()}
     fit, readings = None, []
     if run_ultrasonic and confirm(
@@ -174,7 +221,7 @@ def calibrate(config: TrialConfig, *, write: WriteMode = "config", stops: int = 
         robot=config.robot, created=dt.datetime.now().astimezone().isoformat(timespec="seconds"),
         **fields)
     save_calibration(cal, path)
-    return CalibrationResult(path, cal, zeros, fit)
+    return CalibrationResult(path, cal, zeros, fit, refused, measured)
 
 
 def measure_zeros(config: TrialConfig, robot, confirm: Callable[[str], bool],
@@ -209,7 +256,8 @@ def measure_zeros(config: TrialConfig, robot, confirm: Callable[[str], bool],
 def measure_ultrasonic(config: TrialConfig, offsets: dict[str, float], train: int,
                        angles: np.ndarray, note: Callable[[str], None],
                        samples: int = STOP_SAMPLES) -> list[UltrasonicStop]:
-    """Drive the train to each stop and read the sensor there; back to the start, torque off."""
+    """Drive the train to each stop and read the sensor there; back to the start, held there
+    (torque on: letting go would drop the arm onto its stops)."""
     from bench.kinematics.arc_train import train_pose
     from bench.lab.motion import Ramp, move, wait_still
     from bench.lab.session import open_backend
@@ -221,7 +269,8 @@ def measure_ultrasonic(config: TrialConfig, offsets: dict[str, float], train: in
     params = get_robot(config.robot).params
     still = STILL_ARC_M / params.arc_radius  # arc angle (rad)
     stops: list[UltrasonicStop] = []
-    with open_backend(config, ultrasonic=False, offsets=offsets, calibrated=False) as act, \
+    with open_backend(config, ultrasonic=False, offsets=offsets, calibrated=False,
+                      safe_stop="hold") as act, \
             UltrasonicSensor(u.port, **{**u.sensor_options(), "median_window": 1,
                                         "stale_after_s": max(u.stale_after_s or 0.0, 1.0)}) as sensor:
         act.enable()
@@ -242,6 +291,7 @@ def measure_ultrasonic(config: TrialConfig, offsets: dict[str, float], train: in
             note(f"stop {k + 1}/{len(angles)}: arc {math.degrees(e):.2f}°, d2 {d2 * 1e3:.1f} mm, "
                  f"reading {d * 1e3:.1f} mm")
         move(act, ramp, start)
+    note("the arm is held where it started (torque on); jog it or power the servos off to release")
     return stops
 
 

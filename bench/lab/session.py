@@ -57,8 +57,9 @@ def check_servos(bus: ServoBus, config: TrialConfig) -> None:
 
 def open_backend(config: TrialConfig, *, ultrasonic: bool = True,
                  offsets: Optional[Mapping[str, float]] = None,
-                 calibrated: bool = True) -> Actuators:
-    """The config's Dynamixel backend, inactive, with torque off as its safe stop.
+                 calibrated: bool = True, safe_stop: str = "torque_off") -> Actuators:
+    """The config's Dynamixel backend, inactive, with torque off as its safe stop (or
+    ``safe_stop="hold"``: the servos hold the measured position when it closes).
 
     ``ultrasonic=False`` reads the train from its servo's encoder; ``offsets``
     replace joint zero offsets (rad or m); ``calibrated=False`` ignores the
@@ -76,7 +77,7 @@ def open_backend(config: TrialConfig, *, ultrasonic: bool = True,
         check_servos(bus, config)
     servos = {n: sc.model_copy(update={"offset": offsets[n]}) if offsets and n in offsets else sc
               for n, sc in b.servos.items()}
-    backend = b.model_copy(update={"servos": servos, "safe_stop": "torque_off",
+    backend = b.model_copy(update={"servos": servos, "safe_stop": safe_stop,
                                    "retries": max(b.retries, LAB_RETRIES),
                                    "ultrasonic": b.ultrasonic if ultrasonic else None})
     cfg = config.model_copy(update={"backend": backend,
