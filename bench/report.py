@@ -27,6 +27,23 @@ def joint_display(robot, name: str, values: np.ndarray) -> tuple[np.ndarray, str
     return np.asarray(values) * 1e3, "position (mm)", name
 
 
+#: Below this excursion (° or mm, as displayed) a joint did not move worth plotting.
+STILL_EXCURSION = 0.01
+
+
+def largest_excursion(log: TrialLog, robot) -> float:
+    """The largest commanded or measured excursion of any joint in the log (° or mm)."""
+    if len(log) < 2:
+        return 0.0
+    worst = 0.0
+    for name in log.joint_names:
+        j = log.joint(name)
+        for series in (log.q_cmd[:, j], log.q[:, j]):
+            shown, _, _ = joint_display(robot, name, series)
+            worst = max(worst, float(np.ptp(shown)))
+    return worst
+
+
 def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Path:
     """Commanded (theoretical) vs measured profile of every joint, one panel each."""
     import matplotlib
@@ -47,16 +64,18 @@ def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Pa
         ax.plot(t, meas, "b-", lw=1.0, label="measured")
         ax.set_title(label)
         ax.set_ylabel(unit)
+        ax.ticklabel_format(axis="y", useOffset=False)  # values as read, not as offsets
         ax.grid(alpha=0.3)
     for ax in axes.flat[len(names):]:
         ax.axis("off")
     for ax in axes[-1]:
         ax.set_xlabel("time (s)")
+    stops = [ev for ev in log.events if ev.kind in ("interlock", "abort")]
+    for ev in stops[:1]:
+        for ax in axes.flat[: len(names)]:
+            ax.axvline(ev.time - (log.time[0] if len(log) else 0), color="k", ls="--", lw=0.8,
+                       label=f"{ev.kind}: stopped here")
     axes.flat[0].legend(loc="best", fontsize=8)
-    for ev in log.events:
-        if ev.kind in ("interlock", "abort"):
-            for ax in axes.flat[: len(names)]:
-                ax.axvline(ev.time - (log.time[0] if len(log) else 0), color="k", ls="--", lw=0.8)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -86,6 +105,27 @@ def table3_markdown(target_mm: list[float], depth_mm: float, angle_deg: float, o
     return head + body + tip
 
 
+def stop_markdown(result: "TrialResult", log: TrialLog) -> str:
+    """What stopped a trial that did not complete: when, in which segment, why, how it was left."""
+    t0 = log.time[0] if len(log) else 0.0
+    stop = next((e for e in log.events if e.kind in ("interlock", "abort")), None)
+    lines = []
+    if stop is not None:
+        seg = ""
+        if len(log):
+            k = min(int(np.searchsorted(log.time, stop.time)), len(log) - 1)
+            names = log.segment_names
+            if names and 0 <= int(log.segment[k]) < len(names):
+                seg = f" during the {names[int(log.segment[k])]} segment"
+        lines.append(f"- {stop.time - t0:.3f} s into the trial{seg}: **{stop.kind}**: {stop.message}")
+    else:
+        lines.append(f"- {result.reason or 'no reason recorded'}")
+    for e in log.events:
+        if e.kind == "safe-stop":
+            lines.append(f"- then: {e.message}")
+    return "\n".join(lines) + "\n"
+
+
 def _events_markdown(log: TrialLog) -> str:
     lines = ["| time (s) | event | detail |", "|---:|---|---|"]
     t0 = log.time[0] if len(log) else 0.0
@@ -104,8 +144,9 @@ def tracking_summary(log: TrialLog, robot) -> str:
         e = meas - cmd
         if e.size == 0:
             continue
+        final = round(float(e[-1]), 4) + 0.0  # no "-0.0000"
         lines.append(f"| {label} | {np.sqrt(np.mean(e ** 2)):.4f} | {np.max(np.abs(e)):.4f} | "
-                     f"{e[-1]:.4f} | {unit.split('(')[-1].rstrip(')')} |")
+                     f"{final:.4f} | {unit.split('(')[-1].rstrip(')')} |")
     return "\n".join(lines) + "\n"
 
 
@@ -133,9 +174,21 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
         lines.append(table3_markdown([t.x_mm, t.y_mm, t.z_mm], t.depth_mm, t.angle_deg, o))
     else:
         lines.append("The trial stopped before the insertion finished: no placement to report.\n")
-    lines += ["## Joint profiles (Fig. 12 layout)", "", f"![joint profiles]({figures['joints']})", ""]
+    if not result.completed:
+        lines[lines.index("## Needle placement (Table 3 layout)"):
+              lines.index("## Needle placement (Table 3 layout)")] = [
+            "## What stopped it", "", stop_markdown(result, log)]
+    lines += ["## Joint profiles (Fig. 12 layout)", ""]
+    if "joints" in figures:
+        lines += [f"![joint profiles]({figures['joints']})", ""]
+    else:
+        span = (log.time[-1] - log.time[0]) if len(log) else 0.0
+        lines += [f"No joint moved more than {STILL_EXCURSION:g}° or {STILL_EXCURSION:g} mm in the "
+                  f"{span:.3f} s the trial ran ({len(log)} samples): nothing to plot. The tracking "
+                  f"and events tables below hold what was measured.", ""]
     if "robot" in figures:
-        lines += [f"![robot at the end of the insertion]({figures['robot']})", ""]
+        where = "at the end of the insertion" if result.completed else "where the trial stopped"
+        lines += [f"![robot {where}]({figures['robot']})", ""]
     lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Events", "",
               _events_markdown(log), "## Versions", "",
               ", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()), ""]
@@ -150,21 +203,15 @@ def markdown_to_html(md: str, images: dict[str, Path], title: str) -> str:
            "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}"
            ".fail{color:#b00}.pass{color:#080}</style></head><body>"]
     in_table = in_list = False
+    table: list[list[str]] = []
     for line in md.splitlines():
         if line.startswith("|"):
-            cells = [c.strip() for c in line.strip("|").split("|")]
-            if all(set(c) <= set("-:") for c in cells):
-                continue
-            if not in_table:
-                out.append("<table>")
-                in_table = True
-                out.append("<tr>" + "".join(f"<th>{_inline(c)}</th>" for c in cells) + "</tr>")
-            else:
-                out.append("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in cells) + "</tr>")
+            table.append([c.strip() for c in line.strip("|").split("|")])
+            in_table = True
             continue
         if in_table:
-            out.append("</table>")
-            in_table = False
+            out.append(_html_table(table))
+            table, in_table = [], False
         if line.startswith("- "):
             if not in_list:
                 out.append("<ul>")
@@ -188,11 +235,31 @@ def markdown_to_html(md: str, images: dict[str, Path], title: str) -> str:
         elif line.strip():
             out.append(f"<p>{_inline(line)}</p>")
     if in_table:
-        out.append("</table>")
+        out.append(_html_table(table))
     if in_list:
         out.append("</ul>")
     out.append("</body></html>")
     return "\n".join(out) + "\n"
+
+
+def _html_table(rows: list[list[str]]) -> str:
+    """A Markdown table as HTML, each column aligned as its separator row says (``---:`` right)."""
+    align: list[str] = []
+    if len(rows) > 1 and all(set(c) <= set("-:") and c for c in rows[1]):
+        align = ["right" if c.endswith(":") and not c.startswith(":") else
+                 "center" if c.startswith(":") and c.endswith(":") else "left" for c in rows[1]]
+        rows = [rows[0], *rows[2:]]
+
+    def cell(tag: str, i: int, text: str) -> str:
+        style = f" style='text-align:{align[i]}'" if i < len(align) else ""
+        return f"<{tag}{style}>{_inline(text)}</{tag}>"
+
+    out = ["<table>"]
+    for r, row in enumerate(rows):
+        tag = "th" if r == 0 else "td"
+        out.append("<tr>" + "".join(cell(tag, i, c) for i, c in enumerate(row)) + "</tr>")
+    out.append("</table>")
+    return "\n".join(out)
 
 
 def _inline(text: str) -> str:
@@ -208,9 +275,13 @@ def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTria
                        picture: bool = True) -> dict[str, Path]:
     """joints.png, robot.png, report.md, report.html and result.json in the run directory."""
     d = result.run_dir
-    figures = {"joints": "joints.png"}
-    plot_joint_profiles(log, prep.robot, d / "joints.png",
-                        title=f"{prep.config.name}: commanded vs measured")
+    figures = {}
+    if largest_excursion(log, prep.robot) >= STILL_EXCURSION:
+        figures["joints"] = "joints.png"
+        plot_joint_profiles(log, prep.robot, d / "joints.png",
+                            title=f"{prep.config.name}: commanded vs measured")
+    else:
+        (d / "joints.png").unlink(missing_ok=True)  # a rebuilt report drops a stale figure
     if picture and len(log):
         try:
             from drivers.pybullet_backend import render_robot

@@ -189,10 +189,13 @@ def _check_shape(name: str, names: Sequence[str], arr: np.ndarray, what: str) ->
 
 def _amount(value: float, kind: str | None, rate: bool = False) -> str:
     """A joint quantity in the words a technician reads: degrees or mm (per second for rates)."""
+    def fixed(v: float, digits: int) -> str:  # small limits keep two significant digits
+        return f"{v:.{digits}f}" if abs(v) >= 10.0 ** -digits * 10 or v == 0 else f"{v:.2g}"
+
     if kind == "revolute":
-        return f"{np.degrees(value):.2f} °/s" if rate else f"{np.degrees(value):.2f}°"
+        return f"{fixed(np.degrees(value), 2)} °/s" if rate else f"{fixed(np.degrees(value), 2)}°"
     if kind == "prismatic":
-        return f"{value * 1e3:.1f} mm/s" if rate else f"{value * 1e3:.1f} mm"
+        return f"{fixed(value * 1e3, 1)} mm/s" if rate else f"{fixed(value * 1e3, 1)} mm"
     return f"{value:.6g}" + (" rad/s or m/s" if rate else "")
 
 

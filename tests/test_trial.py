@@ -121,6 +121,23 @@ def test_report_rebuilt_from_the_record_equals_the_original(tmp_path):
     assert log.metadata["start_time"] and log.metadata["versions"]["needle-hil-bench"]
 
 
+def test_a_trial_stopped_at_once_reports_what_stopped_it_and_draws_no_empty_plot(tmp_path):
+    cfg = load_trial_config(SIM)
+    cfg = cfg.model_copy(update={"name": "stopped", "safety": cfg.safety.model_copy(
+        update={"tracking_error_deg": 0.001})})
+    res = run_trial(cfg, tmp_path)
+    assert not res.completed
+    md = (res.run_dir / "report.md").read_text()
+    stopped = md.split("## What stopped it")[1].split("##")[0]
+    assert "s into the trial during the approach segment: **interlock**: tracking_error: theta" in stopped
+    assert "then: holding the measured position" in stopped
+    assert "nothing to plot" in md and "![joint profiles]" not in md
+    assert not (res.run_dir / "joints.png").exists()
+    html = (res.run_dir / "report.html").read_text()
+    assert "<th style='text-align:left'>detail</th>" in html  # the events' text reads left to right
+    assert "-0.0000" not in md
+
+
 def test_report_refuses_a_modified_log(tmp_path):
     res = run_trial(load_trial_config(SIM), tmp_path)
     with open(res.log_path, "ab") as f:
