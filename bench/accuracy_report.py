@@ -284,6 +284,34 @@ def _f(v: Optional[float], nd: int = 3) -> str:
     return "–" if v is None else f"{v:.{nd}f}"
 
 
+def acceptance_limits() -> tuple[float, float]:
+    """Seed 000's acceptance limits (mm per axis and depth, degrees), as trials judge them."""
+    from bench.config import AcceptanceConfig
+
+    a = AcceptanceConfig()
+    return a.position_mm, a.angle_deg
+
+
+def over_limit(study: Study) -> list[str]:
+    """Each budget figure (tip max, worst case) beyond the acceptance limit, in words."""
+    pos, ang = acceptance_limits()
+    out = []
+    for row in table3_rows(study):
+        angle = row["quantity"].startswith("angle")
+        limit, unit = (ang, "°") if angle else (pos, " mm")
+        for label, v in (("the largest Monte Carlo |error|", row["tip"].max),
+                         ("the worst case", row["worst"])):
+            if v is not None and abs(v) > limit:
+                out.append(f"{row['quantity'].split(' (')[0]}: {label} {abs(v):.3f}{unit} is over the "
+                           f"{limit:g}{unit} acceptance limit")
+    return out
+
+
+def _flag(v: Optional[float], limit: float, nd: int = 3) -> str:
+    """A figure, bold and marked when it is over its acceptance limit."""
+    return f"**{_f(v, nd)} ⚠**" if v is not None and abs(v) > limit else _f(v, nd)
+
+
 def render_markdown(study: Study, figures: dict[str, str]) -> str:
     mc, jb, sw = study.monte_carlo, study.jacobian, study.sweep
     ratios = acc.servo_transmissions(study.robot)
@@ -304,20 +332,27 @@ def render_markdown(study: Study, figures: dict[str, str]) -> str:
         L.append("Table 3 of seed 000: five repeats of Target 1, measured minus asked; its X, Y, Z are "
                  "the target point the needle enters at, so the budget gives both the tip and the entry point.")
         L.append("")
-    head = "| quantity | tip σ | tip p95 | tip max | worst case | entry σ |"
+    head = "| quantity | tip σ | tip p95 of \\|error\\| | tip max \\|error\\| | worst case | entry σ |"
     rule = "|---|---:|---:|---:|---:|---:|"
     if t3_cols:
         head += " Table 3 mean | Table 3 σ | Table 3 mean abs | Table 3 max abs |"
         rule += "---:|---:|---:|---:|"
     L += [head, rule]
+    pos, ang = acceptance_limits()
     for row in table3_rows(study):
         s, e, t = row["tip"], row["entry"], row["table3"]
-        line = (f"| {row['quantity']} | {_f(s.std)} | {_f(s.p95)} | {_f(s.max)} | {_f(row['worst'])} | "
-                f"{_f(e.std if e else None)} |")
+        limit = ang if row["quantity"].startswith("angle") else pos
+        line = (f"| {row['quantity']} | {_f(s.std)} | {_f(s.p95)} | {_flag(s.max, limit)} | "
+                f"{_flag(row['worst'], limit)} | {_f(e.std if e else None)} |")
         if t3_cols:
             line += (f" {_f(t['mean'] if t else None, 2)} | {_f(t['std'] if t else None, 2)} | "
                      f"{_f(t['mean_abs'] if t else None, 2)} | {_f(t['max_abs'] if t else None, 2)} |")
         L.append(line)
+    L += ["", f"σ is of the signed error; p95 and max are of its magnitude |error|, over {mc.n} "
+          f"draws; the worst case puts every servo at the end of its tolerance that hurts most "
+          f"(Jacobian). Marked ⚠: over the acceptance limit ({pos:g} mm per axis and depth, {ang:g}°)."]
+    for words in over_limit(study):
+        L.append(f"- **{words}**")
     ax = acc.ErrorStats.of(mc.axis_err_deg)
     L += ["", f"Needle axis error (angle between the axes): RMS {ax.rms:.3f}°, p95 {ax.p95:.3f}°, "
           f"max {ax.max:.3f}°; worst case (Jacobian) {jb.worst_axis_deg:.3f}°. "

@@ -116,14 +116,14 @@ def plot_distributions(rows: Sequence[dict], path: Path, limits: tuple[float, fl
                 ax.axvline(p, color="tab:red", lw=1.2, ls="--",
                            label="seed 000 Table 3 (5 repeats)" if i == 0 else None)
             ax.plot(paper[key], np.zeros_like(paper[key]), "v", color="tab:red", ms=9, clip_on=False)
-        for s in (-lim, lim):
-            if v.size and (lo <= s <= hi):
-                ax.axvline(s, color="k", lw=0.8, ls=":")
+        for i, s in enumerate((-lim, lim)):
+            ax.axvline(s, color="k", lw=1.2, label=f"acceptance limit ±{lim:g} {unit}" if i == 0 else None)
         ax.set_title(f"{label} deviation")
         ax.set_xlabel(unit)
         ax.grid(alpha=0.3)
     axes.flat[0].legend(fontsize=8, loc="upper left")
-    fig.suptitle("Deviation from the target (dotted: acceptance limit)")
+    fig.suptitle("Deviation from the target: campaign trials (bars), seed 000 Table 3's repeats "
+                 "(red dashed), acceptance limits (black)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -227,6 +227,32 @@ def _pass_rate_table(rows: Sequence[dict], axis: dict) -> list[str]:
     return lines
 
 
+def worst_trials(rows: Sequence[dict], pos: float, ang: float, n: int = 10) -> list[dict]:
+    """The ``n`` trials furthest from passing: errors and unfinished first, then by deviation."""
+    ranked = sorted(rows, key=lambda r: (-_severity(r, pos, ang), r["id"]))
+    return [r for r in ranked if r["status"] in ("done", "error")][:n]
+
+
+def write_worst_reports(campaign_dir: Path, rows: Sequence[dict], pos: float, ang: float) -> int:
+    """Each worst trial's own HTML report, from its record (campaign trials are run without one);
+    returns how many were written. A trial whose record cannot be read keeps its log link."""
+    from bench.trial import rebuild_report
+
+    written = 0
+    for r in worst_trials(rows, pos, ang):
+        if not r["log_path"]:
+            continue
+        run_dir = campaign_dir / Path(r["log_path"]).parent
+        if (run_dir / "report.html").is_file():
+            continue
+        try:
+            rebuild_report(run_dir)
+            written += 1
+        except Exception:  # noqa: BLE001 - a missing link never costs the campaign its report
+            continue
+    return written
+
+
 def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[str, str],
                     campaign_dir: Path) -> str:
     done = [r for r in rows if r["status"] == "done"]
@@ -276,18 +302,24 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
         for key, fig in figures.items():
             if key.startswith("heat"):
                 lines += [f"![pass-rate heatmap]({fig})", ""]
-    worst = sorted(rows, key=lambda r: (-_severity(r, pos, ang), r["id"]))
-    worst = [r for r in worst if r["status"] in ("done", "error")][:10]
+    worst = worst_trials(rows, pos, ang)
     if worst:
         lines += ["## Worst trials", "", "Largest deviation relative to its limit first; errors and "
-                  "trials that did not finish at the top.", "",
+                  "trials that did not finish at the top. Each one's own report (its joint profiles "
+                  "and events) is linked; `hilbench campaign rerun DIR ID` runs it again.", "",
                   "| id | parameters | tip dev X, Y, Z (mm) | depth (mm) | angle (°) | passed | "
-                  "reason | log |", "|---:|---|---|---:|---:|---|---|---|"]
+                  "reason | report |", "|---:|---|---|---:|---:|---|---|---|"]
         for r in worst:
             params = ", ".join(f"{k} = {_fmt(v) if isinstance(v, float) else v}" for k, v in r["params"].items())
             tip = ", ".join(_fmt(r[c], 2) for c in ("tip_dx_mm", "tip_dy_mm", "tip_dz_mm"))
             why = r["error"] if r["status"] == "error" else (r["reason"] or "")
-            log = f"[{r['name']}]({r['log_path']})" if r["log_path"] else "—"
+            report = Path(r["log_path"]).with_name("report.html") if r["log_path"] else None
+            if report is not None and (campaign_dir / report).is_file():
+                log = f"[{r['name']}]({report.as_posix()})"
+            elif r["log_path"]:
+                log = f"[{r['name']} (log)]({r['log_path']})"
+            else:
+                log = "—"
             lines.append(f"| {r['id']} | {params or '—'} | {tip} | {_fmt(r['depth_dev_mm'], 2)} | "
                          f"{_fmt(r['angle_dev_deg'], 3)} | {'yes' if r['passed'] else 'no'} | "
                          f"{why.replace('|', '/') or '—'} | {log} |")
@@ -317,6 +349,7 @@ def write_campaign_report(campaign_dir: Path | str) -> dict[str, Path]:
         if len(grid) >= 2:
             plot_heatmap(done, grid[0], grid[1], fig_dir / "heatmap.png")
             figures["heat0"] = "figures/heatmap.png"
+    write_worst_reports(campaign_dir, rows, *limits)
     md = render_markdown(meta, rows, counts, figures, campaign_dir)
     (campaign_dir / "report.md").write_text(md)
     html = markdown_to_html(md, {v: campaign_dir / v for v in figures.values()},

@@ -153,8 +153,8 @@ def rerun(campaign_dir: Path = typer.Argument(...), trial_id: int = typer.Argume
 def export(campaign_dir: Path = typer.Argument(...),
            csv: Path = typer.Option(..., "--csv", help="CSV file to write."),
            as_json: bool = typer.Option(False, "--json", help='Print {"csv": PATH}.')) -> None:
-    """Write the trials table as CSV (one row per trial, one column per varying parameter;
-    times in ISO 8601 UTC)."""
+    """Write the trials table as CSV: one row per trial, one column per varying parameter,
+    times in ISO 8601 UTC."""
     from bench.campaign import CampaignError, export_csv
 
     try:

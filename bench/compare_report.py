@@ -136,6 +136,23 @@ def plot_profiles(comparison: Comparison, path: Path) -> Path:
     return Path(path)
 
 
+_COLOUR_NAMES = {"#e6b800": "yellow", "tab:cyan": "cyan", "tab:brown": "brown", "tab:olive": "olive"}
+
+
+def profiles_caption(comparison: Comparison) -> str:
+    """What the profile figure draws, counted from the runs it was given (never a fixed five)."""
+    n = max(len(comparison.reference.logs), len(comparison.subject.logs))
+    names = [_COLOUR_NAMES.get(_colour(i), _colour(i)) for i in range(n)]
+    left, right = comparison.reference.label, comparison.subject.label
+    if n == 1:
+        runs = f"the measured profile in {names[0]}"
+    else:
+        listed = ", ".join(names[:-1]) + f" and {names[-1]}"
+        runs = f"repeats 1–{n} in {listed} (the paper's colours)"
+    return (f"Left: {left}; right: {right}. Red dotted: the theoretical (commanded) profile of the "
+            f"first repeat; {runs}.")
+
+
 def plot_tracking(comparison: Comparison, path: Path) -> Path:
     """Per joint: lag, RMS error relative to the commanded excursion, and tip contribution."""
     plt = _pyplot()
@@ -446,9 +463,8 @@ def render_markdown(comparison: Comparison, figures: dict[str, str], title: str,
     for side in (sub, ref):
         lines += _deviation_table(side)
     lines += ["## Average deviation (Table 4 layout)", ""] + _table4(comparison)
-    lines += ["## Joint profiles (Fig. 12 layout)", "",
-              "Red dotted: the theoretical (commanded) profile of repeat 1; repeats 1–5 in blue, green, "
-              "yellow, black and magenta, as in the paper.", "", f"![joint profiles]({figures['profiles']})", ""]
+    lines += ["## Joint profiles (Fig. 12 layout)", "", profiles_caption(comparison), "",
+              f"![joint profiles]({figures['profiles']})", ""]
     lines += ["## Tracking per joint", "",
               "Error = measured − commanded. Lag: delay of the measured velocity behind the commanded "
               "(cross-correlation peak, sub-sample); — for a joint whose command hardly moves. Settling: "

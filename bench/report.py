@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import html
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -206,7 +207,9 @@ def markdown_to_html(md: str, images: dict[str, Path], title: str) -> str:
     table: list[list[str]] = []
     for line in md.splitlines():
         if line.startswith("|"):
-            table.append([c.strip() for c in line.strip("|").split("|")])
+            cells = re.split(r"(?<!\\)\|", line.strip()[1:-1] if line.strip().endswith("|")
+                             else line.strip()[1:])
+            table.append([c.strip().replace("\\|", "|") for c in cells])
             in_table = True
             continue
         if in_table:

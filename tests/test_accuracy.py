@@ -255,6 +255,15 @@ def test_accuracy_report(tmp_path):
     assert html.count("data:image/png;base64") == 3 and "Table 3" in html
     md = (d / "report.md").read_text()
     assert "| X (mm) |" in md and "eqs 12–14" in md
+    # every budget figure over the 5 mm / 1° acceptance limit is marked and said in words: the
+    # Jacobian worst case in Y is 5.31 mm at Target 1 (every servo at its worst end of ±0.29°)
+    budget = json.loads((d / "budget.json").read_text())
+    y_row = next(line for line in md.splitlines() if line.startswith("| Y (mm) |"))
+    assert "5.307 ⚠" in y_row
+    assert "- **Y: the worst case 5.307 mm is over the 5 mm acceptance limit**" in md
+    assert "p95 and max are of its magnitude |error|" in md
+    assert "<th style='text-align:right'>tip max |error|</th>" in html
+    assert abs(budget["worst_case_mm"]["y"]) == pytest.approx(5.307, abs=1e-3)
     assert json.loads((d / "budget.json").read_text())["samples"] == 3000
     assert np.load(d / "samples.npz")["tip_err_mm"].shape == (3000, 3)
 

@@ -197,9 +197,10 @@ def test_local_campaign_runs_every_trial_once_and_reports(local_campaign, tmp_pa
         by_scale[r["params"]["torque_limit[theta5].scale"]].append(bool(r["passed"]))
     assert all(by_scale[1.0]) and not any(by_scale[0.3])  # theta5 stalls below its gravity load
     assert s.passed == 4
-    # no figures per trial in a campaign: the log and the result only
+    # trials run without figures (the log, record and result); the campaign report then
+    # writes the worst ones' own reports, which its table links
     files = {p.name for p in (d / "trials" / "small-00000").iterdir()}
-    assert {"trial.npz", "result.json"} <= files and not files & {"joints.png", "robot.png", "report.html"}
+    assert {"trial.npz", "record.json", "result.json"} <= files
     with pytest.raises(CampaignError, match="already holds a campaign; continue it with"):
         create_campaign(write_spec(tmp_path), d)
     # CSV export: one row per trial, the axis as its own column
@@ -222,6 +223,10 @@ def test_local_campaign_runs_every_trial_once_and_reports(local_campaign, tmp_pa
     assert "(trials/small-0000" in md
     html = (d / "report.html").read_text()
     assert html.count("data:image/png;base64") >= 2 and "<a href='trials/small-0000" in html
+    import re
+
+    links = re.findall(r"\]\((trials/[^)]+)\)", md.split("## Worst trials")[1])
+    assert len(links) == 8 and all(link.endswith("/report.html") and (d / link).is_file() for link in links)
 
 
 def test_rerunning_one_trial_alone_gives_identical_metrics(local_campaign, tmp_path):

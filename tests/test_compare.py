@@ -221,6 +221,10 @@ def test_report_is_written_self_contained(prep, tmp_path):
     assert html.count("data:image/png;base64") == 3 and "src='profiles.png'" not in html
     summary = json.loads(paths["summary"].read_text())
     assert summary["summary"]["repeats"] == 2 and len(summary["subject"]["tracking"]) == 2
+    # the profile caption counts the repeats it drew: two here, not the paper's five
+    assert ("Left: sim; right: emulated rig. Red dotted: the theoretical (commanded) profile of the "
+            "first repeat; repeats 1–2 in blue and green (the paper's colours).") in md
+    assert "magenta" not in md
 
 
 # ---------------------------------------------------------------------------
