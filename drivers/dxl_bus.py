@@ -222,9 +222,8 @@ class ServoBus:
         """Make the servo report ``shaft_rad`` more from now on, through its Homing Offset.
 
         Homing Offset lives in EEPROM, writable only with torque off: torque
-        goes off for the write and back to what it was, with the goal set to
-        where the servo now reports itself, so the joint does not jump by the
-        shift. Returns the shift applied, a whole number of ticks.
+        goes off for the write and back to what it was. Returns the shift
+        applied, a whole number of ticks.
         """
         ticks = int(round(shaft_rad / _RAD_PER_TICK))
         new = self.read(sid, "Homing Offset") + ticks
@@ -239,8 +238,6 @@ class ServoBus:
             self.write(sid, "Homing Offset", new)
         finally:
             if torque:
-                # the old goal is in the old frame: hold where the joint is, in the new one
-                self.write(sid, "Goal Position", self.read(sid, "Present Position") & 0xFFFFFFFF)
                 self.write(sid, "Torque Enable", 1)
         return ticks * _RAD_PER_TICK
 
