@@ -74,9 +74,24 @@ class CampaignSummary:
     pool: str = ""
     notes: list[str] = field(default_factory=list)
 
+    @property
+    def reason(self) -> str:
+        """Why the campaign is not complete, in one line ("" when every trial has a result)."""
+        if self.completed == self.planned:
+            return ""
+        parts = []
+        if self.interrupted:
+            parts.append("interrupted")
+        if self.errors:
+            parts.append(f"{self.errors} trial(s) ended in an error (their messages: "
+                         f"`hilbench campaign export`)")
+        if self.pending:
+            parts.append(f"{self.pending} trial(s) not run")
+        return "; ".join(parts) + f"; continue with `hilbench campaign resume {self.db.parent}`"
+
     def as_json(self) -> dict[str, Any]:
         return {"db": str(self.db), "planned": self.planned, "completed": self.completed,
-                "passed": self.passed, "errors": self.errors}
+                "passed": self.passed, "errors": self.errors, "reason": self.reason}
 
 
 # ---------------------------------------------------------------------------

@@ -84,8 +84,10 @@ def _run(campaign_dir: Path, workers: Optional[int], scheduler: Optional[str], a
                       + (f" on {summary.pool}" if summary.pool else ""), highlight=False)
         if (campaign_dir / "report.html").is_file():
             console.print(f"report: {campaign_dir / 'report.html'}", highlight=False)
+    if summary.reason:
+        err_console.print(f"[bold red]campaign incomplete:[/] {summary.reason}", highlight=False,
+                          soft_wrap=True)
     if summary.interrupted:
-        err_console.print(f"interrupted: continue with `hilbench campaign resume {campaign_dir}`")
         raise typer.Exit(130)
     raise typer.Exit(0 if summary.completed == summary.planned else 1)
 

@@ -88,6 +88,9 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
                        f"max {summary['tip_deviation_mm']['max']}")
         _console.print(f"worst joint: {summary['worst_joint']}")
         _console.print(f"report: {out_dir / 'report.html'}")
+    if not result.passed:
+        _err.print(f"[bold red]compare failed:[/] {summary['reason']}", highlight=False,
+                   soft_wrap=True)
     raise typer.Exit(0 if result.passed else 1)
 
 

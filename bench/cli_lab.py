@@ -180,8 +180,10 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
     except KeyboardInterrupt:
         _fail("interrupted", 130)
     ok = not any(c.status == "fail" for c in checks)
+    failed = [c for c in checks if c.status == "fail"]
+    reason = "; ".join(f"{c.name}: {c.detail}" for c in failed)
     if as_json:
-        _emit({"checks": [c.as_dict() for c in checks], "ok": ok})
+        _emit({"checks": [c.as_dict() for c in checks], "ok": ok, "reason": reason})
     else:
         n = {s: sum(c.status == s for c in checks) for s in ("pass", "warn", "fail")}
         verdict = "[green]ready for a trial[/]" if ok else "[bold red]not ready[/]"

@@ -822,10 +822,28 @@ class Comparison:
                 return {"mean": r(s[k]["mean"]), "max": r(s[k]["max_abs"]), "std": r(s[k]["std"])}
             return {"mean": one(s[k]["mean"]), "max": one(s[k]["max_abs"]), "std": one(s[k]["std"])}
 
-        return {"repeats": len(self.subject.logs), "tip_deviation_mm": block("tip_mm", True),
+        sub = self.subject
+        return {"repeats": len(sub.logs), "tip_deviation_mm": block("tip_mm", True),
                 "depth_deviation_mm": block("depth_mm", False),
                 "angle_deviation_deg": block("angle_deg", False), "passed": self.passed,
+                "completed": sum(bool(c) for c in sub.completed), "reason": self.why_not(),
                 "worst_joint": self.worst_joint}
+
+    def why_not(self) -> str:
+        """Why the subject did not pass, in one line ("" when it did): the first repeat that
+        stopped early, else the repeats placed outside the acceptance limits."""
+        sub = self.subject
+        if self.passed:
+            return ""
+        if not sub.logs:
+            return f"no {sub.label} repeat to compare"
+        for i, (done, why) in enumerate(zip(sub.completed, sub.reasons)):
+            if not done:
+                return f"{sub.label} repeat {i + 1} stopped early: {why}"
+        pos, ang = self.acceptance
+        out = [i + 1 for i, o in enumerate(sub.outcomes) if o is None or not o.passed]
+        return (f"{sub.label} repeat(s) {', '.join(map(str, out))} of {len(sub.logs)} placed the "
+                f"needle outside {pos:g} mm / {ang:g}°")
 
     def as_dict(self) -> dict:
         """A full machine-readable record (SI per joint, mm and degrees for the needle)."""

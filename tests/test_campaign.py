@@ -259,9 +259,9 @@ def test_json_output_shape(tmp_path):
     lines = out.stdout.strip().splitlines()
     assert len(lines) == 1
     res = json.loads(lines[0])
-    assert list(res) == ["db", "planned", "completed", "passed", "errors"]
+    assert list(res) == ["db", "planned", "completed", "passed", "errors", "reason"]
     assert res == {"db": str(tmp_path / "c" / "campaign.db"), "planned": 2, "completed": 2,
-                   "passed": 1, "errors": 0}
+                   "passed": 1, "errors": 0, "reason": ""}
     # resume of a finished campaign runs nothing and says the same
     again = subprocess.run([HILBENCH, "campaign", "resume", str(tmp_path / "c"), "--json"],
                            capture_output=True, text=True, timeout=300)
@@ -320,8 +320,10 @@ def test_ctrl_c_leaves_a_consistent_database(tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 130, stderr
-    assert "resume" in stderr and "Traceback" not in stderr
+    assert "Traceback" not in stderr
     res = json.loads(stdout)
+    assert res["reason"].startswith("interrupted; ") and f"hilbench campaign resume {d}" in res["reason"]
+    assert stderr.strip().splitlines()[-1] == f"campaign incomplete: {res['reason']}"
     rs = check_consistent(d)
     status = [r["status"] for r in rs]
     assert set(status) <= {"done", "pending"} and "pending" in status

@@ -196,7 +196,8 @@ def test_needle_placement_error_is_explained_by_the_right_joint(prep):
     s = c.summary()
     assert s["repeats"] == 3 and s["passed"] is True
     assert set(s) == {"repeats", "tip_deviation_mm", "depth_deviation_mm", "angle_deviation_deg",
-                      "passed", "worst_joint"}
+                      "passed", "completed", "reason", "worst_joint"}
+    assert s["completed"] == 3 and s["reason"] == ""
     # the first-order sum of the contributions predicts the tip deviation
     pred = np.mean([np.sum([x.tip_mm for x in rep], axis=0) for rep in c.subject.contributions], axis=0)
     assert np.allclose(pred, s["tip_deviation_mm"]["mean"], atol=0.02)
@@ -205,6 +206,7 @@ def test_needle_placement_error_is_explained_by_the_right_joint(prep):
     # a far bigger error fails the 5 mm limit
     bad = compare_logs([sim], [synthetic_log(prep, placement_error=err * 20)])
     assert bad.passed is False and bad.summary()["passed"] is False
+    assert bad.summary()["reason"].endswith("repeat(s) 1 of 1 placed the needle outside 5 mm / 1°")
 
 
 def test_report_is_written_self_contained(prep, tmp_path):

@@ -116,6 +116,7 @@ def test_doctor_flags_exactly_the_planted_problems(faulty_rig):
     checks = {c["name"]: c for c in report["checks"]}
     failed = {n for n, c in checks.items() if c["status"] == "fail"}
     assert failed == {"theta5 (ID 4)", "d9 (ID 8)", "theta7 (ID 6)", "theta4 hardware error"}
+    assert all(f"{name}: {checks[name]['detail']}" in report["reason"] for name in failed)
     assert not [n for n, c in checks.items() if c["status"] == "warn"]
     assert "57600" in checks["theta5 (ID 4)"]["detail"] and "57600" in checks["d9 (ID 8)"]["detail"]
     assert "XM540-W270" in checks["theta7 (ID 6)"]["detail"]
