@@ -384,9 +384,16 @@ def spawn_jog(path: Path, *extra: str):
     return child, Screen(child)
 
 
-def test_jog_moves_one_joint_and_leaves_torque_off(jog_rig):
+def quit_jog(child, screen: "Screen") -> None:
+    """q, the closing line, the end of the process."""
     import pexpect
 
+    child.send("q")
+    screen.wait_for(r"jog ended \(q\): torque off")
+    child.expect(pexpect.EOF, timeout=30)
+
+
+def test_jog_moves_one_joint_and_leaves_torque_off(jog_rig):
     rig, path = jog_rig
     child, screen = spawn_jog(path)
     try:
@@ -406,9 +413,7 @@ def test_jog_moves_one_joint_and_leaves_torque_off(jog_rig):
         child.send("8")
         child.send("-")  # d9 is at its home stroke (49 mm): one 5 mm step down is within limits
         screen.wait_for(r"d9 → \+(43\.9\d|44\.0\d) mm")
-        child.send("q")
-        screen.wait_for(r"jog ended \(q\): torque off")
-        child.expect(pexpect.EOF, timeout=30)
+        quit_jog(child, screen)
     finally:
         child.close(force=True)
     assert child.exitstatus == 0
@@ -416,8 +421,6 @@ def test_jog_moves_one_joint_and_leaves_torque_off(jog_rig):
 
 
 def test_jog_on_its_own_emulated_rig(tmp_path):
-    import pexpect
-
     config = tmp_path / "lab.yaml"
     config.write_text(LAB.read_text())
     child, screen = spawn_jog(config, "--emulate")
@@ -427,9 +430,7 @@ def test_jog_on_its_own_emulated_rig(tmp_path):
         screen.wait_for(r"theta8 selected")
         child.send("+")
         screen.wait_for(r"7 │ theta8\s*│\s*\+(0\.9\d|1\.0\d)°")  # one 1° step, reached
-        child.send("q")
-        screen.wait_for(r"jog ended \(q\): torque off")
-        child.expect(pexpect.EOF, timeout=30)
+        quit_jog(child, screen)
     finally:
         child.close(force=True)
     assert child.exitstatus == 0
