@@ -1116,19 +1116,22 @@ def plot_workspace(result: WorkspaceMap, path: str | pathlib.Path) -> pathlib.Pa
         ax.set_ylabel("Y_E [mm]")
         fig.colorbar(im, ax=ax)
     frac = result.reachable.mean(axis=(0, 1, 2))
+    lo, hi = float(np.nanmin(frac)), float(np.nanmax(frac))
+    if hi - lo < 0.005:  # reachability is the same everywhere: one colour would say nothing
+        data = np.nanmin(np.where(result.reachable, result.margin, np.nan), axis=(0, 1, 2))
+        title = (f"smallest singularity margin per orientation\n(over all tip positions; "
+                 f"{lo:.0%} of them reachable at every orientation)")
+        fmt = None
+    else:
+        data, fmt = frac, (lambda v, _: f"{v:.0%}")
+        title = "reachable fraction of tip positions per orientation"
     im = axes[2].imshow(
-        frac.T,
-        origin="lower",
-        aspect="auto",
-        vmin=0.0,
-        vmax=1.0,
-        extent=[g.psi[0] / DEG, g.psi[-1] / DEG, g.theta[0] / DEG, g.theta[-1] / DEG],
-        cmap="magma",
-    )
-    axes[2].set_title("reachable fraction of tip positions", fontsize=9)
+        data.T, origin="lower", aspect="auto", cmap="magma",
+        extent=[g.psi[0] / DEG, g.psi[-1] / DEG, g.theta[0] / DEG, g.theta[-1] / DEG])
+    axes[2].set_title(title, fontsize=9)
     axes[2].set_xlabel("psi [deg]")
     axes[2].set_ylabel("theta [deg]")
-    fig.colorbar(im, ax=axes[2])
+    fig.colorbar(im, ax=axes[2], format=fmt)
     fig.savefig(path, dpi=110)
     return path
 
