@@ -189,8 +189,8 @@ def _check_shape(name: str, names: Sequence[str], arr: np.ndarray, what: str) ->
 
 def _amount(value: float, kind: str | None, rate: bool = False) -> str:
     """A joint quantity in the words a technician reads: degrees or mm (per second for rates)."""
-    def fixed(v: float, digits: int) -> str:  # small limits keep two significant digits
-        return f"{v:.{digits}f}" if abs(v) >= 10.0 ** -digits * 10 or v == 0 else f"{v:.2g}"
+    def fixed(v: float, digits: int) -> str:  # small limits keep three significant digits
+        return f"{v:.{digits}f}" if abs(v) >= 10.0 ** -digits * 10 or v == 0 else f"{v:.3g}"
 
     if kind == "revolute":
         return f"{fixed(np.degrees(value), 2)} °/s" if rate else f"{fixed(np.degrees(value), 2)}°"
