@@ -260,7 +260,8 @@ class SafetyConfig(Strict):
     enabled: bool = Field(default=True, description="check the interlocks (off: tests only)")
     on_trip: Literal["hold", "stop"] = Field(
         default="hold", description="after a trip: hold the measured pose briefly, or stop at once")
-    gantry_margin_mm: float = Field(default=20.0, ge=0, le=500, description="clearance kept from the CT gantry (seed 001: 20 mm)")
+    gantry_margin_mm: float = Field(default=20.0, ge=0, le=500,
+                                    description="clearance kept from the CT gantry (seed 001: 20 mm)")
     gantry_lookahead_s: float = Field(default=0.03, ge=0, le=1,
                                       description="braking time checked ahead of the motion (s)")
     joint_limit_tolerance: float = Field(default=0.01, ge=0, le=1,
