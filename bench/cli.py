@@ -232,9 +232,11 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
         console.print(f"trial {name}: {verdict}  ({res.run_dir})")
         if not res.completed:
             console.print(f"[red]stopped early:[/] {res.reason}")
-        if o is not None:
-            console.print(f"tip deviation (mm): {o.tip_deviation_mm}, depth {o.depth_deviation_mm:+.3f} mm, "
-                          f"angle {o.angle_deviation_deg:+.4f}°")
+        if o is not None:  # short lines: an 80-column terminal never splits a value from its name
+            x, y, z = (round(v, 3) + 0.0 for v in o.tip_deviation_mm)
+            console.print(f"tip deviation: X {x:+.3f}  Y {y:+.3f}  Z {z:+.3f} mm", highlight=False)
+            console.print(f"depth {round(o.depth_deviation_mm, 3) + 0.0:+.3f} mm, angle "
+                          f"{round(o.angle_deviation_deg, 4) + 0.0:+.4f}°", highlight=False)
         console.print(f"report: {res.run_dir / 'report.html'}")
     raise typer.Exit(0 if res.passed else 1)
 

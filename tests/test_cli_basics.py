@@ -88,3 +88,14 @@ def test_gui_without_a_display_is_refused_with_one_line(tmp_path):
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "--gui needs a display" in lines[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_trial_summary_fits_80_columns_without_splitting_a_value(tmp_path):
+    res = _cli("trial", str(SIM), "--out", str(tmp_path / "o"),
+               env={**os.environ, "COLUMNS": "80"})
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    tip = next(ln for ln in lines if ln.startswith("tip deviation: "))
+    assert len(tip) <= 80 and all(f" {axis} " in tip for axis in "XYZ") and tip.endswith(" mm")
+    rest = next(ln for ln in lines if ln.startswith("depth "))
+    assert len(rest) <= 80 and rest.endswith("°") and "angle " in rest and "-0.000" not in rest
