@@ -97,7 +97,7 @@ def ping_latency(cyc, hold_s: float = 0.0, rounds: int = 40) -> float:
     it there) and the hold is subtracted too: the round trip then lasts as long
     as a cycle, and both ends sleep, and wake, as they do in one.
     """
-    from drivers.dxl_protocol import Instruction, build_instruction
+    from drivers.dynamixel.protocol import Instruction, build_instruction
 
     packet = build_instruction(cyc.ids[0], Instruction.PING)
     rtts = []
@@ -112,7 +112,7 @@ def ping_latency(cyc, hold_s: float = 0.0, rounds: int = 40) -> float:
 
 def measure(port: str, baud: int, fast: bool, cycles: int, hold: Callable[[float], None],
             rounds: int = 5) -> dict:
-    from drivers.dynamixel_backend import DynamixelActuators, DynamixelSettings, ServoSettings
+    from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings
 
     names = [f"j{i}" for i in range(1, N_SERVOS + 1)]
     settings = DynamixelSettings(

@@ -42,8 +42,8 @@ def measure(spec: Path, directory: Path, workers: int) -> tuple[float, float, in
     """(whole-run trials/min, steady-state trials/min, trials, the workers' CPU share) for one
     fresh campaign; the CPU share (CPU time / wall time of the trials) falls below 1 when other
     processes take the cores."""
-    from bench.campaign import create_campaign, run_campaign
-    from bench.campaign_store import CampaignStore
+    from bench.campaign.run import create_campaign, run_campaign
+    from bench.campaign.store import CampaignStore
 
     d = create_campaign(spec, directory / f"w{workers}")
     t0 = time.perf_counter()
@@ -62,7 +62,7 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=40)
     ap.add_argument("--workers", type=int, nargs=2, default=(1, 2))
     args = ap.parse_args()
-    from bench.campaign_exec import start_forkserver
+    from bench.campaign.execute import start_forkserver
 
     load = os.getloadavg()[0]
     print(f"cores: {os.cpu_count()}, load average before: {load:.2f}"

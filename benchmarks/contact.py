@@ -35,10 +35,10 @@ import time
 
 import numpy as np
 
-from bench.contact import GantryClearance, GantryContact, default_gantry
+from bench.scene.contact import GantryClearance, GantryContact, default_gantry
 from bench.kinematics.arc_train import TARGET_1
 from bench.geometry.tri_distance import paper_intersects, triangle_distance
-from bench.robots import get_robot
+from bench.kinematics.registry import get_robot
 
 
 ALL_PAIRS_CHUNKS = (1024, 4096, 16384, 65536)  # batch sizes tried for the brute force
@@ -88,7 +88,7 @@ def interlock_along_path(model, cycle: GantryClearance, q_from: np.ndarray, q_to
     """The safety interlock (measured and commanded, last result carried forward while it
     provably clears the margin) along a straight joint path: median and worst CPU time per
     control cycle, and how many cycles tripped."""
-    from bench.safety import GantryClearanceInterlock
+    from bench.core.safety import GantryClearanceInterlock
     from drivers import JointState
 
     il = GantryClearanceInterlock(model, cycle.margin, cycle)
@@ -117,8 +117,8 @@ def near_poses(model, clearance: GantryClearance, exact: GantryContact, n: int,
 def pybullet_step_cost(q: np.ndarray, steps: int) -> tuple[float, float]:
     """CPU seconds per physics step of the arc robot held at ``q``, with the gantry in the
     contact pairs and filtered out."""
-    from bench.scene import URDF_DIR
-    from drivers.pybullet_backend import PyBulletActuators, PyBulletSettings, SceneObject
+    from bench.scene.room import URDF_DIR
+    from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, SceneObject
 
     model = get_robot("arc-train")
     out = []

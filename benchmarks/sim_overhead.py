@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.config import load_trial_config
-from bench.log import TrialLog
-from bench.runner import Runner
-from bench.trial import interlocks_for, make_backend, plan, prepare
+from bench.config.models import load_trial_config
+from bench.core.log import TrialLog
+from bench.core.runner import Runner
+from bench.core.trial import interlocks_for, make_backend, plan, prepare
 
 CONFIG = Path(__file__).resolve().parent.parent / "hil_configs" / "sim_target1.yaml"
 
@@ -95,7 +95,7 @@ def trials_per_minute(workers: int, trials: int) -> float:
 def _one_trial(i: int) -> bool:
     import tempfile
 
-    from bench.trial import run_trial
+    from bench.core.trial import run_trial
 
     cfg = load_trial_config(CONFIG)
     with tempfile.TemporaryDirectory() as out:

@@ -1,4 +1,4 @@
-"""The accuracy budget (bench.accuracy) and ``hilbench accuracy`` / ``hilbench workspace``.
+"""The accuracy budget (bench.accuracy.analysis) and ``hilbench accuracy`` / ``hilbench workspace``.
 
 The numbers the arc-and-train budget gives at Target 1 with ±0.29° servos
 (uniform, 20000 draws, seed 0): tip σ 0.51 / 1.49 / 1.29 mm (X / Y / Z), p95
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from bench import accuracy as acc
+from bench.accuracy import analysis as acc
 from bench.kinematics import para_brachy as pb
 from bench.kinematics.para_brachy import SingularityCase as S
 from bench.kinematics.para_brachy_robot import ParaBrachyRobot
@@ -231,7 +231,7 @@ def test_accuracy_arc_train_json_is_one_line_with_the_budget_beside_table3():
 
 @pytest.mark.parametrize("robot", CLI_ROBOTS)
 def test_accuracy_works_for_every_robot(robot):
-    from bench.robots import ROBOTS
+    from bench.kinematics.registry import ROBOTS
 
     assert robot in ROBOTS or robot == "para-brachy"  # zerobot is registered: this runs for real
     out = run("accuracy", robot, "--json", "--samples", "2000", "--seed", "4")
@@ -278,7 +278,7 @@ def test_accuracy_report(tmp_path):
     (["workspace", "arc-train"], "the map exists for para-brachy only"),
 ])
 def test_bad_input_exits_2_with_one_line(args, words):
-    from bench.cli import app
+    from bench.cli.app import app
 
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 2
@@ -296,7 +296,7 @@ def test_bad_robot_from_the_shell_exits_2():
 
 def test_workspace_command_writes_the_map(tmp_path, monkeypatch):
     """The command's wiring on a coarse grid (the full default grid takes seconds)."""
-    from bench.cli import app
+    from bench.cli.app import app
 
     full = pb.workspace_map
     monkeypatch.setattr(pb, "workspace_map",

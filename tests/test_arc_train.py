@@ -13,7 +13,7 @@ from bench.kinematics.arc_train import (
     epsilon_from_d2, epsilon_from_omega, train_pose,
 )
 from bench.kinematics.dh import joint_split
-from bench.scene import URDF_DIR, generated_files
+from bench.scene.room import URDF_DIR, generated_files
 
 
 def constrained_config(rng, p: ArcTrainParams) -> np.ndarray:
@@ -31,7 +31,7 @@ def angle_between(u: np.ndarray, v: np.ndarray) -> float:
 def test_dh_fk_equals_pybullet_link_poses(arc_train):
     """200 random configurations within limits: needle tip and axis to 1e-6 m / 1e-6 rad,
     and every DH frame equals PyBullet's link frame times the row's trailing transform."""
-    from drivers._quiet import quiet_pybullet
+    from drivers.quiet import quiet_pybullet
 
     pb = quiet_pybullet()
     c = pb.connect(pb.DIRECT)
@@ -182,7 +182,7 @@ def test_scene_loads_in_direct_mode_without_warnings():
 def test_gravity_loads_fit_x_series_servos(arc_train):
     """At Target 1 every revolute joint's static gravity torque is within an XM430-W350's
     stall torque, and the heaviest is the train (the torque-heavy joint the paper saw lag)."""
-    from drivers._quiet import quiet_pybullet
+    from drivers.quiet import quiet_pybullet
 
     pb = quiet_pybullet()
     c = pb.connect(pb.DIRECT)

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from bench.kinematics.arc_train import TARGET_1
-from bench.scene import URDF_DIR
+from bench.scene.room import URDF_DIR
 from drivers import NotEnabledError
-from drivers.pybullet_backend import PyBulletActuators, PyBulletSettings, default_scene
+from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, default_scene
 from trajectories import LSPB
 
 
@@ -89,10 +89,10 @@ def test_runner_blocks_trip_at_the_cycle_checking_every_cycle_trips(on_trip, mon
     """A plan aimed through the gantry, run in blocks and cycle by cycle: the same trip at the
     same cycle with the same cause, the same samples up to it, and the same hold after it to
     within the solver's tolerance (the block path rewinds the physics to the tripping cycle)."""
-    import bench.runner as runner_module
-    from bench.config import TrialConfig
-    from bench.log import TrialLog
-    from bench.trial import interlocks_for, make_backend, plan, prepare
+    import bench.core.runner as runner_module
+    from bench.config.models import TrialConfig
+    from bench.core.log import TrialLog
+    from bench.core.trial import interlocks_for, make_backend, plan, prepare
     from test_interlock_trial import INTO_GANTRY
 
     cfg = TrialConfig.model_validate({**INTO_GANTRY, "safety": {**INTO_GANTRY["safety"],

@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.campaign import (CampaignError, create_campaign, export_csv, make_pool, rerun_trial,
+from bench.campaign.run import (CampaignError, create_campaign, export_csv, make_pool, rerun_trial,
                             run_campaign)
-from bench.campaign_exec import InlinePool
-from bench.campaign_report import PAPER_TABLE3, deviation_table, paper_deviations
-from bench.campaign_spec import CampaignSpecError, load_campaign_spec, plan_trials
-from bench.campaign_store import METRIC_COLUMNS, CampaignStore
-from bench.config import AcceptanceConfig
-from bench.log import TrialLog
+from bench.campaign.execute import InlinePool
+from bench.campaign.report import PAPER_TABLE3, deviation_table, paper_deviations
+from bench.campaign.spec import CampaignSpecError, load_campaign_spec, plan_trials
+from bench.campaign.store import METRIC_COLUMNS, CampaignStore
+from bench.config.models import AcceptanceConfig
+from bench.core.log import TrialLog
 
 REPO = Path(__file__).resolve().parent.parent
 FAST = REPO / "hil_configs" / "sim_target1_fast.yaml"

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.config import load_trial_config
-from bench.log import TrialLog
-from bench.trial import run_trial
+from bench.config.models import load_trial_config
+from bench.core.log import TrialLog
+from bench.core.trial import run_trial
 
 REPO = Path(__file__).resolve().parent.parent
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))

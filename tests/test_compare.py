@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.compare import (
+from bench.compare.analysis import (
     PlanMismatchError, align_logs, check_same_plan, compare_logs, joint_tracking, profile_difference,
 )
-from bench.config import load_trial_config
-from bench.log import TrialLog
+from bench.config.models import load_trial_config
+from bench.core.log import TrialLog
 
 REPO = Path(__file__).resolve().parent.parent
 LAB = REPO / "hil_configs" / "lab_real.yaml"
@@ -33,13 +33,13 @@ LIGHT = ("theta7", "theta8", "d9", "d10")
 
 @pytest.fixture(scope="module")
 def prep():
-    from bench.trial import prepare
+    from bench.core.trial import prepare
 
     return prepare(load_trial_config(LAB))
 
 
 def _segments(prep):
-    from bench.trial import plan
+    from bench.core.trial import plan
 
     rows = prep.robot.chain.rows
     return plan(prep, prep.robot.chain.home, np.array([r.velocity for r in rows]))
@@ -210,7 +210,7 @@ def test_needle_placement_error_is_explained_by_the_right_joint(prep):
 
 
 def test_report_is_written_self_contained(prep, tmp_path):
-    from bench.compare_report import write_compare_report
+    from bench.compare.report import write_compare_report
 
     c = compare_logs([synthetic_log(prep)], [synthetic_log(prep, delay=0.03, noise=np.full(9, 1e-4), seed=k)
                                              for k in range(2)], labels=("sim", "emulated rig"))
@@ -299,7 +299,7 @@ def test_cli_without_hardware_stops_before_anything_moves_naming_the_port(tmp_pa
 
 
 def _gravity_loads(prep) -> dict[str, float]:
-    from drivers._quiet import quiet_pybullet
+    from drivers.quiet import quiet_pybullet
 
     pb = quiet_pybullet()
     c = pb.connect(pb.DIRECT)

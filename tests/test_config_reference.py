@@ -12,8 +12,8 @@ import jsonschema
 import pytest
 import yaml
 
-from bench.config import ConfigError, load_trial_config
-from bench.config_reference import REFERENCE_PATH, json_schema, markdown_reference, undocumented_fields
+from bench.config.models import ConfigError, load_trial_config
+from bench.config.reference import REFERENCE_PATH, json_schema, markdown_reference, undocumented_fields
 
 REPO = Path(__file__).resolve().parent.parent
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))

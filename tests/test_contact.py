@@ -9,19 +9,19 @@ import re
 import numpy as np
 import pytest
 
-from bench.contact import (DEFAULT_MARGIN, Gantry, GantryClearance, GantryContact, all_pairs_contact,
+from bench.scene.contact import (DEFAULT_MARGIN, Gantry, GantryClearance, GantryContact, all_pairs_contact,
                            all_pairs_distance, default_gantry)
-from bench.contact_validation import PyBulletDistances, interesting_poses
+from bench.contact.validation import PyBulletDistances, interesting_poses
 from bench.geometry.bvh import BoxIndex, box_gap
 from bench.geometry.mesh_ops import enclosing_radius, refine
-from bench.geometry.robot import RobotGeometry
+from bench.scene.robot_geometry import RobotGeometry
 from bench.geometry.torus import box_point_distance
 from bench.geometry.tri_distance import (TriangleSet, paper_intersects, point_triangle_distance,
                                          prism_bound, prism_bounds, segment_distance,
                                          triangle_distance)
 from bench.geometry.urdf_shapes import CollisionShape
-from bench.robots import get_robot
-from bench.scene import URDF_DIR
+from bench.kinematics.registry import get_robot
+from bench.scene.room import URDF_DIR
 
 MARGIN = DEFAULT_MARGIN
 
@@ -258,7 +258,7 @@ def test_exact_test_equals_all_pairs_on_a_coarse_gantry(robot):
     """On a 16 x 6 torus the pruned test's per-link distances equal the brute force's where
     it reports them exactly, and the links it prunes really lie beyond its reach."""
     model, geometry, _, _ = robot
-    from bench.scene import SceneParams, gantry_mesh
+    from bench.scene.room import SceneParams, gantry_mesh
 
     v, f = gantry_mesh(SceneParams(), 0.4, 16, 6)
     coarse = Gantry.from_mesh(v, f, default_gantry().torus)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.contact_protocol import DISTANCES, POINTS, POSTURES, markdown_report, run_protocol
+from bench.contact.protocol import DISTANCES, POINTS, POSTURES, markdown_report, run_protocol
 
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 

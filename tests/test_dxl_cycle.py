@@ -8,9 +8,9 @@ import struct
 import dynamixel_sdk as sdk
 import pytest
 
-from drivers.dxl_cycle import SyncCycle
-from drivers.dxl_io import StuffingPacketHandler
-from drivers.dxl_protocol import FastStatusBlock, build_fast_status, build_status
+from drivers.dynamixel.cycle import SyncCycle
+from drivers.dynamixel.io import StuffingPacketHandler
+from drivers.dynamixel.protocol import FastStatusBlock, build_fast_status, build_status
 
 IDS = list(range(1, 10))
 

@@ -1,4 +1,4 @@
-"""Protocol 2.0 framing (drivers.dxl_protocol) and the SDK replacements (drivers.dxl_io)."""
+"""Protocol 2.0 framing (drivers.dynamixel.protocol) and the SDK replacements (drivers.dynamixel.io)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 from dynamixel_sdk import Protocol2PacketHandler
 from dynamixel_sdk.robotis_def import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
-from drivers.dxl_io import BlockingPortHandler, StuffingPacketHandler
-from drivers.dxl_protocol import (
+from drivers.dynamixel.io import BlockingPortHandler, StuffingPacketHandler
+from drivers.dynamixel.protocol import (
     ALERT_BIT,
     CRC_TABLE,
     CrcError,

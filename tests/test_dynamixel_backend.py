@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.config import load_trial_config
-from bench.emulation import EmulatedRig
-from bench.log import TrialLog
-from bench.trial import make_dynamixel_backend, prepare, run_trial
+from bench.config.models import load_trial_config
+from bench.rig.emulated import EmulatedRig
+from bench.core.log import TrialLog
+from bench.core.trial import make_dynamixel_backend, prepare, run_trial
 from drivers import CommunicationError, ConfigurationError, HardwareFault, NotEnabledError
 
 REPO = Path(__file__).resolve().parent.parent
@@ -221,7 +221,7 @@ def test_emulate_prints_ports_as_soon_as_they_accept_bytes():
         assert set(ports) == {"dynamixel_port", "ultrasonic_port"}
         import dynamixel_sdk as sdk
 
-        from drivers.dxl_io import BlockingPortHandler, StuffingPacketHandler
+        from drivers.dynamixel.io import BlockingPortHandler, StuffingPacketHandler
 
         port = BlockingPortHandler(ports["dynamixel_port"])
         assert port.openPort() and port.setBaudRate(1_000_000)

@@ -17,8 +17,8 @@ from dynamixel_sdk import (
 )
 from dynamixel_sdk.robotis_def import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
-from drivers.dxl_io import BlockingPortHandler, StuffingPacketHandler
-from drivers.dxl_protocol import (
+from drivers.dynamixel.io import BlockingPortHandler, StuffingPacketHandler
+from drivers.dynamixel.protocol import (
     ALERT_BIT,
     BROADCAST_ID,
     Instruction,
@@ -36,7 +36,7 @@ from drivers.emulator import (
     model_spec,
     supported_models,
 )
-from drivers.emulator.control_table import _sdk_layout
+from drivers.dynamixel.control_table import _sdk_layout
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -569,7 +569,7 @@ def test_the_emulator_reports_the_physics_it_could_not_keep_up_with():
     import time as _time
     from pathlib import Path as _Path
 
-    from bench.emulation import EmulatorProcess
+    from bench.rig.emulated import EmulatorProcess
 
     lab = _Path(__file__).resolve().parent.parent / "hil_configs" / "lab_real.yaml"
     rig = EmulatorProcess(lab)

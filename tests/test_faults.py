@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.config import TrialConfig
+from bench.config.models import TrialConfig
 from bench.faults import (FAULTS, Backlash, Deadband, FaultWrapper, apply_faults, parse_faults)
 from bench.kinematics.arc_train import JOINTS, TARGET_1, epsilon_from_d2, train_pose
-from bench.log import TrialLog
-from bench.outcome import settled_position
-from bench.runner import Runner, Segment
-from bench.trial import make_backend, prepare, run_trial
-from bench.truth import GroundTruth, settled_truth
+from bench.core.log import TrialLog
+from bench.core.outcome import settled_position
+from bench.core.runner import Runner, Segment
+from bench.core.trial import make_backend, prepare, run_trial
+from bench.core.truth import GroundTruth, settled_truth
 from drivers import Actuators, ActuatorsBase, ConfigurationError, JointLimits, JointState
 from trajectories import LSPB
 
@@ -236,8 +236,8 @@ def test_noise_has_the_configured_std(target_prep):
 
 
 def gravity_torques(q: np.ndarray) -> np.ndarray:
-    from bench.scene import URDF_DIR
-    from drivers._quiet import quiet_pybullet
+    from bench.scene.room import URDF_DIR
+    from drivers.quiet import quiet_pybullet
 
     pb = quiet_pybullet()
     c = pb.connect(pb.DIRECT)

@@ -13,8 +13,8 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from bench.cli import app
-from bench.config import load_trial_config, read_yaml_mapping
+from bench.cli.app import app
+from bench.config.models import load_trial_config, read_yaml_mapping
 
 REPO = Path(__file__).resolve().parent.parent
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))

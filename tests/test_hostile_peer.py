@@ -29,12 +29,12 @@ import dynamixel_sdk.port_handler as sdk_port
 import pytest
 
 from drivers import CommunicationError
-from drivers.dxl_bus import ServoBus
-from drivers.dxl_cycle import STATE_ADDRESS, STATE_LENGTH, SyncCycle
-from drivers.dxl_io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
-from drivers.dxl_models import register_layout
-from drivers.dynamixel_backend import DynamixelActuators, DynamixelSettings, ServoSettings
-from drivers.dxl_protocol import (
+from drivers.dynamixel.bus import ServoBus
+from drivers.dynamixel.cycle import STATE_ADDRESS, STATE_LENGTH, SyncCycle
+from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
+from drivers.dynamixel.models import register_layout
+from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings
+from drivers.dynamixel.protocol import (
     FastStatusBlock, Instruction, Packet, PacketParser, build_fast_status, build_status,
 )
 
@@ -236,7 +236,7 @@ def _exchanges(n: int, peer: HostilePeer, call: Callable[[], object],
 
 
 def test_lab_bus_takes_only_the_answer_it_asked_for(peer, monkeypatch):
-    monkeypatch.setattr("drivers.dxl_bus._LATENCY_S", 0.005)  # a pty has no USB latency timer
+    monkeypatch.setattr("drivers.dynamixel.bus._LATENCY_S", 0.005)  # a pty has no USB latency timer
     layout = register_layout(MODEL)
     names = [n for n, (a, size) in layout.items() if size in (1, 2, 4) and a + size <= 256]
     rng = random.Random(7)
@@ -359,7 +359,7 @@ def test_a_short_reply_is_never_a_hardware_fault(monkeypatch):
 def test_a_short_ping_reply_is_no_servo_model(monkeypatch):
     """A PING answer is exactly 3 bytes: two of them are not a model number."""
     monkeypatch.setattr(sdk_port, "LATENCY_TIMER", 2)
-    monkeypatch.setattr("drivers.dxl_bus._LATENCY_S", 0.005)
+    monkeypatch.setattr("drivers.dynamixel.bus._LATENCY_S", 0.005)
     peer = HostilePeer(seed=4, hostility=0.0,
                        policy=lambda r: "short" if r.instruction == Instruction.PING else None)
     port = BlockingPortHandler(peer.port)

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.robots import get_robot
-from bench.safety import (GantryClearanceInterlock, Interlocks, JointLimitInterlock,
+from bench.kinematics.registry import get_robot
+from bench.core.safety import (GantryClearanceInterlock, Interlocks, JointLimitInterlock,
                           StaleDataInterlock, TrackingErrorInterlock, VelocityLimitInterlock)
 from drivers import JointState
 

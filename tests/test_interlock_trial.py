@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.contact import GantryContact
+from bench.scene.contact import GantryContact
 from bench.kinematics.arc_train import ArcTrainRobot
-from bench.log import TrialLog
+from bench.core.log import TrialLog
 
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 
@@ -27,8 +27,8 @@ INTO_GANTRY = {"name": "into-gantry", "robot": "arc-train", "control_hz": 500,
 
 def test_target_really_is_inside_the_gantry():
     robot = ArcTrainRobot()
-    from bench.config import TrialConfig
-    from bench.trial import TrialError, prepare
+    from bench.config.models import TrialConfig
+    from bench.core.trial import TrialError, prepare
 
     prep = prepare(TrialConfig.model_validate(INTO_GANTRY))
     report = GantryContact(robot, 0.020).check(prep.q_entry)

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.config import ConfigError, load_trial_config
-from bench.emulation import EmulatedRig, Planted
+from bench.config.models import ConfigError, load_trial_config
+from bench.rig.emulated import EmulatedRig, Planted
 
 REPO = Path(__file__).resolve().parent.parent
 LAB = REPO / "hil_configs" / "lab_real.yaml"
@@ -33,7 +33,7 @@ def hilbench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
 def rig_config(path: Path, rig: EmulatedRig, base: dict, **top) -> Path:
     """A config file like ``base`` with its ports pointed at the rig, and the emulated sensor's
     staleness allowance that ``--emulate`` gives (the emulator shares this loaded host's CPU)."""
-    from bench.emulation import EMULATOR_STALE_S
+    from bench.rig.emulated import EMULATOR_STALE_S
 
     data = json.loads(json.dumps(base))
     data["backend"]["port"] = rig.ports.dynamixel_port
@@ -138,7 +138,7 @@ def test_doctor_flags_exactly_the_planted_problems(faulty_rig):
 
 def test_doctor_port_and_latency_lines(tmp_path, monkeypatch):
     import bench.lab.doctor as doctor
-    import drivers.dynamixel_backend as backend
+    import drivers.dynamixel.backend as backend
 
     port = tmp_path / "ttyUSB0"
     port.write_text("")
@@ -231,7 +231,7 @@ def test_calibrate_recovers_planted_zero_offsets_and_ultrasonic(miscalibrated_ri
     assert len(u["stops"]) == 4 and u["residual_mm"] < 1.0
 
     # 3. A trial config naming the file reads the true joint values (registers + sensor fit).
-    from bench.trial import make_dynamixel_backend, prepare
+    from bench.core.trial import make_dynamixel_backend, prepare
 
     from bench.kinematics.arc_train import train_pose
 
@@ -290,9 +290,9 @@ def test_doctor_on_the_emulated_rig_prints_problems_then_one_count_line(tmp_path
 
 
 def test_trial_record_names_its_calibration(tmp_path):
-    from bench.lab.calibration import CalibrationFile, ServoCalibration, save_calibration
-    from bench.log import TrialLog
-    from bench.trial import make_backend, prepare, run_trial
+    from bench.config.calibration import CalibrationFile, ServoCalibration, save_calibration
+    from bench.core.log import TrialLog
+    from bench.core.trial import make_backend, prepare, run_trial
 
     cal = save_calibration(CalibrationFile(
         config_name="lab-target1", created="2026-01-01T00:00:00+00:00",
@@ -487,7 +487,7 @@ def test_jog_keys():
 def test_bad_input_fails_with_one_line(args, words):
     from typer.testing import CliRunner
 
-    from bench.cli import app
+    from bench.cli.app import app
 
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 2, res.output

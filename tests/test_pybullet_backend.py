@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.scene import URDF_DIR
+from bench.scene.room import URDF_DIR
 from drivers import Actuators, ConfigurationError, NotEnabledError
-from drivers.pybullet_backend import PyBulletActuators, PyBulletSettings, default_scene
+from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, default_scene
 
 
 def settings(arc_train, **kw) -> PyBulletSettings:

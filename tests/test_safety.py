@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from bench.kinematics.arc_train import TARGET_1
-from bench.robots import get_robot
-from bench.safety import (GantryClearanceInterlock, Interlock, Interlocks, JointLimitInterlock,
+from bench.kinematics.registry import get_robot
+from bench.core.safety import (GantryClearanceInterlock, Interlock, Interlocks, JointLimitInterlock,
                           StaleDataInterlock, TrackingErrorInterlock, Trip, VelocityLimitInterlock)
 from drivers import JointState
 
@@ -127,7 +127,7 @@ def test_gantry_interlock_reuse_never_clears_a_contact():
     """Random joint-space walks into and out of the gantry: carrying the last result forward
     (bounded by the joints' lever arms) never clears a pose the exact test calls contact,
     and the lever bound really bounds how far the robot's surface moves."""
-    from bench.contact import GantryContact
+    from bench.scene.contact import GantryContact
 
     robot = get_robot("zerobot")
     il = GantryClearanceInterlock(robot, margin=0.020)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.log import TrialLog
+from bench.core.log import TrialLog
 
 REPO = Path(__file__).resolve().parent.parent
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
@@ -121,15 +121,15 @@ def test_signal_while_the_report_is_drawn(tmp_path, monkeypatch):
     """The record is complete before the report: a signal then still leaves a rebuildable run."""
     from typer.testing import CliRunner
 
-    import bench.report
-    from bench.cli import app
+    import bench.report.trial
+    from bench.cli.app import app
 
     def drawing(*args, **kwargs):
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(1.0)  # the handler raises here
         raise AssertionError("the signal did not stop the report")
 
-    monkeypatch.setattr(bench.report, "write_trial_report", drawing)
+    monkeypatch.setattr(bench.report.trial, "write_trial_report", drawing)
     res = CliRunner().invoke(app, ["trial", str(REPO / "hil_configs" / "sim_target1_fast.yaml"),
                                    "--out", str(tmp_path)])
     assert res.exit_code == 143, res.output

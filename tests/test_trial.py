@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.config import ConfigError, load_trial_config
-from bench.log import TrialLog
-from bench.trial import TrialError, prepare, run_trial
+from bench.config.models import ConfigError, load_trial_config
+from bench.core.log import TrialLog
+from bench.core.trial import TrialError, prepare, run_trial
 
 REPO = Path(__file__).resolve().parent.parent
 SIM = REPO / "hil_configs" / "sim_target1.yaml"

@@ -13,7 +13,7 @@ import pytest
 from bench.kinematics.dh import DHRow, dh_transform, joint_split, mdh_transform
 from bench.kinematics.needle import NeedleTarget, UnreachableError, needle_direction
 from bench.kinematics.zerobot import DEG, ZerobotParams, ZerobotRobot, eq3_tip_pose
-from bench.scene import URDF_DIR, generated_files
+from bench.scene.room import URDF_DIR, generated_files
 
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 
@@ -78,7 +78,7 @@ def test_home_puts_the_needle_down_in_the_scan_plane(zerobot):
 def test_dh_fk_equals_pybullet_link_poses(zerobot):
     """200 random configurations: every DH frame equals PyBullet's URDF link frame (modified
     DH: the link frame is the DH frame) and the needle tip its tool frame, to 1e-6."""
-    from drivers._quiet import quiet_pybullet
+    from drivers.quiet import quiet_pybullet
 
     pb = quiet_pybullet()
     c = pb.connect(pb.DIRECT)

@@ -96,7 +96,7 @@ class FaultWrapper:
 @lru_cache(maxsize=None)
 def kinds_for_names(joint_names: tuple[str, ...]) -> tuple[str, ...] | None:
     """Joint kinds (``revolute``/``prismatic``) of the known robot with these joints, if any."""
-    from bench.robots import ROBOTS
+    from bench.kinematics.registry import ROBOTS
 
     for factory in ROBOTS.values():
         robot = factory()

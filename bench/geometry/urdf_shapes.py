@@ -1,6 +1,6 @@
 """A URDF's collision geometry as triangle meshes and sphere covers, per link.
 
-Reads what :mod:`bench.kinematics.urdf_writer` writes (and any URDF with box,
+Reads what :mod:`bench.scene.urdf_writer` writes (and any URDF with box,
 cylinder, sphere and mesh collisions). Every primitive becomes a closed
 triangle mesh that *contains* the true shape (boxes exactly; cylinders as
 circumscribed prisms; spheres as circumscribed icospheres), so a distance to

@@ -7,7 +7,7 @@ eq 1: ``T = Rx(alpha) · Tx(a) · Rz(theta) · Tz(d)``, where ``a`` and ``alpha`
 are the printed ``a_{i-1}`` and ``alpha_{i-1}`` of the row, so a paper's table
 is copied row by row. A revolute row adds its joint value to ``theta``, a
 prismatic row adds it to ``d``. The same rows feed the URDF writer
-(:mod:`bench.kinematics.urdf_writer`), so the analytic model and the physics
+(:mod:`bench.scene.urdf_writer`), so the analytic model and the physics
 scene cannot drift apart.
 """
 

@@ -32,8 +32,8 @@ from typing import Callable, Literal, Optional
 
 import numpy as np
 
-from bench.config import TrialConfig
-from bench.lab.calibration import (
+from bench.config.models import TrialConfig
+from bench.config.calibration import (
     CalibrationFile, ServoCalibration, UltrasonicCalibration, UltrasonicStop, save_calibration,
 )
 
@@ -133,7 +133,7 @@ PLAUSIBLE_CHANGE = {"revolute": math.radians(2.0), "prismatic": 2e-3}
 def implausible_zeros(config: TrialConfig, robot, zeros: dict[str, "JointZero"]) -> dict[str, str]:
     """The zeros that moved further than :data:`PLAUSIBLE_CHANGE`, each with the likely cause:
     the gravity load the joint carries at its reference (from the URDF)."""
-    from bench.dynamics import gravity_torques
+    from bench.scene.dynamics import gravity_torques
 
     load = None
     out: dict[str, str] = {}
@@ -174,7 +174,7 @@ def calibrate(config: TrialConfig, *, write: WriteMode = "config", stops: int = 
     stops, never dropped.
     """
     from bench.lab.session import check_ports, require_dynamixel
-    from bench.robots import get_robot
+    from bench.kinematics.registry import get_robot
 
     require_dynamixel(config, "calibrate")
     if write not in ("config", "homing"):
@@ -228,7 +228,7 @@ def measure_zeros(config: TrialConfig, robot, confirm: Callable[[str], bool],
                   note: Callable[[str], None]) -> dict[str, JointZero]:
     """Each joint's zero offset, read at its reference (torque left as it is)."""
     from bench.lab.session import check_servos
-    from drivers.dxl_bus import ServoBus
+    from drivers.dynamixel.bus import ServoBus
 
     b = config.backend
     reference = robot.chain.home
@@ -261,7 +261,7 @@ def measure_ultrasonic(config: TrialConfig, offsets: dict[str, float], train: in
     from bench.kinematics.arc_train import train_pose
     from bench.lab.motion import Ramp, move, wait_still
     from bench.lab.session import open_backend
-    from bench.robots import get_robot
+    from bench.kinematics.registry import get_robot
     from drivers.ultrasonic import UltrasonicSensor
 
     u = config.backend.ultrasonic
@@ -321,7 +321,7 @@ def _sample(act, sensor, train: int, n: int, timeout_s: float = 10.0) -> tuple[f
 def write_homing(config: TrialConfig, zeros: dict[str, JointZero],
                  note: Callable[[str], None]) -> dict[str, float]:
     """Write each zero into its servo's Homing Offset (torque off for the write); shifts in shaft rad."""
-    from drivers.dxl_bus import ServoBus
+    from drivers.dynamixel.bus import ServoBus
 
     from drivers import ActuatorError
 

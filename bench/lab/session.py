@@ -1,6 +1,6 @@
 """Opening the rig for a lab tool: ports checked first, the trial's own driver, torque off on exit.
 
-The tools drive the robot through the same :class:`~drivers.dynamixel_backend.DynamixelActuators`
+The tools drive the robot through the same :class:`~drivers.dynamixel.backend.DynamixelActuators`
 a trial uses (same start-up checks, same joint mapping), built from the config
 without planning a trial, and always with ``safe_stop: torque_off`` so that
 leaving a tool — normally, by Ctrl-C or by error — leaves every servo limp.
@@ -11,9 +11,9 @@ from __future__ import annotations
 import os
 from typing import Mapping, Optional
 
-from bench.config import TrialConfig
+from bench.config.models import TrialConfig
 from drivers import Actuators, ConfigurationError
-from drivers.dxl_bus import ServoBus, open_error
+from drivers.dynamixel.bus import ServoBus, open_error
 
 __all__ = ["LAB_RETRIES", "check_ports", "check_servos", "open_backend", "require_dynamixel"]
 
@@ -67,8 +67,8 @@ def open_backend(config: TrialConfig, *, ultrasonic: bool = True,
     """
     import serial
 
-    from bench.robots import get_robot
-    from bench.trial import PreparedTrial, make_dynamixel_backend, target_of
+    from bench.kinematics.registry import get_robot
+    from bench.core.trial import PreparedTrial, make_dynamixel_backend, target_of
 
     require_dynamixel(config, "this tool")
     check_ports(config, ultrasonic)

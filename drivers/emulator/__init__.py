@@ -6,7 +6,7 @@ sensor, so the bench's Dynamixel backend is tested byte for byte.
 """
 
 from drivers.emulator.bus import BusFaults, BusStats, DynamixelBusEmulator
-from drivers.emulator.control_table import (
+from drivers.dynamixel.control_table import (
     BAUD_RATES,
     XC430_W150,
     XL430_W250,

@@ -63,7 +63,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from drivers.dxl_protocol import (
+from drivers.dynamixel.protocol import (
     BROADCAST_ID,
     CrcError,
     FastStatusBlock,

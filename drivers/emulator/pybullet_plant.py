@@ -43,7 +43,7 @@ class PyBulletPlant:
                  motor_damping: Sequence[float], armature: Sequence[float] | float = DEFAULT_ARMATURE,
                  physics_dt: float = 0.001, gravity: float = -9.81,
                  friction: Sequence[float] | None = None) -> None:
-        from drivers._quiet import muted_output, quiet_pybullet
+        from drivers.quiet import muted_output, quiet_pybullet
 
         pb = quiet_pybullet()
         self._pb = pb

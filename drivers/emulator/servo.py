@@ -36,7 +36,7 @@ Physics per substep (the firmware's loop runs at ``CONTROL_PERIOD_S`` = 1 ms):
    KVI = I/65536. Feed-forward gains are stored but not applied.
 3. Motor: V = PWM/885 · V_in, I = (V − Ke·w)/R, clamped to ±Current Limit,
    torque = Kt·I. R, Ke, Kt come from the datasheet stall/no-load figures
-   (:class:`~drivers.emulator.control_table.MotorSpec`); XM430-W350 at 12 V:
+   (:class:`~drivers.dynamixel.control_table.MotorSpec`); XM430-W350 at 12 V:
    4.1 N·m / 2.3 A -> Kt = 1.78 N·m/A, R = 5.2 Ω, Ke = 2.49 V·s/rad (46 rpm).
 4. Reports: Present Position = encoder ticks (4096/rev, 0.088°) + Homing
    Offset, tick 2048 = 0 rad; Present Velocity in 0.229 rev/min; Present
@@ -57,8 +57,8 @@ import math
 import struct
 from typing import Mapping, NoReturn
 
-from drivers.dxl_protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
-from drivers.emulator.control_table import (
+from drivers.dynamixel.protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
+from drivers.dynamixel.control_table import (
     BAUD_RATES,
     XM430_W350,
     Access,

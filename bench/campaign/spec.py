@@ -1,0 +1,308 @@
+"""Campaign specs: a base trial, faults whose parameters vary, repeats, and acceptance limits.
+
+A spec (YAML) names a base trial config and a list of faults written as in a
+trial config, except that any parameter may be an *axis*::
+
+    faults:
+      - {name: deadband, joints: all, tol_deg: 0.29}                # fixed
+      - {name: torque_limit, joints: [theta5], scale: {grid: [1.0, 0.5, 0.3]}}
+      - {name: noise, std_deg: {uniform: [0.0, 0.2]}}               # drawn
+
+Grid axes multiply; ``samples`` random draws are made for every grid point
+(distributions: uniform, loguniform, normal, choice, integers); every draw
+runs ``repeats`` times. Each trial gets its own seed from
+``SeedSequence(seed, spawn_key=(0, grid, sample, repeat))`` and its
+parameters from ``spawn_key=(1, grid, sample, axis)``, so a trial can be
+re-run alone, and adding repeats or samples leaves the existing trials as
+they were. Errors name the field path.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from bench.config.models import REPO_ROOT, AcceptanceConfig, ConfigError, TrialConfig
+from bench.faults import parse_fault
+from bench.kinematics.registry import get_robot
+
+__all__ = ["Axis", "CampaignSpec", "CampaignSpecError", "PlannedTrial", "load_campaign_spec",
+           "plan_trials", "trial_seed", "DISTRIBUTIONS"]
+
+DISTRIBUTIONS = ("grid", "uniform", "loguniform", "normal", "choice", "integers")
+
+
+class CampaignSpecError(ConfigError):
+    """A campaign spec that cannot be used; the message names the field path."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CampaignSpec(_Strict):
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
+    description: str = ""
+    base: Path  # a trial config, relative to the spec file, else to the repository
+    seed: int = Field(default=0, ge=0)
+    samples: int = Field(default=1, ge=1, description="random draws per grid point")
+    repeats: int = Field(default=1, ge=1, description="runs of every draw, each with its own seed")
+    faults: list[dict[str, Any]] = Field(default_factory=list)
+    overrides: dict[str, Any] = Field(default_factory=dict, description="merged into the base config")
+    acceptance: Optional[AcceptanceConfig] = None  # default: the base config's
+    max_attempts: int = Field(default=2, ge=1, description="runs of a trial that keeps erroring")
+
+    source: Optional[Path] = Field(default=None, exclude=True)
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One varying fault parameter: where it sits and how it varies."""
+
+    label: str  # e.g. "torque_limit[theta5].scale"
+    fault: int  # index in the spec's fault list
+    param: str
+    kind: str  # one of DISTRIBUTIONS
+    args: tuple
+
+    @property
+    def is_grid(self) -> bool:
+        return self.kind == "grid"
+
+
+@dataclass(frozen=True)
+class PlannedTrial:
+    """A trial of the campaign: indices, seed, the axis values and the full trial config."""
+
+    id: int
+    name: str
+    grid_index: int
+    sample_index: int
+    repeat_index: int
+    seed: int
+    params: dict[str, Any]
+    faults: list[dict[str, Any]]
+    config: dict[str, Any]
+
+
+# ---------------------------------------------------------------------------
+# Loading
+# ---------------------------------------------------------------------------
+
+
+def _format(path: Path, err: ValidationError) -> str:
+    first = err.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    msg = "unknown field" if first["type"] == "extra_forbidden" else first["msg"]
+    extra = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
+    return f"{path}: {where}: {msg}{extra}"
+
+
+def resolve_base(spec: CampaignSpec) -> Path:
+    """The base config: beside the spec file if it exists there, else under the repository."""
+    base = Path(spec.base)
+    if base.is_absolute():
+        return base
+    if spec.source is not None and (Path(spec.source).parent / base).is_file():
+        return (Path(spec.source).parent / base).resolve()
+    return (REPO_ROOT / base).resolve()
+
+
+def load_campaign_spec(path: Path | str) -> CampaignSpec:
+    """Read and validate a spec and everything it implies (base config, faults, axes)."""
+    from bench.config.models import read_yaml_mapping
+
+    path = Path(path)
+    data = read_yaml_mapping(path, "campaign spec", CampaignSpecError)
+    try:
+        spec = CampaignSpec.model_validate({**data, "source": path})
+    except ValidationError as e:
+        raise CampaignSpecError(_format(path, e)) from None
+    try:
+        plan_trials(spec, limit=1)  # axes, faults and the base config, checked once
+        _check_grid_values(spec)
+    except CampaignSpecError as e:
+        raise CampaignSpecError(f"{path}: {e}") from None
+    return spec
+
+
+def _check_grid_values(spec: CampaignSpec) -> None:
+    """Every value of every grid axis, checked on its own (random draws are checked when planned)."""
+    _, base = base_config_data(spec)
+    names = get_robot(base.get("robot", "arc-train")).joint_names
+    for a in find_axes(spec):
+        if not a.is_grid:
+            continue
+        for v in a.args:
+            fault = {k: (v if k == a.param else x) for k, x in spec.faults[a.fault].items()
+                     if k == a.param or not isinstance(x, dict)}
+            try:
+                parse_fault(fault, names, f"faults.{a.fault}")
+            except ValueError as e:
+                raise CampaignSpecError(str(e)) from None
+
+
+# ---------------------------------------------------------------------------
+# Axes
+# ---------------------------------------------------------------------------
+
+
+def _axis(where: str, value: dict) -> tuple[str, tuple]:
+    if len(value) != 1:
+        raise CampaignSpecError(f"{where}: an axis has exactly one of {', '.join(DISTRIBUTIONS)}; "
+                                f"got {sorted(value)}")
+    (kind, args), = value.items()
+    if kind not in DISTRIBUTIONS:
+        raise CampaignSpecError(f"{where}: unknown distribution {kind!r}; valid: {', '.join(DISTRIBUTIONS)}")
+    if not isinstance(args, list) or not args:
+        raise CampaignSpecError(f"{where}.{kind}: expected a non-empty list, got {args!r}")
+    if kind in ("uniform", "loguniform", "normal", "integers"):
+        if len(args) != 2 or not all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in args):
+            raise CampaignSpecError(f"{where}.{kind}: expected [low, high]"
+                                    f"{' ([mean, std])' if kind == 'normal' else ''}, got {args!r}")
+        lo, hi = float(args[0]), float(args[1])
+        if kind == "normal" and hi < 0:
+            raise CampaignSpecError(f"{where}.normal: std must be >= 0, got {hi}")
+        if kind != "normal" and hi < lo:
+            raise CampaignSpecError(f"{where}.{kind}: low {lo} is above high {hi}")
+        if kind == "loguniform" and lo <= 0:
+            raise CampaignSpecError(f"{where}.loguniform: bounds must be > 0, got {args!r}")
+    return kind, tuple(args)
+
+
+def find_axes(spec: CampaignSpec) -> list[Axis]:
+    """Every parameter written as ``{distribution: [...]}``, in the order of the spec."""
+    axes: list[Axis] = []
+    for i, fault in enumerate(spec.faults):
+        if not isinstance(fault, dict):
+            raise CampaignSpecError(f"faults.{i}: expected a mapping like {{name: deadband}}, got {fault!r}")
+        joints = fault.get("joints", "")
+        joints = "+".join(joints) if isinstance(joints, list) else str(joints or "")
+        for key, value in fault.items():
+            if key in ("name", "joints") or not isinstance(value, dict):
+                continue
+            kind, args = _axis(f"faults.{i}.{key}", value)
+            label = f"{fault.get('name')}{'[' + joints + ']' if joints else ''}.{key}"
+            if any(a.label == label for a in axes):
+                label = f"{label}#{i}"
+            axes.append(Axis(label, i, key, kind, args))
+    return axes
+
+
+def _draw(axis: Axis, rng: np.random.Generator) -> Any:
+    a = axis.args
+    if axis.kind == "uniform":
+        return float(rng.uniform(a[0], a[1]))
+    if axis.kind == "loguniform":
+        return float(math.exp(rng.uniform(math.log(a[0]), math.log(a[1]))))
+    if axis.kind == "normal":
+        return float(rng.normal(a[0], a[1]))
+    if axis.kind == "integers":
+        return int(rng.integers(int(a[0]), int(a[1]), endpoint=True))
+    return a[int(rng.integers(len(a)))]  # choice
+
+
+def trial_seed(campaign_seed: int, grid: int, sample: int, repeat: int) -> int:
+    """The trial's seed: a 63-bit integer from the campaign seed and the trial's place."""
+    ss = np.random.SeedSequence(campaign_seed, spawn_key=(0, grid, sample, repeat))
+    return int(ss.generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def _param_rng(campaign_seed: int, grid: int, sample: int, axis: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(campaign_seed, spawn_key=(1, grid, sample, axis)))
+
+
+# ---------------------------------------------------------------------------
+# Planning
+# ---------------------------------------------------------------------------
+
+
+def _merge(base: dict, changes: dict) -> dict:
+    out = dict(base)
+    for k, v in changes.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def base_config_data(spec: CampaignSpec) -> tuple[Path, dict]:
+    path = resolve_base(spec)
+    if not path.is_file():
+        raise CampaignSpecError(f"base: trial config not found: {spec.base} (looked for {path})")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        raise CampaignSpecError(f"base: {path} is not valid YAML: {e}".replace("\n", " ")) from None
+    if not isinstance(data, dict):
+        raise CampaignSpecError(f"base: {path} is not a mapping of fields")
+    data = _merge(data, spec.overrides)
+    if spec.acceptance is not None:
+        data["acceptance"] = spec.acceptance.model_dump()
+    return path, data
+
+
+def plan_trials(spec: CampaignSpec, limit: int | None = None) -> list[PlannedTrial]:
+    """Every trial of the campaign with its full, validated trial config."""
+    base_path, base = base_config_data(spec)
+    axes = find_axes(spec)
+    grid_axes = [a for a in axes if a.is_grid]
+    random_axes = [a for a in axes if not a.is_grid]
+    grid_points = list(itertools.product(*[a.args for a in grid_axes])) or [()]
+    trials: list[PlannedTrial] = []
+    base_faults = list(base.get("faults") or [])
+    try:
+        names = get_robot(base.get("robot", "arc-train")).joint_names
+    except KeyError as e:
+        raise CampaignSpecError(f"base: {e.args[0]}") from None
+    for g, point in enumerate(grid_points):
+        for s in range(spec.samples):
+            values: dict[str, Any] = {a.label: v for a, v in zip(grid_axes, point)}
+            for k, a in enumerate(random_axes):
+                values[a.label] = _draw(a, _param_rng(spec.seed, g, s, axes.index(a)))
+            faults = [dict(f) for f in spec.faults]
+            for a in axes:
+                faults[a.fault][a.param] = values[a.label]
+            for i, f in enumerate(faults):
+                try:
+                    parse_fault(f, names, f"faults.{i}")
+                except ValueError as e:
+                    at = f" (trial {len(trials)}: {values})" if axes else ""
+                    raise CampaignSpecError(f"{e}{at}") from None
+            for r in range(spec.repeats):
+                tid = len(trials)
+                seed = trial_seed(spec.seed, g, s, r)
+                name = f"{spec.name}-{tid:05d}"
+                data = {**base, "name": name, "seed": seed, "faults": base_faults + faults}
+                try:
+                    cfg = TrialConfig.model_validate({**data, "source": base_path})
+                except ValidationError as e:
+                    first = e.errors()[0]
+                    where = ".".join(str(p) for p in first["loc"])
+                    msg = first["msg"].removeprefix("Value error, ")
+                    raise CampaignSpecError(f"base {base_path.name}: {where + ': ' if where else ''}"
+                                            f"{msg}") from None
+                trials.append(PlannedTrial(tid, name, g, s, r, seed, values, faults,
+                                           json_config(cfg)))
+                if limit is not None and len(trials) >= limit:
+                    return trials
+    return trials
+
+
+def json_config(cfg: TrialConfig) -> dict:
+    """A trial config as plain JSON data (paths as strings), enough to rebuild it anywhere."""
+    import json
+
+    data = json.loads(cfg.model_dump_json())
+    data["urdf_dir"] = str(cfg.resolve(cfg.urdf_dir))
+    return data
+
+
+def count_trials(spec: CampaignSpec) -> int:
+    grid = [a for a in find_axes(spec) if a.is_grid]
+    return math.prod(len(a.args) for a in grid) * spec.samples * spec.repeats

@@ -1,0 +1,203 @@
+"""``hilbench campaign``: run, resume, re-run, export and report fault-injection campaigns.
+
+``hilbench campaign SPEC`` is short for ``hilbench campaign run SPEC``: the
+group rewrites a first argument that is not one of its commands into a
+``run``. Bad input ends with one line on stderr and exit code 2; a Ctrl-C
+ends with 130 after the trials in flight are recorded.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from typer.core import TyperGroup
+
+__all__ = ["campaign_app"]
+
+err_console = Console(stderr=True)
+console = Console()
+
+
+class _RunByDefault(TyperGroup):
+    """``campaign SPEC ...`` means ``campaign run SPEC ...``."""
+
+    def parse_args(self, ctx, args: list[str]) -> list[str]:
+        if args and args[0] not in self.commands and args[0] not in ("--help", "-h"):
+            args = ["run", *args]
+        return super().parse_args(ctx, args)
+
+
+campaign_app = typer.Typer(
+    cls=_RunByDefault, no_args_is_help=True, add_completion=False,
+    help="Fault-injection campaigns: `hilbench campaign SPEC` (= run), resume, rerun, export, report.")
+
+
+def _fail(message: str, code: int = 2) -> typer.Exit:
+    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _emit(obj: object) -> None:
+    sys.stdout.write(json.dumps(obj) + "\n")
+    sys.stdout.flush()
+
+
+def _progress_bar():
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                               TimeRemainingColumn)
+
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("[red]{task.fields[failed]} failed[/] · {task.fields[errors]} errors"),
+                    TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+                    console=err_console, transient=False)
+
+
+def _run(campaign_dir: Path, workers: Optional[int], scheduler: Optional[str], as_json: bool,
+         report: bool = True) -> None:
+    from bench.campaign.run import CampaignError, run_campaign
+
+    with _progress_bar() as bar:
+        task = bar.add_task("campaign", total=None, failed=0, errors=0)
+
+        def on_progress(state) -> None:
+            bar.update(task, total=state.to_run, completed=state.finished, failed=state.failed,
+                       errors=state.errors)
+
+        try:
+            summary = run_campaign(campaign_dir, workers=workers, scheduler=scheduler,
+                                   progress=on_progress, report=report,
+                                   notify=lambda m: err_console.print(f"[yellow]note:[/] {m}", highlight=False))
+        except (CampaignError, RuntimeError, ValueError) as e:
+            _fail(str(e))
+    if as_json:
+        _emit(summary.as_json())
+    else:
+        rate = f" ({100 * summary.passed / summary.completed:.1f} %)" if summary.completed else ""
+        console.print(f"campaign {campaign_dir}: planned {summary.planned}, done {summary.completed}, "
+                      f"passed {summary.passed}{rate}, errors {summary.errors}, "
+                      f"not run {summary.pending}; {summary.ran} trials in {summary.wall_s:.1f} s"
+                      + (f" on {summary.pool}" if summary.pool else ""), highlight=False)
+        if (campaign_dir / "report.html").is_file():
+            console.print(f"report: {campaign_dir / 'report.html'}", highlight=False)
+    if summary.reason:
+        err_console.print(f"[bold red]campaign incomplete:[/] {summary.reason}", highlight=False,
+                          soft_wrap=True)
+    if summary.interrupted:
+        raise typer.Exit(130)
+    raise typer.Exit(0 if summary.completed == summary.planned else 1)
+
+
+_WORKERS = typer.Option(None, "--workers", min=1, help="Local worker processes (default: one per core).")
+_SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")
+_JSON = typer.Option(False, "--json", help='Print {"db", "planned", "completed", "passed", "errors"}.')
+
+
+@campaign_app.command("run")
+def run(spec: Path = typer.Argument(..., help="A campaign spec, e.g. hil_configs/campaigns/tolerance_sweep.yaml."),
+        workers: Optional[int] = _WORKERS, scheduler: Optional[str] = _SCHEDULER,
+        out: Optional[Path] = typer.Option(None, "--out", help="Campaign directory (default runs/campaigns/<stamp>-<name>)."),
+        as_json: bool = _JSON,
+        report: bool = typer.Option(True, "--report/--no-report", help="Write report.md/.html at the end.")) -> None:
+    """Plan a campaign into DIR/campaign.db and run it."""
+    from bench.campaign.run import CampaignError, create_campaign
+    from bench.campaign.spec import CampaignSpecError
+
+    try:
+        campaign_dir = create_campaign(spec, out)
+    except (CampaignSpecError, CampaignError) as e:
+        _fail(str(e))
+    err_console.print(f"campaign directory: {campaign_dir}", highlight=False)
+    _run(campaign_dir, workers, scheduler, as_json, report)
+
+
+@campaign_app.command("resume")
+def resume(campaign_dir: Path = typer.Argument(..., help="A campaign directory (holding campaign.db)."),
+           workers: Optional[int] = _WORKERS, scheduler: Optional[str] = _SCHEDULER, as_json: bool = _JSON,
+           report: bool = typer.Option(True, "--report/--no-report")) -> None:
+    """Run what is missing: pending trials, trials a killed run left running, errors with attempts left."""
+    _run(campaign_dir, workers, scheduler, as_json, report)
+
+
+@campaign_app.command("rerun")
+def rerun(campaign_dir: Path = typer.Argument(...), trial_id: int = typer.Argument(..., help="Trial id (see export)."),
+          out: Optional[Path] = typer.Option(None, "--out", help="Where the run directory goes (default DIR/reruns)."),
+          as_json: bool = typer.Option(False, "--json")) -> None:
+    """Run one trial again from its stored config and seed, with its full report; compare the numbers."""
+    from bench.campaign.run import CampaignError, rerun_trial
+
+    try:
+        res = rerun_trial(campaign_dir, trial_id, out)
+    except (CampaignError, KeyError) as e:
+        _fail(str(e.args[0] if isinstance(e, KeyError) else e))
+    if as_json:
+        _emit(res)
+    else:
+        console.print(f"trial {res['trial']} ({res['name']}, seed {res['seed']}): "
+                      + ("identical to the record" if res["identical"] else
+                         f"differs from the record (stored status {res['stored_status']})"), highlight=False)
+        unmeasured = [k for k in res["stored"] if res["stored"][k] is None and res["rerun"][k] is None]
+        for k in res["stored"]:
+            if k not in unmeasured:
+                console.print(f"  {k:>14}: {res['stored'][k]!s:>12}  ->  {res['rerun'][k]!s}",
+                              highlight=False)
+        if unmeasured:
+            console.print(f"  not measured in either: {', '.join(unmeasured)}", highlight=False)
+        console.print(f"report: {Path(res['run_dir']) / 'report.html'}", highlight=False)
+    raise typer.Exit(0 if res["identical"] else 1)
+
+
+@campaign_app.command("export")
+def export(campaign_dir: Path = typer.Argument(...),
+           csv: Path = typer.Option(..., "--csv", help="CSV file to write."),
+           as_json: bool = typer.Option(False, "--json", help='Print {"csv": PATH}.')) -> None:
+    """Write the trials table as CSV: one row per trial, one column per varying parameter,
+    times in ISO 8601 UTC."""
+    from bench.campaign.run import CampaignError, export_csv
+
+    try:
+        path = export_csv(campaign_dir, csv)
+    except CampaignError as e:
+        _fail(str(e))
+    if as_json:
+        _emit({"csv": str(path)})
+    else:
+        err_console.print(f"wrote {path}", highlight=False)
+
+
+@campaign_app.command("report")
+def report_cmd(campaign_dir: Path = typer.Argument(...),
+               as_json: bool = typer.Option(False, "--json", help='Print {"markdown", "html"}: the paths.')) -> None:
+    """Write report.md and report.html from the database as it stands."""
+    from bench.campaign.run import CampaignError, open_store
+    from bench.campaign.report import write_campaign_report
+
+    try:
+        open_store(campaign_dir).close()
+    except CampaignError as e:
+        _fail(str(e))
+    paths = write_campaign_report(campaign_dir)
+    if as_json:
+        _emit({k: str(v) for k, v in paths.items()})
+    else:
+        console.print(f"report: {paths['html']}", highlight=False)
+
+
+@campaign_app.command("status")
+def status(campaign_dir: Path = typer.Argument(...), as_json: bool = _JSON) -> None:
+    """Counts of the campaign's trials (pending, running, done, error, passed)."""
+    from bench.campaign.run import CampaignError, summarize
+
+    try:
+        s = summarize(campaign_dir)
+    except CampaignError as e:
+        _fail(str(e))
+    if as_json:
+        _emit(s.as_json())
+    else:
+        console.print(f"planned {s.planned}, done {s.completed}, passed {s.passed}, errors {s.errors}, "
+                      f"not run {s.pending}", highlight=False)

@@ -1,0 +1,173 @@
+"""``hilbench compare``: sim vs real tracking, from a config (runs both) or from two saved runs.
+
+Kept in its own module; ``bench/cli/app.py`` registers :func:`compare`.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import NoReturn, Optional
+
+import typer
+from rich.console import Console
+
+__all__ = ["compare"]
+
+_console = Console()
+_err = Console(stderr=True)
+
+
+def _fail(message: str, code: int = 2) -> NoReturn:
+    """One line on stderr, then exit with ``code`` (2: bad input, nothing moved)."""
+    _err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _emit(obj: object) -> None:
+    sys.stdout.write(json.dumps(obj) + "\n")
+    sys.stdout.flush()
+
+
+def _is_config(path: Path) -> bool:
+    return path.suffix.lower() in (".yaml", ".yml")
+
+
+def _log_path(path: Path) -> Path:
+    """A run directory or a trial.npz → the log file; errors name the path."""
+    if path.is_dir():
+        p = path / "trial.npz"
+        if not p.is_file():
+            _fail(f"{path}: not a trial run directory (no trial.npz in it)")
+        return p
+    if path.is_file() and path.suffix == ".npz":
+        return path
+    if not path.exists():
+        _fail(f"{path}: no such file or directory")
+    _fail(f"{path}: expected a trial config (.yaml), a trial run directory or a trial.npz")
+
+
+def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with backend.kind: dynamixel, "
+                                                 "or a trial run directory / trial.npz."),
+            second: Optional[Path] = typer.Argument(None, help="With a run as FIRST: the second run "
+                                                               "directory or trial.npz."),
+            repeats: int = typer.Option(5, "--repeats", help="Repeats on each backend (config form)."),
+            emulate: bool = typer.Option(False, "--emulate", help="Run the real backend against the "
+                                                                  "emulated servo bus and sensor."),
+            retries: Optional[int] = typer.Option(None, "--retries", help="Rig repeats that lose the bus or "
+                                                  "the sensor are run again this often (default 3 "
+                                                  "emulated, 0 real)."),
+            align: str = typer.Option("motion", "--align", help="Align logs at the first commanded motion "
+                                                                "('motion') or by cross-correlation ('xcorr')."),
+            out: Path = typer.Option(Path("runs"), "--out", help="Directory for the comparison directory."),
+            as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
+    """Compare sim and real tracking: run a config's plan on both backends N times, or compare two runs."""
+    if align not in ("motion", "xcorr"):
+        _fail(f"--align must be 'motion' or 'xcorr', got {align!r}")
+    if _is_config(first):
+        if second is not None:
+            _fail(f"{second}: a second argument only goes with a run as the first (got a config, {first})")
+        result, out_dir = _from_config(first, repeats, emulate, retries, align, out)
+    else:
+        if second is None:
+            _fail(f"{first}: give two runs to compare (RUN_A RUN_B), or a trial config (.yaml)")
+        if emulate or repeats != 5 or retries is not None:
+            _fail("--repeats, --emulate and --retries go with a config, not with two saved runs")
+        result, out_dir = _from_runs(first, second, align, out)
+    summary = result.summary()
+    summary["report"] = str(out_dir / "report.html")
+    if as_json:
+        _emit(summary)
+    else:
+        verdict = "[green]PASSED[/]" if result.passed else "[red]FAILED[/]"
+        sub = result.subject
+        _console.print(f"{sub.label}: {verdict} over {len(sub.logs)} repeat(s) "
+                       f"({result.acceptance[0]:g} mm / {result.acceptance[1]:g}°)")
+        _console.print(f"tip deviation (mm): mean {summary['tip_deviation_mm']['mean']}, "
+                       f"max {summary['tip_deviation_mm']['max']}")
+        _console.print(f"worst joint: {summary['worst_joint']}")
+        _console.print(f"report: {out_dir / 'report.html'}")
+    if not result.passed:
+        _err.print(f"[bold red]compare failed:[/] {summary['reason']}", highlight=False,
+                   soft_wrap=True)
+    raise typer.Exit(0 if result.passed else 1)
+
+
+def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path):
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from bench.compare.analysis import PlanMismatchError
+    from bench.compare.session import CompareError, run_comparison
+    from bench.config.models import ConfigError, load_trial_config
+    from bench.core.interrupts import SignalGuard, TrialInterrupted, signal_name
+    from bench.core.trial import TrialError
+    from drivers import ActuatorError
+
+    try:
+        cfg = load_trial_config(path)
+    except ConfigError as e:
+        _fail(str(e))
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                  TimeElapsedColumn(), console=_err, transient=True) as bar:
+        task = bar.add_task(f"compare {cfg.name}", total=1.0)
+
+        def progress(what: str, fraction: float) -> None:
+            bar.update(task, description=what, completed=min(1.0, fraction))
+
+        with SignalGuard() as guard:
+            try:
+                res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
+                                     align=align, progress=progress, interrupts=guard)
+            except (CompareError, ConfigError, TrialError, PlanMismatchError, ActuatorError) as e:
+                _fail(str(e))
+            except TrialInterrupted as e:
+                bar.stop()
+                _err.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] compare stopped; "
+                           f"the rig got its safe stop ({cfg.backend.safe_stop}); the runs so far "
+                           f"are under {out}", highlight=False, soft_wrap=True)
+                raise typer.Exit(e.exit_code)
+    return res.comparison, res.out_dir
+
+
+def _from_runs(a: Path, b: Path, align: str, out: Path):
+    import datetime as dt
+
+    from bench.compare.analysis import PlanMismatchError, compare_logs
+    from bench.compare.report import write_compare_report
+    from bench.core.log import TrialLog
+
+    pa, pb = _log_path(a), _log_path(b)
+    try:
+        la, lb = TrialLog.load(pa), TrialLog.load(pb)
+    except (OSError, ValueError, KeyError) as e:
+        _fail(f"cannot read the trial logs: {e}")
+    # the run on hardware (or its emulator) is the one judged; with two alike, the second
+    if la.metadata.get("backend") == "dynamixel" and lb.metadata.get("backend") != "dynamixel":
+        (la, pa, a), (lb, pb, b) = (lb, pb, b), (la, pa, a)
+    labels = (_label(la, "A"), _label(lb, "B"))
+    if labels[0] == labels[1]:
+        labels = (f"{labels[0]} A", f"{labels[1]} B")
+    try:
+        result = compare_logs([la], [lb], labels=labels, sources=([str(a)], [str(b)]),
+                              align=align)  # type: ignore[arg-type]
+    except (PlanMismatchError, ValueError, KeyError) as e:
+        _fail(str(e).replace("\n", " "))
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    name = (la.metadata.get("config") or {}).get("name", "runs")
+    out_dir = Path(out) / f"{stamp}-compare-{name}"
+    i = 1
+    while out_dir.exists():
+        i += 1
+        out_dir = out_dir.with_name(f"{stamp}-compare-{name}-{i}")
+    write_compare_report(result, out_dir, title=f"{labels[1]} vs {labels[0]}: {name}",
+                         notes=[f"{labels[0]}: {a}", f"{labels[1]}: {b}"])
+    return result, out_dir
+
+
+def _label(log, fallback: str) -> str:
+    backend = str(log.metadata.get("backend"))
+    if backend == "dynamixel":
+        port = str(((log.metadata.get("config") or {}).get("backend") or {}).get("port", ""))
+        return "emulated rig" if port.startswith("/dev/pts/") else "real rig"
+    return {"pybullet": "sim"}.get(backend, fallback)

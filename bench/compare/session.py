@@ -1,0 +1,376 @@
+"""Run one plan N times on the sim backend and on the real (or emulated) rig, then compare.
+
+The sim counterpart of a lab config is the same trial — name, robot, target,
+plan, control rate, acceptance, safety and faults — with the backend replaced
+by the PyBullet defaults, so both backends run the same plan.
+
+The rig's repeats follow the paper's protocol: every repeat starts from home.
+Before each repeat the needle is withdrawn and the arm brought home at the
+plan's speed and held there until every joint has arrived (0.5° / 0.5 mm
+for 0.2 s, at most 5 s), in the same driver session as the trial that
+follows; between repeats the servos hold (``safe_stop: hold``) so the arm
+does not drop. The config's own
+safe stop is applied after the last repeat and whenever the session ends
+early (a repeat that stopped, an error, Ctrl-C).
+
+Nothing moves before every check has passed: the config, the target, and on
+real hardware the ports (named in the error when missing). With ``emulate``
+the emulator (``hilbench emulate``) runs once, in a child process, for all
+repeats. It shares the host's CPU with the trials, and a starved emulator
+looks like a lost bus (``CommunicationError``) or a silent sensor (the
+stale-data interlock); a repeat lost that way is run again, up to
+``retries`` times, and the lost attempt is listed in the report. On real
+hardware (``retries`` 0 by default) a repeat that stops ends the session.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from bench.compare.analysis import Comparison, compare_logs
+from bench.core.interrupts import NO_SIGNALS
+from bench.core.runner import Interruptible
+from bench.config.models import ConfigError, PyBulletBackendConfig, TrialConfig
+from bench.core.log import TrialLog
+from drivers import Actuators
+
+__all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "home_rig",
+           "run_comparison", "sim_counterpart"]
+
+#: Bus retries per transaction against the emulator (the most a config allows), so that a
+#: busy host's pauses of up to about 0.2 s do not end a repeat.
+EMULATED_RETRIES = 20
+
+HOME_TOLERANCE_RAD = np.radians(0.5)  #: at home: every revolute joint within this (rad) ...
+HOME_TOLERANCE_M = 0.5e-3  #: ... and every slide within this (m) ...
+HOME_STILL_S = 0.2  #: ... for this long (s) ...
+HOME_TIMEOUT_S = 5.0  #: ... or at most this long after the homing move (s)
+
+ProgressFn = Callable[[str, float], None]  # (what is running, fraction of the whole session)
+
+
+class CompareError(RuntimeError):
+    """The comparison could not run; nothing moved (or the rig was stopped safely)."""
+
+
+@dataclass(frozen=True)
+class LostAttempt:
+    """A rig repeat that stopped early and was run again."""
+
+    repeat: int
+    run_dir: str
+    reason: str
+
+
+@dataclass
+class SessionResult:
+    out_dir: Path
+    comparison: Comparison
+    sim_runs: list[Path]
+    real_runs: list[Path]
+    lost: list[LostAttempt] = field(default_factory=list)
+    emulated: bool = False
+    notes: list[str] = field(default_factory=list)
+
+
+def sim_counterpart(config: TrialConfig) -> TrialConfig:
+    """The same trial on the PyBullet backend with its default settings (validated)."""
+    data = json.loads(config.model_dump_json())
+    data["backend"] = json.loads(PyBulletBackendConfig().model_dump_json())
+    try:
+        return TrialConfig.model_validate({**data, "source": config.source})
+    except Exception as e:  # pydantic's message, one line
+        raise ConfigError(f"{config.source or config.name}: no sim counterpart: "
+                          f"{str(e).splitlines()[0]}") from None
+
+
+def check_real_ports(config: TrialConfig) -> None:
+    """Every port of the rig exists and is readable and writable, else CompareError naming it."""
+    b = config.backend
+    if b.kind != "dynamixel":
+        raise CompareError(f"{config.source or config.name}: the real side needs backend.kind: "
+                           f"dynamixel (this config is {b.kind})")
+    ports = [("backend.port", "servo bus", b.port)]
+    if b.ultrasonic is not None:
+        ports.append(("backend.ultrasonic.port", "ultrasonic sensor", b.ultrasonic.port))
+    for field_name, what, port in ports:
+        if not os.path.exists(port):
+            raise CompareError(f"{field_name}: {what} port {port} not found (is the adapter plugged "
+                               f"in?); nothing moved. Rehearse without hardware with --emulate")
+        if not os.access(port, os.R_OK | os.W_OK):
+            raise CompareError(f"{field_name}: no read/write permission on {what} port {port}; "
+                               f"nothing moved")
+
+
+def _with_safe_stop(config: TrialConfig, safe_stop: str) -> TrialConfig:
+    return config.model_copy(update={"backend": config.backend.model_copy(update={"safe_stop": safe_stop})})
+
+
+def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
+    """Withdraw the needle, bring the arm home at the plan's speed and hold it there until
+    it has arrived (:func:`_hold_until_home`).
+
+    Returns the config's backend still enabled and holding home, for the trial
+    that follows to run in the same session (no hand-over between two drivers,
+    in which the arm would relax). The caller closes it; on an error it is
+    closed here. The homing log is saved to ``log_path``.
+    """
+    from bench.core.runner import Runner, Segment
+    from bench.core.trial import make_backend, prepare
+    from trajectories import LSPB
+
+    prep = prepare(config)
+    robot = prep.robot
+    home = robot.chain.home
+    ins = robot.joint_names.index(robot.insertion_joint)
+    p = config.plan
+    act = make_backend(prep)
+    log = TrialLog(list(robot.joint_names), metadata={"purpose": "homing before a repeat",
+                                                        "robot": config.robot})
+    try:
+        act.enable()
+        q0 = act.read().position
+        vmax = act.limits.velocity * p.velocity_scale
+        amax = vmax * p.acceleration_scale
+        withdrawn = q0.copy()
+        withdrawn[ins] = home[ins]
+        segs = [Segment("withdraw", LSPB(q0, withdrawn, vmax, amax), 0.0),
+                Segment("home", LSPB(withdrawn, home, vmax, amax), 0.0)]
+        Runner(act, config.control_period).run(segs, log)
+        log.metadata["home_reached_s"] = _hold_until_home(
+            act, home, [r.kind for r in robot.chain.rows], config.control_period, log)
+    except BaseException:
+        act.close()
+        raise
+    finally:
+        if log_path is not None:
+            log.save(log_path)
+    return act
+
+
+def _hold_until_home(act: Actuators, home: np.ndarray, kinds: list[str], period: float,
+                     log: TrialLog) -> float:
+    """Keep commanding home until every joint has stayed within HOME_TOLERANCE of it for
+    HOME_STILL_S (the servos' integrators take out the gravity sag), or HOME_TIMEOUT_S.
+
+    A trial plans from the measured start pose: starting it while a servo still sags
+    would move that servo's goal away from where its integrator is pushing, and the
+    kick would show up as tracking error that is not the plan's. Returns the time
+    taken (s), NaN on timeout.
+    """
+    tol = np.array([HOME_TOLERANCE_RAD if k == "revolute" else HOME_TOLERANCE_M for k in kinds])
+    zero = np.zeros_like(home)
+    t0 = t = act.now()
+    since: Optional[float] = None
+    while t - t0 < HOME_TIMEOUT_S:
+        st = act.read()
+        log.append(st.time, len(log.segment_names) - 1, home, zero, st.position, st.velocity, st.effort)
+        if np.all(np.abs(st.position - home) <= tol):
+            since = st.time if since is None else since
+            if st.time - since >= HOME_STILL_S:
+                return float(st.time - t0)
+        else:
+            since = None
+        act.command(home, zero)
+        t += period
+        act.wait_until(t)
+    return float("nan")
+
+
+def _safe_stop(config: TrialConfig) -> None:
+    """Apply the config's own safe stop to the rig (best effort: the bus may be gone)."""
+    from bench.core.trial import make_backend, prepare
+
+    try:
+        act = make_backend(prepare(config))
+        act.close()
+    except Exception:  # noqa: BLE001 - nothing more can be done from here
+        pass
+
+
+def _new_out_dir(out: Path, name: str) -> Path:
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    base = Path(out) / f"{stamp}-compare-{name}"
+    d, i = base, 1
+    while d.exists():
+        i += 1
+        d = base.with_name(f"{base.name}-{i}")
+    d.mkdir(parents=True)
+    return d
+
+
+def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bool = False,
+                   retries: Optional[int] = None, align: str = "motion",
+                   progress: Optional[ProgressFn] = None, report: bool = True,
+                   interrupts: Interruptible = NO_SIGNALS) -> SessionResult:
+    """Run the plan ``repeats`` times on the rig (or its emulator) and on the sim, compare, report.
+
+    ``retries`` (default 3 when emulating, 0 on hardware): how often a rig repeat
+    that lost the bus or its sensor is run again. Raises :class:`CompareError` (nothing moved)
+    for a config or port that cannot be used.
+    """
+    from bench.core.trial import TrialError, prepare, run_trial
+
+    if repeats < 1:
+        raise CompareError(f"--repeats must be at least 1, got {repeats}")
+    if config.backend.kind != "dynamixel":
+        raise CompareError(f"{config.source or config.name}: compare runs the plan on the real rig and "
+                           f"on the sim; it needs backend.kind: dynamixel (this config is "
+                           f"{config.backend.kind})")
+    retries = (3 if emulate else 0) if retries is None else int(retries)
+    if retries < 0:
+        raise CompareError(f"--retries must be 0 or more, got {retries}")
+    sim_cfg = sim_counterpart(config)
+    try:
+        prepare(config)
+        prepare(sim_cfg)
+    except TrialError as e:
+        raise CompareError(str(e)) from None
+    if not emulate:
+        check_real_ports(config)
+    if emulate and config.source is None:
+        raise CompareError("--emulate needs a config read from a file (the emulator is started from it)")
+
+    progress = progress or (lambda what, f: None)
+    # rough shares of the wall time: the rig runs in real time, the sim about 8x faster
+    w_real, w_sim = 0.88 / repeats, 0.12 / repeats
+    lost: list[LostAttempt] = []
+    real_runs: list[Path] = []
+    notes: list[str] = []
+    rig = None
+    base_cfg = config
+    res = None
+    touched = stopped = False  # touched: the rig may have moved; stopped: its safe stop was applied
+    try:
+        if emulate:
+            from bench.rig.emulated import EmulatorProcess
+
+            progress("starting the emulated rig", 0.0)
+            try:
+                rig = EmulatorProcess(Path(config.source))
+            except RuntimeError as e:
+                raise CompareError(str(e)) from None
+            base_cfg = rig.retarget(config)
+            # The emulator shares the host's CPU: after a pause it catches its physics up
+            # before it answers again. Ride that out per transaction as the lab tools do.
+            base_cfg = base_cfg.model_copy(update={"backend": base_cfg.backend.model_copy(
+                update={"retries": max(base_cfg.backend.retries, EMULATED_RETRIES)})})
+        out_dir = _new_out_dir(out, config.name)
+        real_dir, sim_dir, home_dir = out_dir / "real", out_dir / "sim", out_dir / "homing"
+        hold_cfg = _with_safe_stop(base_cfg, "hold")
+        touched = True
+        for i in range(repeats):
+            res = _rig_repeat(i, repeats, base_cfg, hold_cfg, real_dir, home_dir, retries, lost,
+                              lambda what, f, i=i: progress(what, w_real * (i + f)), interrupts)
+            real_runs.append(res.run_dir)
+            if not res.completed:
+                notes.append(f"rig repeat {i + 1} stopped early: {res.reason}; the session ended there")
+                break
+    except BaseException:
+        if touched:
+            with interrupts.deferred():
+                _safe_stop(base_cfg)
+            stopped = True
+        raise
+    finally:
+        if not stopped and res is not None and not res.completed:
+            _safe_stop(base_cfg)  # that repeat held the arm; stop as the config says
+        if rig is not None:
+            rig.close()
+
+    sim_runs: list[Path] = []
+    n_sim = len(real_runs)
+    for i in range(n_sim):
+        what = f"sim repeat {i + 1}/{n_sim}"
+        res_s = run_trial(sim_cfg, sim_dir, report=False, note=f"compare repeat {i + 1}",
+                          progress=lambda f, i=i, what=what: progress(what, 0.88 + w_sim * (i + f)),
+                          interrupts=interrupts)
+        sim_runs.append(res_s.run_dir)
+    progress("comparing", 1.0)
+    sim_logs = [TrialLog.load(p / "trial.npz") for p in sim_runs]
+    real_logs = [TrialLog.load(p / "trial.npz") for p in real_runs]
+    real_label = "emulated rig" if emulate else "real rig"
+    cmp = compare_logs(sim_logs, real_logs, labels=("sim", real_label),
+                       sources=([str(p.relative_to(out_dir)) for p in sim_runs],
+                                [str(p.relative_to(out_dir)) for p in real_runs]),
+                       align=align)  # type: ignore[arg-type]
+    reached = [TrialLog.load(p).metadata.get("home_reached_s") for p in sorted(home_dir.glob("*.npz"))]
+    late = sum(1 for r in reached if r is None or not np.isfinite(r))
+    head = ["The sim side is the same config with its backend replaced by the PyBullet defaults (same "
+            "name, robot, target, plan, control rate and acceptance limits); the sim has no noise, so "
+            "its repeats are identical."]
+    if emulate:
+        head.append(f"The rig is the bench's emulator (`hilbench emulate`, one process for all repeats) "
+                    f"on this host; the driver retries each bus transaction up to {EMULATED_RETRIES} "
+                    f"times against it, so that the host's pauses do not end a repeat.")
+    head.append("Every rig repeat starts from home: the needle is withdrawn and the arm brought home at "
+                "the plan's speed and held until every joint is within 0.5° / 0.5 mm of home for "
+                f"{HOME_STILL_S:g} s"
+                + (f" ({late} homing(s) timed out after {HOME_TIMEOUT_S:g} s and went on)" if late else "")
+                + "; the servos hold between repeats and the config's safe stop "
+                f"({config.backend.safe_stop}) is applied after the last one.")
+    notes = head + notes
+    result = SessionResult(out_dir, cmp, sim_runs, real_runs, lost, emulate, notes)
+    if report:
+        from bench.compare.report import write_compare_report
+
+        write_compare_report(result.comparison, out_dir, title=f"Sim vs {real_label}: {config.name}",
+                             notes=notes, lost=[a.__dict__ for a in lost])
+    return result
+
+
+def _rig_repeat(i: int, repeats: int, base_cfg: TrialConfig, hold_cfg: TrialConfig, real_dir: Path,
+                home_dir: Path, retries: int, lost: list[LostAttempt], progress: ProgressFn,
+                interrupts: Interruptible = NO_SIGNALS):
+    """Home, then one trial (the last with the config's safe stop); a lost bus is retried."""
+    from bench.core.trial import run_trial
+    from drivers import ActuatorError, CommunicationError
+
+    cfg = base_cfg if i == repeats - 1 else hold_cfg
+    attempt = 0
+    while True:
+        what = f"rig repeat {i + 1}/{repeats}" + (f" (attempt {attempt + 1})" if attempt else "")
+        progress(f"{what}: homing", 0.0)
+        home_log = _unique(home_dir / f"homing-{i + 1}.npz")
+        try:
+            act = home_rig(cfg, home_log)
+            try:
+                res = run_trial(cfg, real_dir, report=False, note=f"compare repeat {i + 1}",
+                                progress=lambda f: progress(what, f), backend_factory=lambda prep: act,
+                                interrupts=interrupts)
+            finally:
+                act.close()  # already closed by the trial, unless it failed before starting
+        except CommunicationError as e:
+            if attempt >= retries:
+                raise CompareError(f"rig repeat {i + 1}: {e}") from None
+            lost.append(LostAttempt(i + 1, str(home_log.relative_to(real_dir.parent)),
+                                    f"CommunicationError: {e}"))
+            attempt += 1
+            continue
+        except ActuatorError as e:
+            raise CompareError(f"rig repeat {i + 1}: {type(e).__name__}: {e}") from None
+        if res.completed or attempt >= retries or not _lost_to_the_host(res.reason):
+            return res
+        lost.append(LostAttempt(i + 1, str(res.run_dir.relative_to(real_dir.parent)), res.reason))
+        attempt += 1
+
+
+def _lost_to_the_host(reason: str) -> bool:
+    """A repeat that stopped because the bus or the sensor went silent (what a starved
+    emulator looks like), as opposed to one the robot itself stopped."""
+    return "CommunicationError" in reason or reason.startswith("interlock stale_data")
+
+
+def _unique(path: Path) -> Path:
+    p, i = path, 1
+    while p.exists():
+        i += 1
+        p = path.with_name(f"{path.stem}-{i}{path.suffix}")
+    return p

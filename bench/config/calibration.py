@@ -1,0 +1,166 @@
+"""Calibration files: what ``hilbench calibrate`` measured, in a form trials load and record.
+
+A calibration file (YAML, one per calibration run, dated) holds for one config:
+
+* ``servos``: joint zero offsets, each servo's ``offset`` (the joint value at
+  tick 2048, rad or m) that replaces the config's — present when the offsets
+  were kept as a config override;
+* ``homing_offsets``: the shaft-angle shifts written to the servos' Homing
+  Offset registers instead — a record only, nothing to apply;
+* ``ultrasonic``: the sensor's reading at d2 = 0 and its scale (mm of reading
+  per mm of d2), which replace the config's ``standoff_mm``, with the stops
+  they were fitted to and the fit's residual.
+
+A trial config names it with ``calibration: PATH``; the Dynamixel backend
+applies it and the trial log keeps its path and content.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, Optional
+
+import yaml
+from pydantic import Field, ValidationError
+
+from bench.config.models import ConfigError, Strict
+
+if TYPE_CHECKING:
+    from bench.config.models import TrialConfig
+
+__all__ = ["CalibrationFile", "ServoCalibration", "UltrasonicCalibration", "UltrasonicStop",
+           "calibration_of", "calibration_record", "check_calibration", "load_calibration",
+           "save_calibration"]
+
+
+class ServoCalibration(Strict):
+    """One joint's zero: ``offset`` replaces the config's; ``change`` is offset − config offset."""
+
+    offset: float
+    change: float = 0.0
+
+
+class UltrasonicStop(Strict):
+    """One stop of the train: arc angle from the servo, the d2 it gives, the mean reading."""
+
+    epsilon_rad: float
+    d2_mm: float
+    distance_mm: float
+    samples: int = Field(ge=1)
+
+
+class UltrasonicCalibration(Strict):
+    """measured distance = offset_mm + scale · d2 (mm), fitted over the stops."""
+
+    offset_mm: float
+    scale: float = Field(gt=0)
+    residual_mm: float = Field(ge=0, description="RMS of the fit's residuals")
+    max_residual_mm: float = Field(default=0.0, ge=0)
+    stops: list[UltrasonicStop] = Field(default_factory=list)
+
+    def d2(self, distance_m: float) -> float:
+        """The train's d2 (m) for a sensor reading (m)."""
+        return (distance_m * 1e3 - self.offset_mm) / self.scale * 1e-3
+
+
+class CalibrationFile(Strict):
+    config_name: str
+    config_file: Optional[str] = None
+    robot: str = "arc-train"
+    created: str  # ISO 8601, local time with offset
+    joint_offsets: Literal["config", "homing", "none"] = "config"
+    servos: dict[str, ServoCalibration] = Field(default_factory=dict)
+    homing_offsets: dict[str, float] = Field(default_factory=dict, description="shaft rad")
+    ultrasonic: Optional[UltrasonicCalibration] = None
+
+    def offset(self, joint: str, configured: float) -> float:
+        """The joint's zero offset: calibrated if this file has one, else as configured."""
+        s = self.servos.get(joint)
+        return s.offset if s is not None else configured
+
+    def d2(self, distance_m: float, standoff_m: float) -> float:
+        """The train's d2 (m) for an ultrasonic reading, calibrated if this file has the sensor."""
+        if self.ultrasonic is None:
+            return distance_m - standoff_m
+        return self.ultrasonic.d2(distance_m)
+
+
+def load_calibration(path: Path | str) -> CalibrationFile:
+    """Read and validate a calibration file; ConfigError with one line otherwise."""
+    from bench.config.models import read_yaml_mapping
+
+    path = Path(path)
+    data = read_yaml_mapping(path, "calibration file", ConfigError)
+    try:
+        return CalibrationFile.model_validate(data)
+    except ValidationError as e:
+        first = e.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+        msg = "unknown field" if first["type"] == "extra_forbidden" else first["msg"]
+        raise ConfigError(f"{path}: {where}: {msg}") from None
+
+
+_HEADER = """\
+# Calibration of {name} by `hilbench calibrate` ({created}).
+# Use it in a trial config with:   calibration: {path}
+# servos: joint zero offsets replacing each servo's `offset` (rad or m at tick 2048);
+# homing_offsets: shaft-angle shifts written to the servos' Homing Offset registers (rad);
+# ultrasonic: reading = offset_mm + scale * d2 (mm), fitted over the stops.
+"""
+
+
+def save_calibration(cal: CalibrationFile, path: Path) -> Path:
+    """Write the file atomically (a crash never leaves half a calibration behind)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    body = yaml.safe_dump(cal.model_dump(mode="json"), sort_keys=False)
+    text = _HEADER.format(name=cal.config_name, created=cal.created, path=path) + body
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def calibration_path(config: "TrialConfig") -> Optional[Path]:
+    return config.resolve(config.calibration) if config.calibration is not None else None
+
+
+def calibration_of(config: "TrialConfig") -> Optional[CalibrationFile]:
+    """The calibration a config names, or None."""
+    path = calibration_path(config)
+    return load_calibration(path) if path is not None else None
+
+
+def calibration_record(config: "TrialConfig") -> Optional[dict]:
+    """Path and content of the config's calibration, for the trial log's metadata."""
+    path = calibration_path(config)
+    if path is None:
+        return None
+    return {"path": str(path), "content": load_calibration(path).model_dump(mode="json")}
+
+
+def check_calibration(config: "TrialConfig") -> None:
+    """Refuse a calibration that cannot apply to this config (ConfigError, one line)."""
+    where = f"{config.source}: calibration" if config.source else "calibration"
+    if config.backend.kind != "dynamixel":
+        raise ConfigError(f"{where}: applies to the dynamixel backend, not {config.backend.kind}")
+    try:
+        cal = calibration_of(config)
+    except ConfigError as e:
+        raise ConfigError(f"{where}: {e}") from None
+    assert cal is not None
+    if cal.robot != config.robot:
+        raise ConfigError(f"{where}: {config.calibration} is for robot {cal.robot}, not {config.robot}")
+    unknown = sorted(set(cal.servos) - set(config.backend.servos))
+    if unknown:
+        raise ConfigError(f"{where}: {config.calibration} has offsets for unknown joint(s) {unknown}")
+    if cal.ultrasonic is not None and config.backend.ultrasonic is None:
+        raise ConfigError(f"{where}: {config.calibration} calibrates an ultrasonic sensor the "
+                          f"config does not have (backend.ultrasonic)")

@@ -1,0 +1,420 @@
+"""Trial configurations (``hil_configs/*.yaml``) as pydantic models.
+
+A bad file fails with one line naming the field path and what is wrong, before
+anything is built or moves. Units in the files are the ones people read: mm
+and degrees for targets, SI for joint limits and gains.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal, Optional, Union
+
+import yaml
+from bench.paths import REPO_ROOT
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+
+
+class ConfigError(ValueError):
+    """A configuration file that cannot be used; the message names the field."""
+
+
+#: Longest plan a trial may run (s): longer is a typo (a tiny speed, a huge settle time).
+MAX_PLAN_S = 600.0
+SEED_MAX = 2**63 - 1  # campaigns derive 63-bit trial seeds
+#: A trial's name becomes its run directory's name: a plain file name, nothing else.
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
+SERIAL_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
+
+
+class Strict(BaseModel):
+    """Unknown fields refused, values frozen, every float finite, no control characters."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _printable(cls, value: Any) -> Any:
+        if isinstance(value, (str, Path)) and any(ord(c) < 32 or ord(c) == 127 for c in str(value)):
+            raise ValueError("control characters are not allowed")
+        return value
+
+
+class TargetConfig(Strict):
+    """The needle target in the bed frame (README): entry point, depth and angle."""
+
+    x_mm: float = Field(ge=-2000, le=2000, description="entry point X, along the bed (mm)")
+    y_mm: float = Field(ge=-2000, le=2000, description="entry point Y, across the bed (mm)")
+    z_mm: float = Field(ge=-2000, le=2000, description="entry point Z, up from the bed (mm)")
+    depth_mm: float = Field(ge=0, le=300, description="insertion depth beyond the entry point (mm)")
+    angle_deg: float = Field(ge=-90, le=90, description="needle angle from the downward vertical "
+                                                        "towards +Y (°); the needle points down")
+    tilt_deg: float = Field(default=0.0, ge=-90, le=90,
+                            description="out of the axial plane, towards +X (°)")
+
+
+class JointOverride(Strict):
+    """Per-joint limits that replace the robot model's (SI units)."""
+
+    effort: Optional[float] = Field(default=None, gt=0, le=1e4,
+                                    description="torque or force limit (N·m or N)")
+    velocity: Optional[float] = Field(default=None, gt=0, le=100,
+                                      description="velocity limit (rad/s or m/s)")
+
+
+SafeStop = Literal["torque_off", "hold"]
+SAFE_STOP_MEANING = ("on every exit: torque_off (motors free) or hold (hold the measured position, "
+                     "torque on)")
+
+
+class PyBulletBackendConfig(Strict):
+    """The simulated robot: PyBullet joints in the CT room (no hardware)."""
+
+    kind: Literal["pybullet"] = Field(default="pybullet", description="the simulator backend")
+    physics_hz: float = Field(default=1000.0, ge=100, le=10_000,
+                              description="physics steps per second (control_hz must divide it)")
+    position_gain: float = Field(default=1.0, gt=0, le=1.0,
+                                 description="PyBullet position motor gain (kp, 0..1]")
+    velocity_gain: float = Field(default=1.0, ge=0, le=2.0,
+                                 description="PyBullet position motor velocity gain (kd)")
+    solver_iterations: int = Field(default=10, ge=1, le=200,
+                                   description="constraint solver iterations per step")
+    gantry_in_physics: bool = Field(default=False, description="load the CT gantry as a colliding "
+                                                               "body (the interlock sees it anyway)")
+    safe_stop: SafeStop = Field(default="hold", description=SAFE_STOP_MEANING)
+    joints: dict[str, JointOverride] = Field(default_factory=dict,
+                                             description="per-joint limits that replace the model's")
+
+    @field_validator("safe_stop", mode="before")
+    @classmethod
+    def _old_off(cls, v: Any) -> Any:
+        return "torque_off" if v == "off" else v  # the older spelling of the same stop
+
+
+class ServoConfig(Strict):
+    """One servo on the bus and its transmission: joint = offset + ratio · shaft angle."""
+
+    id: int = Field(ge=0, le=252, description="the servo's ID on the bus")
+    model: str = Field(default="XM430-W350", description="checked against the servo's model number")
+    mode: Literal["position", "extended_position", "current_based_position"] = Field(
+        default="extended_position", description="operating mode written to the servo")
+    ratio: float = Field(default=1.0, ge=-100, le=100,
+                         description="joint units (rad or m) per shaft radian")
+    offset: float = Field(default=0.0, ge=-100, le=100,
+                          description="joint value at 2048 ticks (rad or m)")
+    current_limit_a: Optional[float] = Field(default=None, gt=0, le=20,
+                                             description="Current Limit written to the servo (A)")
+    # Position PID gains written to the servo (register units, as Dynamixel Wizard shows them).
+    position_p: Optional[int] = Field(default=None, ge=0, le=16383,
+                                      description="Position P Gain (register units)")
+    position_i: Optional[int] = Field(default=None, ge=0, le=16383,
+                                      description="Position I Gain (register units)")
+    position_d: Optional[int] = Field(default=None, ge=0, le=16383,
+                                      description="Position D Gain (register units)")
+
+    @model_validator(mode="after")
+    def _known_model(self) -> "ServoConfig":
+        from drivers.dynamixel.control_table import supported_models
+
+        names = set(supported_models().values())
+        if self.model not in names:
+            raise ValueError(f"unknown servo model {self.model!r}; supported: {sorted(names)}")
+        if self.ratio == 0:
+            raise ValueError("ratio must be non-zero")
+        return self
+
+
+def model_number(name: str) -> int:
+    """Dynamixel model number for a model name such as 'XM430-W350'."""
+    from drivers.dynamixel.control_table import supported_models
+
+    by_name = {v: k for k, v in supported_models().items()}
+    return by_name[name]
+
+
+class UltrasonicConfig(Strict):
+    """The distance sensor that measures the train's d2 (MaxBotix-style 'R####' lines in mm)."""
+
+    port: str = Field(description="the sensor's serial port, e.g. /dev/ttyUSB1")
+    baud: int = Field(default=9600, description="serial rate (MaxBotix: 9600)")
+    joint: str = Field(default="train", description="the joint whose position it measures")
+
+    @field_validator("baud")
+    @classmethod
+    def _serial_baud(cls, v: int) -> int:
+        if v not in SERIAL_BAUDS:
+            raise ValueError(f"baud {v} is not a serial rate; choose from {list(SERIAL_BAUDS)}")
+        return v
+
+    standoff_mm: float = Field(default=300.0, ge=0, le=5000, description="sensor reading when d2 = 0")
+    median_window: int = Field(default=5, ge=1, le=51, description="readings in the median filter")
+    rate_hz: float = Field(default=6.0, ge=0.5, le=100,
+                           description="nominal reading rate (HRXL-MaxSonar-WR free-runs at 6 Hz); "
+                                       "dropouts and staleness are counted against it")
+    max_range_mm: int = Field(default=5000, ge=1000, le=9999,
+                              description="the sensor's no-target code (5000, or 9999 on 10 m models)")
+    stale_after_s: Optional[float] = Field(default=None, gt=0, le=10,
+                                           description="default: 3 periods of rate_hz + 50 ms")
+
+    def sensor_options(self) -> dict:
+        """Keyword arguments for drivers.ultrasonic.UltrasonicSensor (SI units)."""
+        return {"baud": self.baud, "median_window": self.median_window,
+                "stale_after_s": self.stale_after_s, "expected_rate_hz": self.rate_hz,
+                "range_m": (0.3, self.max_range_mm * 1e-3), "no_target_m": self.max_range_mm * 1e-3}
+
+
+class DynamixelBackendConfig(Strict):
+    """The real robot: Dynamixel X-series servos (Protocol 2.0) and the ultrasonic sensor."""
+
+    kind: Literal["dynamixel"] = Field(default="dynamixel", description="the real-servo backend")
+    port: str = Field(description="the servo bus's serial port, e.g. /dev/ttyUSB0 (U2D2)")
+    baud: int = Field(default=1_000_000, gt=0, description="must match every servo's Baud Rate")
+
+    @field_validator("baud")
+    @classmethod
+    def _x_series_baud(cls, v: int) -> int:
+        from drivers.dynamixel.control_table import BAUD_RATES
+
+        if v not in BAUD_RATES.values():
+            raise ValueError(f"baud {v} is not an X-series rate; choose from "
+                             f"{sorted(BAUD_RATES.values())}")
+        return v
+
+    return_delay_us: int = Field(default=0, ge=0, le=508,
+                                 description="Return Delay Time written to each servo (µs)")
+    fast_sync_read: bool = Field(default=True, description="one status packet for all servos "
+                                                           "(firmware 45+)")
+    retries: int = Field(default=3, ge=0, le=20,
+                         description="tries after a failed transaction before the trial stops")
+    timeout_ms: Optional[float] = Field(default=None, gt=0, le=1000,
+                                        description="per transaction; default from the wire time")
+    safe_stop: SafeStop = Field(default="torque_off", description=SAFE_STOP_MEANING)
+    reboot_on_hardware_error: bool = Field(
+        default=False, description="reboot a servo reporting a hardware error at start-up "
+                                   "(else the trial is refused)")
+    servos: dict[str, ServoConfig] = Field(description="one entry per joint, keyed by joint name")
+    ultrasonic: Optional[UltrasonicConfig] = Field(
+        default=None, description="the train's distance sensor (the train is then measured by it)")
+
+    @model_validator(mode="after")
+    def _unique_ids(self) -> "DynamixelBackendConfig":
+        ids = [s.id for s in self.servos.values()]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ValueError(f"servos: duplicate ID(s) {dup}")
+        return self
+
+
+class EmulatorConfig(Strict):
+    """The emulated rig used by `--emulate` and `hilbench emulate` (ignored on real hardware)."""
+
+    physics_hz: float = Field(default=1000.0, ge=100, le=10_000,
+                              description="the emulated robot's physics steps per second")
+    wire_timing: bool = Field(default=False,
+                              description="answer after the real wire time at the bus's baud")
+    ultrasonic_rate_hz: Optional[float] = Field(
+        default=None, gt=0, le=100, description="default: the sensor's backend.ultrasonic.rate_hz")
+    ultrasonic_noise_mm: float = Field(default=1.0, ge=0, le=100,
+                                       description="standard deviation of each reading (mm)")
+    ultrasonic_dropout: float = Field(default=0.0, ge=0, lt=1,
+                                      description="probability that a reading is not sent")
+    deadband_deg: float = Field(default=0.0, ge=0, le=10,
+                                description="each servo's position deadband (°)")
+    start_torque_on: bool = Field(default=True, description="servos hold their pose at power-up, "
+                                                            "as a rig left enabled")
+    joint_friction: dict[str, Annotated[float, Field(ge=0, le=100)]] = Field(
+        default_factory=dict, max_length=32,
+        description="extra Coulomb friction per joint (N·m or N), keyed by joint name")
+    seed: int = Field(default=0, ge=0, le=SEED_MAX, description="seed of the emulator's noise")
+
+
+class PlanConfig(Strict):
+    """home -> entry pose -> insertion along the needle axis -> (retract)."""
+
+    trajectory: Literal["lspb", "ruckig", "ruckig-online"] = Field(
+        default="lspb", description="parabolic blends, or ruckig's jerk-limited profiles "
+                                    "(offline, or re-planned online every cycle)")
+    velocity_scale: float = Field(default=0.5, ge=0.01, le=1.0,
+                                  description="vmax = each joint's velocity limit × this")
+    acceleration_scale: float = Field(default=2.0, ge=0.1, le=100,
+                                      description="amax = vmax × this (1/s)")
+    jerk_scale: float = Field(default=20.0, ge=0.1, le=1000,
+                              description="jmax = amax × this (1/s), ruckig only")
+    settle_s: float = Field(default=0.5, ge=0, le=60,
+                            description="hold after each segment before measuring (s)")
+    retract: bool = Field(default=True, description="pull the needle back out at the end")
+
+
+class AcceptanceConfig(Strict):
+    """Seed 000's limits: 5 mm in each of X, Y, Z and depth, 1° in angle."""
+
+    position_mm: float = Field(default=5.0, gt=0, le=1000,
+                               description="tip deviation limit on each axis and on depth (mm)")
+    angle_deg: float = Field(default=1.0, gt=0, le=90, description="needle angle deviation limit (°)")
+
+
+class SafetyConfig(Strict):
+    """Interlocks checked every control cycle (bench/core/safety.py); a trip fails the trial."""
+
+    enabled: bool = Field(default=True, description="check the interlocks (off: tests only)")
+    on_trip: Literal["hold", "stop"] = Field(
+        default="hold", description="after a trip: hold the measured pose briefly, or stop at once")
+    gantry_margin_mm: float = Field(default=20.0, ge=0, le=500,
+                                    description="clearance kept from the CT gantry (seed 001: 20 mm)")
+    gantry_lookahead_s: float = Field(default=0.03, ge=0, le=1,
+                                      description="braking time checked ahead of the motion (s)")
+    joint_limit_tolerance: float = Field(default=0.01, ge=0, le=1,
+                                         description="trip this far beyond a joint limit (rad or m)")
+    velocity_factor: float = Field(default=1.5, gt=0, le=10,
+                                   description="trip above each joint's velocity limit × this")
+    tracking_error_deg: float = Field(default=20.0, gt=0, le=180,
+                                      description="trip when a revolute joint lags its command by more (°)")
+    tracking_error_mm: float = Field(default=20.0, gt=0, le=1000,
+                                     description="trip when a prismatic joint lags its command by more (mm)")
+    stale_data: bool = Field(default=True, description="trip on a reading the backend flags stale")
+    refuse_planned_trips: bool = Field(
+        default=True, description="refuse a trial whose planned path, followed perfectly, trips "
+                                  "an interlock (off only to test the interlocks themselves)")
+
+
+class TrialConfig(Strict):
+    """One trial: a robot, a target, a plan, the limits it is judged by and where it runs."""
+
+    name: str = Field(pattern=NAME_PATTERN, description="letters, digits, . _ - (the run's folder)")
+    robot: Literal["arc-train"] = Field(default="arc-train", description="the robot driven")
+    urdf_dir: Path = Field(default=Path("urdf"), description="the scene's URDFs (relative: to the "
+                                                             "config's folder, then the project)")
+    control_hz: float = Field(default=500.0, ge=1, le=2000, description="control cycles per second")
+    seed: int = Field(default=0, ge=0, le=SEED_MAX, description="seed of every random fault")
+    target: TargetConfig = Field(description="where the needle goes")
+    plan: PlanConfig = Field(default=PlanConfig(), description="how it gets there")
+    acceptance: AcceptanceConfig = Field(default=AcceptanceConfig(),
+                                         description="what counts as a pass")
+    safety: SafetyConfig = Field(default=SafetyConfig(), description="the interlocks")
+    backend: Annotated[Union[PyBulletBackendConfig, DynamixelBackendConfig],
+                       Field(discriminator="kind")] = Field(
+        default=PyBulletBackendConfig(), description="what runs the joints: pybullet or dynamixel")
+    emulator: EmulatorConfig = Field(default=EmulatorConfig(),
+                                     description="the emulated rig (--emulate only)")
+    # Faults injected around the backend, by name with parameters and target
+    # joints; validated by bench.faults (unknown names and parameters refused).
+    faults: list[dict[str, Any]] = Field(
+        default_factory=list, max_length=64,
+        description="faults injected around the backend: {name, joints, parameters} "
+                    "(README, Faults)")
+    # A calibration file written by `hilbench calibrate` (joint zero offsets that replace
+    # the servos' `offset`, the ultrasonic sensor's offset and scale); relative paths are
+    # resolved like urdf_dir. Applied when the Dynamixel backend is built, kept in the log.
+    calibration: Optional[Path] = Field(
+        default=None, description="a calibration file from `hilbench calibrate` (zero offsets, "
+                                  "ultrasonic offset and scale)")
+
+    # Where the file came from, to resolve relative paths; not part of the file.
+    source: Optional[Path] = Field(default=None, exclude=True)
+
+    @model_validator(mode="after")
+    def _joint_names_known(self) -> "TrialConfig":
+        from bench.kinematics.registry import get_robot
+
+        names = get_robot(self.robot).joint_names
+        unknown = sorted(set(getattr(self.backend, "joints", {})) - set(names))
+        if unknown:
+            raise ValueError(f"backend.joints: unknown joint(s) {unknown}; {self.robot} has {names}")
+        if self.backend.kind == "dynamixel":
+            servos = set(self.backend.servos)
+            if servos != set(names):
+                raise ValueError(f"backend.servos: missing {sorted(set(names) - servos)}, "
+                                 f"unknown {sorted(servos - set(names))}; {self.robot} has {names}")
+            u = self.backend.ultrasonic
+            if u is not None and u.joint not in names:
+                raise ValueError(f"backend.ultrasonic.joint: unknown joint {u.joint!r}")
+        if self.backend.kind == "pybullet":
+            steps = self.backend.physics_hz / self.control_hz
+            if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
+                raise ValueError(f"control_hz {self.control_hz:g} must divide backend.physics_hz "
+                                 f"{self.backend.physics_hz:g} (a control period is a whole number "
+                                 f"of physics steps)")
+        if self.faults:
+            from bench.faults import parse_faults
+
+            parse_faults(self.faults, names)  # raises ValueError naming the bad fault
+        return self
+
+    @property
+    def control_period(self) -> float:
+        return 1.0 / self.control_hz
+
+    def resolve(self, path: Path) -> Path:
+        """A path from the config, relative to the repository root if not absolute."""
+        path = Path(path)
+        if path.is_absolute():
+            return path
+        return REPO_ROOT / path
+
+    @property
+    def robot_urdf(self) -> Path:
+        return self.resolve(self.urdf_dir) / f"{self.robot.replace('-', '_')}.urdf"
+
+
+def _format_error(path: Path, err: ValidationError) -> str:
+    """One line: the field's path, what is wrong, and for a misspelt field what was meant."""
+    from bench.config.safe_yaml import quote
+
+    first = err.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    msg = first["msg"]
+    if first["type"] == "extra_forbidden":
+        msg = "unknown field" + _did_you_mean(str(first["loc"][-1]))
+    elif first["type"] == "string_pattern_mismatch" and first["loc"][-1] == "name":
+        msg = "must be a plain name: letters, digits, '.', '_' or '-', at most 64 characters"
+    elif isinstance(first.get("input"), (str, int, float, bool)) and first["type"] != "missing":
+        msg = f"{msg} (got {quote(first['input'])})"
+    msg = msg.removeprefix("Value error, ")
+    extra = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
+    return f"{path}: {where}: {msg}{extra}".replace("\n", " ")
+
+
+def _did_you_mean(name: str) -> str:
+    import difflib
+
+    fields = {f for model in _config_models() for f in model.model_fields}
+    close = difflib.get_close_matches(name, sorted(fields), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+def _config_models() -> list[type[BaseModel]]:
+    return [m for m in globals().values()
+            if isinstance(m, type) and issubclass(m, Strict) and m is not Strict]
+
+
+def read_yaml_mapping(path: Path | str, what: str = "config file",
+                      error: type[Exception] = ValueError) -> dict:
+    """A YAML file whose top level is a mapping, or ``error`` with one line saying why not."""
+    from bench.config.safe_yaml import YamlRefused, read_mapping
+
+    path = Path(path)
+    if not path.is_file():
+        raise error(f"{what} not found: {path}")
+    try:
+        return read_mapping(path)
+    except YamlRefused as e:
+        raise error(f"{path}: {e}") from None
+    except OSError as e:
+        raise error(f"{path}: cannot read the {what}: {e.strerror}") from None
+
+
+def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialConfig:
+    """Read and validate a trial config; raise ConfigError with one clear line."""
+    path = Path(path)
+    data = read_yaml_mapping(path, "config file", ConfigError)
+    data.update(overrides or {})
+    try:
+        config = TrialConfig.model_validate({**data, "source": path})
+    except ValidationError as e:
+        raise ConfigError(_format_error(path, e)) from None
+    if config.calibration is not None:
+        from bench.config.calibration import check_calibration
+
+        check_calibration(config)  # raises ConfigError naming the problem
+    return config

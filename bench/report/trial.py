@@ -1,0 +1,306 @@
+"""Trial reports: Fig. 12-style joint profiles, a Table 3-style row, Markdown and self-contained HTML."""
+
+from __future__ import annotations
+
+import base64
+import html
+import re
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bench.core.log import TrialLog
+
+if TYPE_CHECKING:  # pragma: no cover
+    from bench.core.trial import PreparedTrial, TrialResult
+
+
+def joint_display(robot, name: str, values: np.ndarray) -> tuple[np.ndarray, str, str]:
+    """Values as the paper plots them: the train as d2 in mm, angles in degrees, slides in mm."""
+    if name == "train" and getattr(robot, "name", "") == "arc-train":
+        from bench.kinematics.arc_train import train_pose
+
+        return np.asarray(train_pose(values, robot.params).d2) * 1e3, "d2 (mm)", "train d2"
+    kind = {r.name: r.kind for r in robot.chain.rows}[name]
+    if kind == "revolute":
+        return np.degrees(values), "angle (°)", name
+    return np.asarray(values) * 1e3, "position (mm)", name
+
+
+#: Below this excursion (° or mm, as displayed) a joint did not move worth plotting.
+STILL_EXCURSION = 0.01
+
+
+def largest_excursion(log: TrialLog, robot) -> float:
+    """The largest commanded or measured excursion of any joint in the log (° or mm)."""
+    if len(log) < 2:
+        return 0.0
+    worst = 0.0
+    for name in log.joint_names:
+        j = log.joint(name)
+        for series in (log.q_cmd[:, j], log.q[:, j]):
+            shown, _, _ = joint_display(robot, name, series)
+            worst = max(worst, float(np.ptp(shown)))
+    return worst
+
+
+def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Path:
+    """Commanded (theoretical) vs measured profile of every joint, one panel each."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = log.joint_names
+    cols = 3
+    rows = int(np.ceil(len(names) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(12, 3.0 * rows), sharex=True)
+    t = log.time - (log.time[0] if len(log) else 0.0)
+    for ax, name in zip(axes.flat, names):
+        j = log.joint(name)
+        cmd, unit, label = joint_display(robot, name, log.q_cmd[:, j])
+        meas, _, _ = joint_display(robot, name, log.q[:, j])
+        ax.plot(t, cmd, "r:", lw=1.8, label="theoretical (commanded)")
+        ax.plot(t, meas, "b-", lw=1.0, label="measured")
+        ax.set_title(label)
+        ax.set_ylabel(unit)
+        ax.ticklabel_format(axis="y", useOffset=False)  # values as read, not as offsets
+        ax.grid(alpha=0.3)
+    for ax in axes.flat[len(names):]:
+        ax.axis("off")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    stops = [ev for ev in log.events if ev.kind in ("interlock", "abort")]
+    for ev in stops[:1]:
+        for ax in axes.flat[: len(names)]:
+            ax.axvline(ev.time - (log.time[0] if len(log) else 0), color="k", ls="--", lw=0.8,
+                       label=f"{ev.kind}: stopped here")
+    axes.flat[0].legend(loc="best", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def _fmt(v: float, nd: int = 2) -> str:
+    return f"{v:.{nd}f}"
+
+
+def table3_markdown(target_mm: list[float], depth_mm: float, angle_deg: float, outcome) -> str:
+    """Input and output target side by side, as seed 000 Table 3 (in mm)."""
+    o = outcome
+    head = ("| | X (mm) | Y (mm) | Z (mm) | insertion (mm) | angle (°) |\n"
+            "|---|---:|---:|---:|---:|---:|\n")
+    rows = [
+        ("input target", *target_mm, depth_mm, angle_deg),
+        ("output (achieved)", *o.entry_mm, o.depth_mm, o.angle_deg),
+        ("deviation", *o.entry_deviation_mm, o.depth_deviation_mm, o.angle_deviation_deg),
+    ]
+    body = "".join(f"| {r[0]} | " + " | ".join(_fmt(v, 3 if i < 5 else 3) for i, v in enumerate(r[1:]))
+                   + " |\n" for r in rows)
+    tip = (f"\nNeedle tip deviation (mm): X {_fmt(o.tip_deviation_mm[0], 3)}, "
+           f"Y {_fmt(o.tip_deviation_mm[1], 3)}, Z {_fmt(o.tip_deviation_mm[2], 3)}.\n")
+    return head + body + tip
+
+
+def stop_markdown(result: "TrialResult", log: TrialLog) -> str:
+    """What stopped a trial that did not complete: when, in which segment, why, how it was left."""
+    t0 = log.time[0] if len(log) else 0.0
+    stop = next((e for e in log.events if e.kind in ("interlock", "abort")), None)
+    lines = []
+    if stop is not None:
+        seg = ""
+        if len(log):
+            k = min(int(np.searchsorted(log.time, stop.time)), len(log) - 1)
+            names = log.segment_names
+            if names and 0 <= int(log.segment[k]) < len(names):
+                seg = f" during the {names[int(log.segment[k])]} segment"
+        lines.append(f"- {stop.time - t0:.3f} s into the trial{seg}: **{stop.kind}**: {stop.message}")
+    else:
+        lines.append(f"- {result.reason or 'no reason recorded'}")
+    for e in log.events:
+        if e.kind == "safe-stop":
+            lines.append(f"- then: {e.message}")
+    return "\n".join(lines) + "\n"
+
+
+def _events_markdown(log: TrialLog) -> str:
+    lines = ["| time (s) | event | detail |", "|---:|---|---|"]
+    t0 = log.time[0] if len(log) else 0.0
+    for e in log.events:
+        lines.append(f"| {e.time - t0:.3f} | {e.kind} | {e.message} |")
+    return "\n".join(lines) + "\n"
+
+
+def tracking_summary(log: TrialLog, robot) -> str:
+    """Per joint: RMS and max |commanded − measured| and the final error, in display units."""
+    lines = ["| joint | RMS error | max error | final error | unit |", "|---|---:|---:|---:|---|"]
+    for name in log.joint_names:
+        j = log.joint(name)
+        cmd, unit, label = joint_display(robot, name, log.q_cmd[:, j])
+        meas, _, _ = joint_display(robot, name, log.q[:, j])
+        e = meas - cmd
+        if e.size == 0:
+            continue
+        final = round(float(e[-1]), 4) + 0.0  # no "-0.0000"
+        lines.append(f"| {label} | {np.sqrt(np.mean(e ** 2)):.4f} | {np.max(np.abs(e)):.4f} | "
+                     f"{final:.4f} | {unit.split('(')[-1].rstrip(')')} |")
+    return "\n".join(lines) + "\n"
+
+
+def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
+                    figures: dict[str, str]) -> str:
+    cfg = prep.config
+    t = cfg.target
+    o = result.outcome
+    meta = log.metadata
+    verdict = ("PASSED" if result.passed else "FAILED")
+    lines = [f"# Trial {cfg.name}: {verdict}", "",
+             f"- robot: {cfg.robot}, backend: {cfg.backend.kind}, trajectory: {cfg.plan.trajectory}, "
+             f"control rate: {cfg.control_hz:g} Hz, seed: {cfg.seed}",
+             f"- started: {meta.get('start_time', '?')}; log: `{result.log_path.name}`",
+             f"- acceptance: {cfg.acceptance.position_mm:g} mm per axis and depth, "
+             f"{cfg.acceptance.angle_deg:g}° in angle"]
+    if meta.get("note"):
+        lines.append(f"- note: {meta['note']}")
+    if not result.completed:
+        lines.append(f"- **stopped early: {result.reason or 'unknown reason'}**")
+    lines.append("")
+    lines.append("## Needle placement (Table 3 layout)")
+    lines.append("")
+    if o is not None:
+        lines.append(table3_markdown([t.x_mm, t.y_mm, t.z_mm], t.depth_mm, t.angle_deg, o))
+    else:
+        lines.append("The trial stopped before the insertion finished: no placement to report.\n")
+    if not result.completed:
+        lines[lines.index("## Needle placement (Table 3 layout)"):
+              lines.index("## Needle placement (Table 3 layout)")] = [
+            "## What stopped it", "", stop_markdown(result, log)]
+    lines += ["## Joint profiles (Fig. 12 layout)", ""]
+    if "joints" in figures:
+        lines += [f"![joint profiles]({figures['joints']})", ""]
+    else:
+        span = (log.time[-1] - log.time[0]) if len(log) else 0.0
+        lines += [f"No joint moved more than {STILL_EXCURSION:g}° or {STILL_EXCURSION:g} mm in the "
+                  f"{span:.3f} s the trial ran ({len(log)} samples): nothing to plot. The tracking "
+                  f"and events tables below hold what was measured.", ""]
+    if "robot" in figures:
+        where = "at the end of the insertion" if result.completed else "where the trial stopped"
+        lines += [f"![robot {where}]({figures['robot']})", ""]
+    lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Events", "",
+              _events_markdown(log), "## Versions", "",
+              ", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()), ""]
+    return "\n".join(lines)
+
+
+def markdown_to_html(md: str, images: dict[str, Path], title: str) -> str:
+    """A small Markdown subset (headings, lists, tables, images) as one self-contained page."""
+    out = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+           "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;}"
+           "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:4px 8px;"
+           "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}"
+           ".fail{color:#b00}.pass{color:#080}</style></head><body>"]
+    in_table = in_list = False
+    table: list[list[str]] = []
+    for line in md.splitlines():
+        if line.startswith("|"):
+            cells = re.split(r"(?<!\\)\|", line.strip()[1:-1] if line.strip().endswith("|")
+                             else line.strip()[1:])
+            table.append([c.strip().replace("\\|", "|") for c in cells])
+            in_table = True
+            continue
+        if in_table:
+            out.append(_html_table(table))
+            table, in_table = [], False
+        if line.startswith("- "):
+            if not in_list:
+                out.append("<ul>")
+                in_list = True
+            out.append(f"<li>{_inline(line[2:])}</li>")
+            continue
+        if in_list:
+            out.append("</ul>")
+            in_list = False
+        if line.startswith("!["):
+            alt, src = line[2:].split("](", 1)
+            src = src.rstrip(")")
+            data = base64.b64encode(Path(images[src]).read_bytes()).decode()
+            out.append(f"<p><img alt='{html.escape(alt)}' src='data:image/png;base64,{data}'></p>")
+        elif line.startswith("#"):
+            level = len(line) - len(line.lstrip("#"))
+            text = _inline(line[level:].strip())
+            text = text.replace("PASSED", "<span class='pass'>PASSED</span>").replace(
+                "FAILED", "<span class='fail'>FAILED</span>")
+            out.append(f"<h{level}>{text}</h{level}>")
+        elif line.strip():
+            out.append(f"<p>{_inline(line)}</p>")
+    if in_table:
+        out.append(_html_table(table))
+    if in_list:
+        out.append("</ul>")
+    out.append("</body></html>")
+    return "\n".join(out) + "\n"
+
+
+def _html_table(rows: list[list[str]]) -> str:
+    """A Markdown table as HTML, each column aligned as its separator row says (``---:`` right)."""
+    align: list[str] = []
+    if len(rows) > 1 and all(set(c) <= set("-:") and c for c in rows[1]):
+        align = ["right" if c.endswith(":") and not c.startswith(":") else
+                 "center" if c.startswith(":") and c.endswith(":") else "left" for c in rows[1]]
+        rows = [rows[0], *rows[2:]]
+
+    def cell(tag: str, i: int, text: str) -> str:
+        style = f" style='text-align:{align[i]}'" if i < len(align) else ""
+        return f"<{tag}{style}>{_inline(text)}</{tag}>"
+
+    out = ["<table>"]
+    for r, row in enumerate(rows):
+        tag = "th" if r == 0 else "td"
+        out.append("<tr>" + "".join(cell(tag, i, c) for i, c in enumerate(row)) + "</tr>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
+def _inline(text: str) -> str:
+    import re
+
+    t = html.escape(text)
+    t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
+    t = re.sub(r"`(.+?)`", r"<code>\1</code>", t)
+    return t
+
+
+def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
+                       picture: bool = True) -> dict[str, Path]:
+    """joints.png, robot.png, report.md, report.html and result.json in the run directory."""
+    d = result.run_dir
+    figures = {}
+    if largest_excursion(log, prep.robot) >= STILL_EXCURSION:
+        figures["joints"] = "joints.png"
+        plot_joint_profiles(log, prep.robot, d / "joints.png",
+                            title=f"{prep.config.name}: commanded vs measured")
+    else:
+        (d / "joints.png").unlink(missing_ok=True)  # a rebuilt report drops a stale figure
+    if picture and len(log):
+        try:
+            from drivers.pybullet.backend import render_robot
+
+            insert = log.segment_names.index("insert") if "insert" in log.segment_names else -1
+            idx = np.flatnonzero(log.segment == insert)
+            q = log.q[idx[-1]] if idx.size else log.q[-1]
+            render_robot(prep.config.robot, q, d / "robot.png")
+            figures["robot"] = "robot.png"
+        except Exception:  # a picture is a nicety; never lose a report for it
+            pass
+    md = render_markdown(result, log, prep, figures)
+    (d / "report.md").write_text(md)
+    images = {v: d / v for v in figures.values()}
+    (d / "report.html").write_text(markdown_to_html(md, images, f"Trial {prep.config.name}"))
+    from bench.core.trial import write_result_json
+
+    write_result_json(result)
+    return {k: d / v for k, v in figures.items()}

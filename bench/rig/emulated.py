@@ -1,0 +1,366 @@
+"""The emulated rig: the robot's servo bus and ultrasonic sensor on pseudo-terminals.
+
+Built from the same trial config a technician edits for the real rig: the
+servos (IDs, models, modes, transmissions) become emulated X-series servos
+whose plant is the robot in PyBullet under torque control, and the ultrasonic
+sensor reports the train's true d2 (plus the standoff) with the configured
+noise, rate and dropouts. The real driver then talks to it byte for byte.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping, Optional
+
+import numpy as np
+
+from bench.config.models import DynamixelBackendConfig, TrialConfig, model_number
+
+
+@dataclass
+class RigPorts:
+    dynamixel_port: str
+    ultrasonic_port: Optional[str]
+
+
+@dataclass(frozen=True)
+class Planted:
+    """What the emulated rig has that its config does not say, to rehearse the lab tools.
+
+    ``servo_registers``: register presets per joint (e.g. ``{"theta5": {"Baud Rate": 1}}``
+    puts that servo at 57600 bps); ``servo_models``: a different model than configured;
+    ``zero_errors``: mechanical zero errors (joint units): the true joint value at the
+    servo's tick 2048 is the configured ``offset`` plus this; ``ultrasonic_offset_m`` and
+    ``ultrasonic_scale``: the sensor reports ``scale · true distance + offset``.
+    """
+
+    servo_registers: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
+    servo_models: Mapping[str, str] = field(default_factory=dict)
+    zero_errors: Mapping[str, float] = field(default_factory=dict)
+    ultrasonic_offset_m: float = 0.0
+    ultrasonic_scale: float = 1.0
+
+
+class EmulatedRig:
+    """Both emulators for one config; a context manager that serves until closed."""
+
+    def __init__(self, config: TrialConfig, initial_position: Optional[np.ndarray] = None,
+                 realtime: bool = True, planted: Optional[Planted] = None,
+                 warm_start_s: float = 0.0, rest_after_s: Optional[float] = None) -> None:
+        """``warm_start_s`` > 0 starts the rig as a previous session left it: the servos
+        hold their pose with the config's PID gains written, and the physics has run that
+        long (integrators charged, gravity sag gone) before the ports open.
+        ``rest_after_s``: pause the physics once nothing has moved or been written for
+        that long (``hilbench emulate`` does, so an idle rig costs no CPU)."""
+        from bench.kinematics.registry import get_robot
+        from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
+        from drivers.emulator.pybullet_plant import PyBulletPlant
+
+        if config.backend.kind != "dynamixel":
+            raise ValueError(f"{config.source}: --emulate needs backend.kind: dynamixel")
+        b: DynamixelBackendConfig = config.backend
+        e = config.emulator
+        planted = planted or Planted()
+        self.config = config
+        self.planted = planted
+        self.robot = get_robot(config.robot)
+        names = self.robot.joint_names
+        q0 = self.robot.chain.home if initial_position is None else np.asarray(initial_position)
+        ratio = [b.servos[n].ratio for n in names]
+        offset = [b.servos[n].offset + planted.zero_errors.get(n, 0.0) for n in names]
+        friction = [e.joint_friction.get(n, 0.0) for n in names]
+        from drivers.dynamixel.control_table import model_spec
+
+        models = {n: model_number(planted.servo_models.get(n, b.servos[n].model)) for n in names}
+        motors = [model_spec(models[n]).motor for n in names]
+        self.plant = PyBulletPlant(config.robot_urdf, names, ratio, offset, q0,
+                                   motor_damping=[m.kt * m.ke / m.resistance for m in motors],
+                                   physics_dt=1.0 / e.physics_hz, friction=friction)
+        from drivers.dynamixel.backend import MODES
+
+        baud_index = _baud_index(b.baud)
+        servos = {}
+        joints = {}
+        for j, n in enumerate(names):
+            sc = b.servos[n]
+            deadband = int(round(math.radians(e.deadband_deg) / (2 * math.pi / 4096)))
+            # The rig as the lab keeps it: EEPROM already set up, servos holding their pose.
+            registers = {"Baud Rate": baud_index, "Operating Mode": MODES[sc.mode],
+                         "Return Delay Time": int(round(b.return_delay_us / 2))}
+            if warm_start_s > 0:
+                gains = zip(("Position P Gain", "Position I Gain", "Position D Gain"),
+                            (sc.position_p, sc.position_i, sc.position_d))
+                registers.update({k: v for k, v in gains if v is not None})
+            registers.update(planted.servo_registers.get(n, {}))
+            servos[sc.id] = ServoModel(models[n], id=sc.id, registers=registers,
+                                       deadband_ticks=deadband)
+            joints[sc.id] = j
+        self.bus = DynamixelBusEmulator(servos, self.plant, joints=joints,
+                                        physics_dt=1.0 / e.physics_hz,
+                                        wire_timing=e.wire_timing, seed=e.seed, realtime=realtime,
+                                        rest_after_s=rest_after_s)
+        if e.start_torque_on:
+            for servo in servos.values():
+                servo.set("Torque Enable", 1)
+        if warm_start_s > 0:
+            self.bus.advance(warm_start_s)
+        self.ultrasonic = None
+        if b.ultrasonic is not None:
+            u = b.ultrasonic
+            train = names.index(u.joint)
+            standoff = u.standoff_mm * 1e-3
+            d2_of = self._d2_function()
+
+            def distance() -> float:
+                with self.bus.lock:
+                    q = self.plant.joint_position()[train]
+                return standoff + d2_of(q)
+
+            self.ultrasonic = UltrasonicEmulator(distance, rate_hz=e.ultrasonic_rate_hz or u.rate_hz,
+                                                 noise_std_m=e.ultrasonic_noise_mm * 1e-3,
+                                                 dropout_prob=e.ultrasonic_dropout, seed=e.seed + 1,
+                                                 offset_m=planted.ultrasonic_offset_m,
+                                                 scale=planted.ultrasonic_scale)
+
+    def _d2_function(self):
+        from bench.kinematics.arc_train import train_pose
+
+        params = self.robot.params
+        return lambda eps: float(train_pose(eps, params).d2)
+
+    @property
+    def ports(self) -> RigPorts:
+        return RigPorts(self.bus.port, self.ultrasonic.port if self.ultrasonic else None)
+
+    def start(self) -> "EmulatedRig":
+        self.bus.start()
+        if self.ultrasonic is not None:
+            self.ultrasonic.start()
+        return self
+
+    def close(self) -> None:
+        if self.ultrasonic is not None:
+            self.ultrasonic.stop()
+        self.bus.stop()
+        self.plant.close()
+
+    def __enter__(self) -> "EmulatedRig":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def retarget(self, config: TrialConfig) -> TrialConfig:
+        """The config with its ports pointed at this rig."""
+        return retarget(config, self.ports)
+
+
+def _baud_index(baud: int) -> int:
+    from drivers.dynamixel.control_table import BAUD_RATES
+
+    for k, v in BAUD_RATES.items():
+        if v == baud:
+            return k
+    raise ValueError(f"baud {baud} is not an X-series rate; choose from {sorted(BAUD_RATES.values())}")
+
+
+def serve(config: TrialConfig, announce, report=None) -> None:
+    """Run the rig until SIGINT/SIGTERM; SIGUSR1 unplugs the bus, SIGUSR2 plugs it back.
+
+    ``report`` gets the bus's counters at the end (physics skipped when the host starved
+    the emulator of CPU, packets, errors), so a rehearsal never hides a slow rig."""
+    stop = threading.Event()
+    with EmulatedRig(config, rest_after_s=REST_AFTER_S) as rig:
+        previous = {}
+
+        def on_stop(signum, frame):  # noqa: ARG001
+            stop.set()
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, on_stop)
+        signal.signal(signal.SIGUSR1, lambda *a: rig.bus.unplug())
+        signal.signal(signal.SIGUSR2, lambda *a: rig.bus.replug())
+        if not sys.stdin.isatty():  # a parent process drives the bus faults through our stdin
+            threading.Thread(target=_follow_commands, args=(rig, sys.stdin), daemon=True).start()
+        announce(rig.ports)
+        try:
+            while not stop.wait(0.2):
+                pass
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            if report is not None:
+                with rig.bus.lock:
+                    report(dataclasses.asdict(rig.bus.stats))
+
+
+EMULATOR_TIMEOUT_MS = 50.0
+#: Staleness allowance for the emulated ultrasonic sensor (s): its reader thread and the
+#: emulator share a loaded host's CPU, so a line can come a few periods late.
+EMULATOR_STALE_S = 0.5
+#: An emulated rig left alone (servos still, no writes) pauses its physics after this long.
+REST_AFTER_S = 0.5
+
+BUS_FAULT_FIELDS = ("drop_prob", "corrupt_crc_prob", "delay_s", "silent")
+
+
+def _follow_commands(rig: "EmulatedRig", stream) -> None:
+    """Apply JSON lines such as ``{"faults": {"drop_prob": 0.05}}`` to the running bus."""
+    for line in stream:
+        try:
+            cmd = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        with rig.bus.lock:
+            for field_name, value in cmd.get("faults", {}).items():
+                if field_name in BUS_FAULT_FIELDS:
+                    setattr(rig.bus.faults, field_name, value)
+        if cmd.get("unplug"):
+            rig.bus.unplug()
+        if cmd.get("replug"):
+            rig.bus.replug()
+
+
+class RemoteBusFaults:
+    """The bus faults of an emulator in another process: setting a field sends it there."""
+
+    def __init__(self, send) -> None:
+        object.__setattr__(self, "_send", send)
+        object.__setattr__(self, "_values", {"drop_prob": 0.0, "corrupt_crc_prob": 0.0,
+                                             "delay_s": 0.0, "silent": False})
+
+    def __getattr__(self, name: str):
+        try:
+            return self.__dict__["_values"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def __setattr__(self, name: str, value) -> None:
+        if name not in BUS_FAULT_FIELDS:
+            raise AttributeError(f"unknown bus fault {name!r}; known: {BUS_FAULT_FIELDS}")
+        self._values[name] = value
+        self._send({"faults": {name: value}})
+
+
+class EmulatorProcess:
+    """`hilbench emulate CONFIG --json` in a child process (its own core, its own GIL).
+
+    ``faults`` changes the bus faults of the running emulator (dropped, late or
+    corrupted status packets), so fault wrappers reach the wire through it.
+    """
+
+    def __init__(self, config_path: Path, start_timeout: float = 30.0) -> None:
+        exe = Path(sys.executable).with_name("hilbench")
+        cmd = ([str(exe)] if exe.exists() else [sys.executable, "-m", "bench.cli.app"])
+        env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+        import tempfile
+
+        self._stderr = tempfile.TemporaryFile(mode="w+")
+        # Its own session: a Ctrl-C or hang-up meant for the trial must not take the rig
+        # away before the trial's safe stop has talked to it; the trial ends it after.
+        # And it dies with its parent, even one killed outright.
+        self.proc = subprocess.Popen(cmd + ["emulate", str(config_path), "--json"],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=self._stderr, text=True, env=env,
+                                     start_new_session=True, preexec_fn=_die_with_parent)
+        self.faults = RemoteBusFaults(self._send)
+        line = self._first_line(start_timeout)
+        try:
+            ports = json.loads(line)
+        except json.JSONDecodeError:
+            try:
+                self.proc.wait(5)  # a child that failed is exiting: let it finish its message
+            except subprocess.TimeoutExpired:
+                pass
+            self._stderr.seek(0)
+            err = [ln.strip() for ln in (line + self._stderr.read()).splitlines() if ln.strip()]
+            self.close()
+            why = err[-1].removeprefix("error: ") if err else f"it exited with {self.proc.returncode}"
+            raise RuntimeError(f"the emulator did not start: {why}") from None
+        self.ports = RigPorts(ports["dynamixel_port"], ports.get("ultrasonic_port"))
+        #: The bus's counters, read when the emulator has stopped (see :func:`serve`).
+        self.stats: dict = {}
+
+    def _first_line(self, timeout: float) -> str:
+        out: list[str] = []
+        t = threading.Thread(target=lambda: out.append(self.proc.stdout.readline()), daemon=True)
+        t.start()
+        t.join(timeout)
+        if not out:
+            self.close()
+            raise RuntimeError(f"the emulator did not announce its ports within {timeout:.0f} s")
+        return out[0]
+
+    def _send(self, cmd: dict) -> None:
+        if self.proc.poll() is None:
+            self.proc.stdin.write(json.dumps(cmd) + "\n")
+            self.proc.stdin.flush()
+
+    def unplug(self) -> None:
+        self.proc.send_signal(signal.SIGUSR1)
+
+    def replug(self) -> None:
+        self.proc.send_signal(signal.SIGUSR2)
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        try:
+            for line in self.proc.stdout:
+                self.stats = json.loads(line).get("stats", self.stats)
+        except (OSError, ValueError, AttributeError):
+            pass
+        for stream in (self.proc.stdin, self.proc.stdout, self._stderr):
+            try:
+                stream.close()
+            except (OSError, ValueError, AttributeError):
+                pass
+
+    def retarget(self, config: TrialConfig) -> TrialConfig:
+        return retarget(config, self.ports)
+
+    def __enter__(self) -> "EmulatorProcess":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+        if os.getppid() == 1:  # the parent died before prctl took effect
+            os._exit(1)
+
+
+def retarget(config: TrialConfig, ports: RigPorts) -> TrialConfig:
+    """The config with its ports pointed at an emulated rig."""
+    b = config.backend
+    u = b.ultrasonic
+    backend = b.model_copy(update={
+        "port": ports.dynamixel_port,
+        # The emulator is a Python process sharing the CPU: its answers can come
+        # milliseconds late where a servo's come in microseconds.
+        "timeout_ms": max(b.timeout_ms or 0.0, EMULATOR_TIMEOUT_MS),
+        "ultrasonic": u.model_copy(update={
+            "port": ports.ultrasonic_port,
+            "stale_after_s": max(u.stale_after_s or 0.0, EMULATOR_STALE_S)}) if u else None})
+    return config.model_copy(update={"backend": backend})

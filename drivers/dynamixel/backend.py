@@ -1,0 +1,507 @@
+"""Real Dynamixel X-series servos (Protocol 2.0) behind the :class:`~drivers.Actuators` interface.
+
+Start-up never enables torque until every check has passed: each configured ID
+answers a ping with the configured model, no servo reports a hardware error
+(unless told to reboot it), and the EEPROM settings (Return Delay Time,
+Operating Mode, Current Limit) are written with torque off. Each control cycle
+is one GroupSyncWrite of goal positions and one GroupSyncRead (Fast Sync Read
+where the model supports it) of present current, velocity and position.
+Framing is done by :class:`~drivers.dynamixel.io.StuffingPacketHandler`, which stuffs
+and de-stuffs correctly both ways, over a port handler that sleeps in the
+kernel while it waits.
+
+Units: joint values in rad or m. A servo's shaft angle maps to its joint by
+``joint = offset + ratio · shaft`` (ratio in joint units per shaft radian: 1
+for a direct revolute joint, the pinion radius in m/rad for a rack, the
+pinion/arc radius ratio for the train). Ticks and raw currents stay here.
+
+The train joint can be a composite: its servo is commanded, but its measured
+position comes from the ultrasonic sensor (d2 mapped back to the arc angle by
+a function the caller supplies), and the host closes a slow outer loop on it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Literal, Optional, Sequence
+
+import numpy as np
+
+from drivers import (
+    ActuatorsBase, CommunicationError, ConfigurationError, HardwareFault, JointLimits, JointState,
+)
+from drivers.dynamixel.protocol import decode_hardware_error
+
+log = logging.getLogger(__name__)
+
+TICKS_PER_REV = 4096
+RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
+RAD_S_PER_VEL_UNIT = 0.229 * 2.0 * math.pi / 60.0  # Present Velocity unit: 0.229 rev/min
+
+# X-series control table (Protocol 2.0), identical across the supported models.
+ADDR = {
+    "Model Number": (0, 2), "Firmware Version": (6, 1), "Baud Rate": (8, 1),
+    "Return Delay Time": (9, 1), "Drive Mode": (10, 1), "Operating Mode": (11, 1),
+    "Homing Offset": (20, 4), "Current Limit": (38, 2), "Position D Gain": (80, 2),
+    "Position I Gain": (82, 2), "Position P Gain": (84, 2), "Max Position Limit": (48, 4),
+    "Min Position Limit": (52, 4), "Torque Enable": (64, 1), "Hardware Error Status": (70, 1),
+    "Goal Current": (102, 2), "Profile Acceleration": (108, 4), "Profile Velocity": (112, 4),
+    "Goal Position": (116, 4), "Present Current": (126, 2), "Present Velocity": (128, 4),
+    "Present Position": (132, 4), "Present Input Voltage": (144, 2),
+    "Present Temperature": (146, 1),
+}
+
+FAST_SYNC_READ_FIRMWARE = 45  # X-series firmware that answers Fast Sync Read
+
+MODES = {"current": 0, "velocity": 1, "position": 3, "extended_position": 4,
+         "current_based_position": 5, "pwm": 16}
+
+
+@dataclass(frozen=True)
+class ServoSettings:
+    joint: str
+    id: int
+    model: int  # model number, e.g. 1020 for XM430-W350
+    mode: str = "extended_position"
+    ratio: float = 1.0  # joint units per shaft radian
+    offset: float = 0.0  # joint value at shaft angle 0 (2048 ticks)
+    current_limit_a: Optional[float] = None
+    zero_tick: int = 2048
+    gains: tuple[Optional[int], Optional[int], Optional[int]] = (None, None, None)  # P, I, D
+
+
+@dataclass(frozen=True)
+class UltrasonicSettings:
+    port: str
+    joint: str
+    to_joint: Callable[[float], float]  # measured distance (m) -> joint value
+    baud: int = 9600
+    median_window: int = 5
+    stale_after_s: Optional[float] = None  # default: from the nominal rate
+    rate_hz: float = 6.0  # the sensor's nominal reading rate
+    range_m: tuple[float, float] = (0.3, 5.0)
+    no_target_m: float = 5.0
+    loop_gain: float = 0.5  # 1/s: how fast the host loop removes train error
+    max_correction: float = 0.05  # joint units
+
+
+@dataclass
+class DynamixelSettings:
+    port: str
+    baud: int
+    servos: Sequence[ServoSettings]
+    joint_names: Sequence[str]
+    lower: Sequence[float]
+    upper: Sequence[float]
+    velocity: Sequence[float]
+    effort: Sequence[float]
+    return_delay_us: int = 0
+    fast_sync_read: bool = True
+    retries: int = 3
+    timeout_s: Optional[float] = None  # per cycle transaction; default: 3 × wire time + latency
+    safe_stop: Literal["torque_off", "hold"] = "torque_off"
+    reboot_on_hardware_error: bool = False
+    ultrasonic: Optional[UltrasonicSettings] = None
+    warnings: list[str] = field(default_factory=list)
+
+
+def latency_timer_ms(port: str) -> Optional[int]:
+    """The USB-serial latency timer of an FTDI adapter (None when not an FTDI device)."""
+    name = Path(os.path.realpath(port)).name
+    path = Path(f"/sys/bus/usb-serial/devices/{name}/latency_timer")
+    try:
+        return int(path.read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+class DynamixelActuators(ActuatorsBase):
+    """Servos on one bus (and optionally the ultrasonic train sensor)."""
+
+    def __init__(self, settings: DynamixelSettings) -> None:
+        import dynamixel_sdk as sdk
+
+        from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
+
+        self.settings = s = settings
+        self._sdk = sdk
+        self._validate(s)
+        names = list(s.joint_names)
+        self._servo_of = {sv.joint: sv for sv in s.servos}
+        self._index = [names.index(sv.joint) for sv in s.servos]
+        self._ids = [sv.id for sv in s.servos]
+        self._ratio = np.array([sv.ratio for sv in s.servos])
+        self._offset = np.array([sv.offset for sv in s.servos])
+        self._zero = np.array([sv.zero_tick for sv in s.servos], dtype=float)
+        # Unit conversions per servo, precomputed for the control cycle.
+        self._q_per_tick = self._ratio * RAD_PER_TICK
+        self._qd_per_unit = self._ratio * RAD_S_PER_VEL_UNIT
+        self._effort_per_unit = np.array(
+            [_kt(sv.model) * _current_unit(sv.model) for sv in s.servos]) / self._ratio
+        # The same, as one (3, n) scale on raw position, velocity, current and the
+        # position at tick 0: one multiply-add per cycle.
+        self._si_per_raw = np.array([self._q_per_tick, self._qd_per_unit, self._effort_per_unit])
+        self._q_at_tick0 = self._offset - self._q_per_tick * self._zero
+        self._ticks_per_q = 1.0 / self._q_per_tick
+        self._in_joint_order = self._index == list(range(len(names)))
+        self._servo_of_joint = np.argsort(self._index)
+        self._limits = JointLimits(np.asarray(s.lower, float), np.asarray(s.upper, float),
+                                   np.asarray(s.velocity, float), np.asarray(s.effort, float))
+        self._t0 = time.monotonic()
+        self._last: Optional[JointState] = None
+        self._fails = 0
+        self.firmware: dict[int, int] = {}
+        self.safe_stop_report: Optional[str] = None
+        self.models: dict[int, int] = {}
+        self.port = BlockingPortHandler(s.port)
+        self.ph = StuffingPacketHandler()
+        self._regs = RegisterAccess(self.port, self.ph, s.retries)
+        self._sensor = None
+        self._correction = 0.0
+        self._train = names.index(s.ultrasonic.joint) if s.ultrasonic else None
+        try:
+            try:
+                opened = self.port.openPort()
+            except Exception as e:  # pyserial's SerialException: no such device, permissions
+                raise ConfigurationError(
+                    f"cannot open servo port {s.port}: {e}" + _port_hint(s.port)) from None
+            if not opened:
+                raise ConfigurationError(f"cannot open servo port {s.port}" + _port_hint(s.port))
+            if not self.port.setBaudRate(s.baud):
+                raise ConfigurationError(f"cannot set {s.baud} bps on {s.port}")
+            self._check_latency()
+            self._check_servos()
+            self._configure()
+            self._setup_groups()
+            if s.ultrasonic:
+                from drivers.ultrasonic import UltrasonicSensor
+
+                u = s.ultrasonic
+                self._sensor = UltrasonicSensor(u.port, baud=u.baud, median_window=u.median_window,
+                                                stale_after_s=u.stale_after_s,
+                                                expected_rate_hz=u.rate_hz, range_m=u.range_m,
+                                                no_target_m=u.no_target_m)
+                self._sensor.wait_for_reading()
+            self._last = self._read_bus()
+        except BaseException:
+            self._shutdown_port()
+            raise
+
+    # -- start-up checks ------------------------------------------------------
+    @staticmethod
+    def _validate(s: DynamixelSettings) -> None:
+        names = list(s.joint_names)
+        joints = [sv.joint for sv in s.servos]
+        if sorted(joints) != sorted(names):
+            missing = sorted(set(names) - set(joints))
+            extra = sorted(set(joints) - set(names))
+            raise ConfigurationError(
+                f"servos must cover every joint once: missing {missing}, unknown {extra}")
+        ids = [sv.id for sv in s.servos]
+        if len(set(ids)) != len(ids):
+            raise ConfigurationError(f"duplicate servo IDs in {ids}")
+        for sv in s.servos:
+            if sv.mode not in MODES:
+                raise ConfigurationError(
+                    f"servo {sv.id} ({sv.joint}): unknown mode {sv.mode!r}; modes: {sorted(MODES)}")
+            if sv.ratio == 0 or not math.isfinite(sv.ratio):
+                raise ConfigurationError(f"servo {sv.id} ({sv.joint}): ratio must be non-zero")
+
+    def _check_latency(self) -> None:
+        ms = latency_timer_ms(self.settings.port)
+        if ms is not None and ms >= 16:
+            self._warn(f"USB latency timer of {self.settings.port} is {ms} ms (the FTDI default): "
+                       f"it caps the loop near {1000 // (2 * ms)} Hz; set it to 1 ms with "
+                       f"`echo 1 | sudo tee /sys/bus/usb-serial/devices/"
+                       f"{Path(os.path.realpath(self.settings.port)).name}/latency_timer`")
+
+    def _warn(self, msg: str) -> None:
+        self.settings.warnings.append(msg)
+        log.warning(msg)
+
+    def _check_servos(self) -> None:
+        s = self.settings
+        missing = []
+        for sv in s.servos:
+            model, _ = self._regs.ping(sv.id, tries=max(s.retries, 3) + 1)
+            if model is None:
+                missing.append(f"{sv.id} ({sv.joint})" + (f" [{self.ph.last_problem}]"
+                                                          if self.ph.last_problem != "no reply" else ""))
+                continue
+            if model != sv.model:
+                raise ConfigurationError(
+                    f"servo ID {sv.id} ({sv.joint}) is model {model} ({_model_name(model)}), the "
+                    f"config says {sv.model} ({_model_name(sv.model)}); torque not enabled")
+            self.models[sv.id] = model
+            self.firmware[sv.id] = self._read(sv.id, "Firmware Version")
+        if missing:
+            raise ConfigurationError(
+                f"servo ID(s) {', '.join(missing)} did not answer a ping on {s.port} at {s.baud} "
+                f"bps; torque not enabled")
+        faulty = {}
+        for sv in s.servos:
+            hw = self._read(sv.id, "Hardware Error Status")
+            if hw:
+                faulty[sv.id] = decode_hardware_error(hw)
+        if faulty and s.reboot_on_hardware_error:
+            for sid in faulty:
+                self.ph.reboot(self.port, sid)
+            time.sleep(0.6)
+            still = {sid: decode_hardware_error(self._read(sid, "Hardware Error Status"))
+                     for sid in faulty}
+            faulty = {k: v for k, v in still.items() if v}
+        if faulty:
+            text = "; ".join(f"ID {k}: {', '.join(v)}" for k, v in faulty.items())
+            raise HardwareFault(f"hardware error on servo(s) {text}; refusing to start "
+                                f"(reboot them, or set reboot_on_hardware_error)", faulty)
+
+    def _configure(self) -> None:
+        """Write the settings; torque goes off only on a servo whose EEPROM must change.
+
+        A servo found holding its pose with the right EEPROM keeps holding it,
+        so an arm that gravity would drop is not dropped just to be configured.
+        """
+        s = self.settings
+        rdt = int(round(s.return_delay_us / 2))
+        for sv in s.servos:
+            eeprom = {"Return Delay Time": rdt, "Operating Mode": MODES[sv.mode]}
+            if sv.current_limit_a is not None:
+                eeprom["Current Limit"] = int(round(sv.current_limit_a / _current_unit(sv.model)))
+            changes = {k: v for k, v in eeprom.items() if self._read(sv.id, k) != v}
+            if changes:
+                if self._read(sv.id, "Torque Enable"):
+                    self._warn(f"servo ID {sv.id} ({sv.joint}): torque off to write "
+                               f"{', '.join(changes)} (EEPROM)")
+                    self._write(sv.id, "Torque Enable", 0)
+                for k, v in changes.items():
+                    self._write(sv.id, k, v)
+            for gain, value in zip(("Position P Gain", "Position I Gain", "Position D Gain"), sv.gains):
+                if value is not None:
+                    self._write(sv.id, gain, value)
+            # Profile off: the host streams the trajectory.
+            self._write(sv.id, "Profile Velocity", 0)
+            self._write(sv.id, "Profile Acceleration", 0)
+        if rdt >= 250:
+            self._warn("Return Delay Time is 250 (500 µs per status packet): it caps the loop rate")
+
+    def _setup_groups(self) -> None:
+        from drivers.dynamixel.cycle import SyncCycle
+
+        fw_ok = all(self.firmware.get(sid, 0) >= FAST_SYNC_READ_FIRMWARE for sid in self._ids)
+        self._fast = self.settings.fast_sync_read and fw_ok
+        if self.settings.fast_sync_read and not fw_ok:
+            self._warn(f"Fast Sync Read needs firmware {FAST_SYNC_READ_FIRMWARE}+; using Sync Read")
+        self._cycle = SyncCycle(self.port.ser.fileno(), self.settings.baud, self._ids,
+                                write_address=ADDR["Goal Position"][0], fast=self._fast)
+        if self.settings.timeout_s:
+            self._cycle.timeout_s = self.settings.timeout_s
+
+    # -- register access with retries ----------------------------------------
+    def _read(self, sid: int, name: str) -> int:
+        addr, size = ADDR[name]
+        return self._regs.read(sid, addr, size, name, signed=name == "Homing Offset")
+
+    def _write(self, sid: int, name: str, value: int) -> None:
+        addr, size = ADDR[name]
+        self._regs.write(sid, addr, size, value, name)
+
+    # -- the Actuators interface ----------------------------------------------
+    @property
+    def joint_names(self) -> Sequence[str]:
+        return list(self.settings.joint_names)
+
+    @property
+    def limits(self) -> JointLimits:
+        return self._limits
+
+    def now(self) -> float:
+        return time.monotonic() - self._t0
+
+    def wait_until(self, t: float) -> None:
+        deadline = self._t0 + t
+        remaining = deadline - time.monotonic()
+        if remaining > 0.002:
+            time.sleep(remaining - 0.001)
+        while time.monotonic() < deadline:
+            pass
+
+    def read(self) -> JointState:
+        st = self._read_bus()
+        self._last = st
+        return st
+
+    def _read_bus(self) -> JointState:
+        cyc = self._cycle
+        for _ in range(self.settings.retries + 1):
+            raw = cyc.read_state()  # position, velocity, current rows in servo order
+            if raw is not None:
+                break
+        else:
+            raise CommunicationError(
+                f"servos {self._ids} did not answer the {'fast ' if self._fast else ''}sync read "
+                f"after {self.settings.retries + 1} tries ({cyc.last_error}); bus lost?")
+        raw *= self._si_per_raw
+        raw[0] += self._q_at_tick0
+        q, qd, eff = raw
+        if not self._in_joint_order:
+            q, qd, eff = q[self._servo_of_joint], qd[self._servo_of_joint], eff[self._servo_of_joint]
+        flags: tuple[str, ...] = ()
+        if self._sensor is not None:
+            u = self.settings.ultrasonic
+            try:
+                distance, age = self._sensor.read(allow_stale=True)
+            except CommunicationError:
+                distance, age = float("nan"), float("inf")
+            self._encoder_train = q[self._train]
+            if age > self._sensor.stale_after_s or not math.isfinite(distance):
+                flags = (f"stale:{u.joint}",)
+            else:
+                q[self._train] = u.to_joint(distance)
+        return JointState(self.now(), q, qd, eff, flags)
+
+    def _enable(self) -> None:
+        st = self._read_bus()
+        raw = self._goal_ticks(st.position if self._sensor is None else self._encoder_positions(st))
+        self._send_goals(raw)
+        for sid in self._ids:
+            self._write(sid, "Torque Enable", 1)
+        self._correction = 0.0
+
+    def _encoder_positions(self, st: JointState) -> np.ndarray:
+        q = st.position.copy()
+        if self._train is not None and hasattr(self, "_encoder_train"):
+            q[self._train] = self._encoder_train
+        return q
+
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
+        lim = self._limits
+        q = np.minimum(np.maximum(position, lim.lower), lim.upper)
+        if self._sensor is not None and self._last is not None:
+            # Host loop on the train: the servo's goal is nudged by the integral of
+            # the ultrasonic error, so the arc angle follows the sensor, not the pinion.
+            u = self.settings.ultrasonic
+            now = self._last.time
+            dt = min(max(now - getattr(self, "_last_cmd_time", now), 0.0), 0.1)
+            self._last_cmd_time = now
+            if not self._last.flags:
+                err = q[self._train] - self._last.position[self._train]
+                self._correction = float(np.clip(self._correction + u.loop_gain * err * dt,
+                                                 -u.max_correction, u.max_correction))
+            q = q.copy()
+            q[self._train] += self._correction
+        self._send_goals(self._goal_ticks(q))
+
+    def _goal_ticks(self, q: np.ndarray) -> np.ndarray:
+        qs = q if self._in_joint_order else q[self._index]
+        return np.rint((qs - self._q_at_tick0) * self._ticks_per_q).astype(np.int64)
+
+    def _send_goals(self, ticks: np.ndarray) -> None:
+        self._cycle.write_goals(ticks.tolist())
+
+    def _disable(self) -> None:
+        if self.settings.safe_stop == "hold":
+            try:
+                self._send_goals(self._goal_ticks(self._encoder_positions(self._read_bus())))
+                self.safe_stop_report = "holding the measured position (torque on)"
+            except CommunicationError as e:
+                self.safe_stop_report = f"hold not confirmed: {e}"
+            return
+        self._torque_off_all()
+
+    def _torque_off_all(self) -> None:
+        """Torque off on every servo that still answers (broadcast, then one by one), then
+        Torque Enable read back from each: ``safe_stop_report`` says which confirmed."""
+        addr, _ = ADDR["Torque Enable"]
+        try:
+            self.ph.write1ByteTxOnly(self.port, self._sdk.BROADCAST_ID, addr, 0)
+        except Exception:  # the port may already be gone; try one by one all the same
+            pass
+        unconfirmed = []
+        for sid in self._ids:
+            for _ in range(2):  # one retry: a dead bus must not hold up the exit
+                try:
+                    self.ph.write1ByteTxRx(self.port, sid, addr, 0)
+                    value, comm, err = self.ph.read1ByteTxRx(self.port, sid, addr)
+                except Exception:  # the port may already be gone
+                    continue
+                if comm == self._sdk.COMM_SUCCESS and value == 0:
+                    break
+            else:
+                unconfirmed.append(sid)
+        n = len(self._ids)
+        self.safe_stop_report = (
+            f"torque off, confirmed by reading Torque Enable back from all {n} servos"
+            if not unconfirmed else
+            f"torque off NOT confirmed for servo ID(s) {unconfirmed} of {n}: check the rig")
+
+    def _close(self) -> None:
+        self._shutdown_port()
+
+    def _shutdown_port(self) -> None:
+        if self._sensor is not None:
+            self._sensor.close()
+            self._sensor = None
+        try:
+            if (self.settings.safe_stop == "torque_off" and self.safe_stop_report is None
+                    and getattr(self.port, "is_open", False)):
+                self._torque_off_all()
+        finally:
+            try:
+                self.port.closePort()
+            except Exception:
+                pass
+
+    # -- extras ------------------------------------------------------------------
+    def set_effort_limit(self, joint: int, effort: float) -> None:
+        """Limit a joint's torque/force through Goal Current (current-based position mode)."""
+        sv = self.settings.servos[self._index.index(joint)]
+        if sv.mode != "current_based_position":
+            raise ConfigurationError(
+                f"joint {sv.joint}: effort limits need mode current_based_position (servo {sv.id} "
+                f"is in {sv.mode})")
+        current = abs(effort * sv.ratio) / _kt(sv.model)
+        self._write(sv.id, "Goal Current", int(round(current / _current_unit(sv.model))))
+        eff = self._limits.effort.copy()
+        eff[joint] = effort
+        self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)
+
+    def servo_info(self) -> list[dict]:
+        """Model and firmware read from the bus, for the trial record."""
+        return [{"joint": sv.joint, "id": sv.id, "model": self.models.get(sv.id),
+                 "model_name": _model_name(self.models.get(sv.id, 0)),
+                 "firmware": self.firmware.get(sv.id)} for sv in self.settings.servos]
+
+
+def _port_hint(port: str) -> str:
+    if not os.path.exists(port):
+        return " (is the adapter plugged in? rehearse without hardware with --emulate)"
+    if not os.access(port, os.R_OK | os.W_OK):
+        return " (no permission: add yourself to the dialout group, `sudo usermod -aG dialout $USER`)"
+    return ""
+
+
+def _model_name(number: int) -> str:
+    try:
+        from drivers.dynamixel.control_table import model_spec
+
+        return model_spec(number).name
+    except Exception:
+        return "unknown model"
+
+
+def _kt(number: int) -> float:
+    from drivers.dynamixel.control_table import model_spec
+
+    return model_spec(number).motor.kt
+
+
+def _current_unit(number: int) -> float:
+    from drivers.dynamixel.control_table import model_spec
+
+    unit = model_spec(number).current_unit
+    return unit if unit is not None else 0.0
