@@ -52,7 +52,7 @@ from bench.kinematics.dh import DHChain, DHRow, check_rows, translation
 from bench.kinematics.needle import NeedlePose, NeedleTarget, UnreachableError, pose_from_axis
 
 __all__ = ["ArcTrainParams", "ArcTrainRobot", "NeedlePose", "NeedleTarget", "TARGET_1",
-           "TABLE3_TARGET", "TABLE3_MEASURED",
+           "TABLE3_TARGET", "TABLE3_MEASURED", "table3_deviations", "SERVO_TOL_DEG", "PINION_RADIUS",
            "UnreachableError", "build_chain", "train_pose", "epsilon_from_d2"]
 
 DEG = np.pi / 180.0
@@ -208,6 +208,16 @@ TABLE3_MEASURED: dict[str, tuple[float, ...]] = {
     "insertion": (29.88, 30.23, 30.43, 29.92, 30.16),
     "angle": (47.22, 46.50, 46.12, 47.13, 46.64),
 }
+
+#: Seed 000 section 6: the Dynamixel servos hold position to ±0.29°.
+SERVO_TOL_DEG = 0.29
+#: The rig's rack-and-pinion radius (m): a servo-driven slide moves this much per radian of its servo.
+PINION_RADIUS = 0.010
+
+
+def table3_deviations() -> dict[str, np.ndarray]:
+    """Table 3's five repeats of Target 1 minus the target, per quantity (mm; the angle in degrees)."""
+    return {k: np.asarray(v, dtype=float) - TABLE3_TARGET[k] for k, v in TABLE3_MEASURED.items()}
 
 
 @dataclass
