@@ -25,7 +25,7 @@ import numpy as np
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
 from bench.core.runner import Runner
-from bench.core.trial import interlocks_for, make_backend, plan, prepare
+from bench.trial.run import interlocks_for, make_backend, plan, prepare
 
 CONFIG = Path(__file__).resolve().parent.parent / "hil_configs" / "sim_target1.yaml"
 
@@ -95,7 +95,7 @@ def trials_per_minute(workers: int, trials: int) -> float:
 def _one_trial(i: int) -> bool:
     import tempfile
 
-    from bench.core.trial import run_trial
+    from bench.trial.run import run_trial
 
     cfg = load_trial_config(CONFIG)
     with tempfile.TemporaryDirectory() as out:

@@ -92,7 +92,7 @@ def test_runner_blocks_trip_at_the_cycle_checking_every_cycle_trips(on_trip, mon
     import bench.core.runner as runner_module
     from bench.config.models import TrialConfig
     from bench.core.log import TrialLog
-    from bench.core.trial import interlocks_for, make_backend, plan, prepare
+    from bench.trial.run import interlocks_for, make_backend, plan, prepare
     from test_interlock_trial import INTO_GANTRY
 
     cfg = TrialConfig.model_validate({**INTO_GANTRY, "safety": {**INTO_GANTRY["safety"],

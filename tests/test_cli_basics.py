@@ -13,7 +13,7 @@ import numpy as np
 
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
-from bench.core.trial import run_trial
+from bench.trial.run import run_trial
 
 REPO = Path(__file__).resolve().parent.parent
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))

@@ -33,13 +33,13 @@ LIGHT = ("theta7", "theta8", "d9", "d10")
 
 @pytest.fixture(scope="module")
 def prep():
-    from bench.core.trial import prepare
+    from bench.trial.run import prepare
 
     return prepare(load_trial_config(LAB))
 
 
 def _segments(prep):
-    from bench.core.trial import plan
+    from bench.trial.run import plan
 
     rows = prep.robot.chain.rows
     return plan(prep, prep.robot.chain.home, np.array([r.velocity for r in rows]))

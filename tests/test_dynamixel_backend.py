@@ -15,7 +15,7 @@ import pytest
 from bench.config.models import load_trial_config
 from bench.rig.emulated import EmulatedRig
 from bench.core.log import TrialLog
-from bench.core.trial import make_dynamixel_backend, prepare, run_trial
+from bench.trial.run import make_dynamixel_backend, prepare, run_trial
 from drivers import CommunicationError, ConfigurationError, HardwareFault, NotEnabledError
 
 REPO = Path(__file__).resolve().parent.parent

@@ -18,7 +18,7 @@ from bench.kinematics.arc_train import JOINTS, TARGET_1, epsilon_from_d2, train_
 from bench.core.log import TrialLog
 from bench.core.outcome import settled_position
 from bench.core.runner import Runner, Segment
-from bench.core.trial import make_backend, prepare, run_trial
+from bench.trial.run import make_backend, prepare, run_trial
 from bench.core.truth import GroundTruth, settled_truth
 from drivers import Actuators, ActuatorsBase, ConfigurationError, JointLimits, JointState
 from trajectories import LSPB

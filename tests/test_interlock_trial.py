@@ -28,7 +28,7 @@ INTO_GANTRY = {"name": "into-gantry", "robot": "arc-train", "control_hz": 500,
 def test_target_really_is_inside_the_gantry():
     robot = ArcTrainRobot()
     from bench.config.models import TrialConfig
-    from bench.core.trial import TrialError, prepare
+    from bench.trial.run import TrialError, prepare
 
     prep = prepare(TrialConfig.model_validate(INTO_GANTRY))
     report = GantryContact(robot, 0.020).check(prep.q_entry)

@@ -231,7 +231,7 @@ def test_calibrate_recovers_planted_zero_offsets_and_ultrasonic(miscalibrated_ri
     assert len(u["stops"]) == 4 and u["residual_mm"] < 1.0
 
     # 3. A trial config naming the file reads the true joint values (registers + sensor fit).
-    from bench.core.trial import make_dynamixel_backend, prepare
+    from bench.trial.run import make_dynamixel_backend, prepare
 
     from bench.kinematics.arc_train import train_pose
 
@@ -292,7 +292,7 @@ def test_doctor_on_the_emulated_rig_prints_problems_then_one_count_line(tmp_path
 def test_trial_record_names_its_calibration(tmp_path):
     from bench.config.calibration import CalibrationFile, ServoCalibration, save_calibration
     from bench.core.log import TrialLog
-    from bench.core.trial import make_backend, prepare, run_trial
+    from bench.trial.run import make_backend, prepare, run_trial
 
     cal = save_calibration(CalibrationFile(
         config_name="lab-target1", created="2026-01-01T00:00:00+00:00",

@@ -12,9 +12,9 @@ import pytest
 import yaml
 
 from bench.config.models import load_trial_config
-from bench.core.preflight import needle_direction_problem
+from bench.trial.preflight import needle_direction_problem
 from bench.kinematics.registry import get_robot
-from bench.core.trial import TrialError, prepare
+from bench.trial.run import TrialError, prepare
 
 REPO = Path(__file__).resolve().parent.parent
 SIM = REPO / "hil_configs" / "sim_target1.yaml"

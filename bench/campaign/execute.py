@@ -1,7 +1,7 @@
 """Where campaign trials run: the trial function itself and the pools that run it.
 
 :func:`execute_trial` is what a worker does with one trial: rebuild the
-config from plain data, run it through :func:`bench.core.trial.run_trial`
+config from plain data, run it through :func:`bench.trial.run.run_trial`
 (log and ``result.json`` only, no figures) with the ground-truth recorder
 outermost, and return plain data. It creates its own PyBullet world, so it
 runs the same in a local process, on a Dask worker or in the parent.
@@ -56,7 +56,7 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
         from bench.config.models import TrialConfig
         from bench.core.log import TrialLog
         from bench.kinematics.registry import get_robot
-        from bench.core.trial import run_trial, target_of
+        from bench.trial.run import run_trial, target_of
         from bench.core.truth import GroundTruth, true_outcome
 
         cfg = TrialConfig.model_validate(task["config"])
@@ -150,7 +150,7 @@ def _context() -> multiprocessing.context.BaseContext:
         ctx = multiprocessing.get_context("forkserver")
     except ValueError:  # pragma: no cover - platforms without fork
         return multiprocessing.get_context("spawn")
-    ctx.set_forkserver_preload(["bench.campaign.worker_env", "bench.core.trial", "bench.core.truth", "bench.faults"])
+    ctx.set_forkserver_preload(["bench.campaign.worker_env", "bench.trial.run", "bench.core.truth", "bench.faults"])
     return ctx
 
 

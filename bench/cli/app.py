@@ -180,7 +180,7 @@ def check(config: Path = typer.Argument(..., help="A trial config to check."),
     the trial's interlocks along the planned path, and the serial ports of a real
     backend. Exit 0 when a trial would start, 2 when it would be refused.
     """
-    from bench.core.preflight import check_config
+    from bench.trial.preflight import check_config
 
     results = check_config(config, emulate=emulate)
     ok = all(r.ok for r in results)
@@ -243,7 +243,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
 
 def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
     from bench.config.models import ConfigError, load_trial_config
-    from bench.core.trial import TrialError
+    from bench.trial.run import TrialError
 
     try:
         cfg = load_trial_config(config)
@@ -253,7 +253,7 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
     rig = None
     if emulate:
         from bench.rig.emulated import EmulatorProcess
-        from bench.core.trial import prepare
+        from bench.trial.run import prepare
 
         if cfg.backend.kind != "dynamixel":
             fail(f"{config}: --emulate needs backend.kind: dynamixel (this config is {cfg.backend.kind})")
@@ -265,7 +265,7 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
         cfg = rig.retarget(cfg)
     factory = None
     if rig is not None:
-        from bench.core.trial import make_backend
+        from bench.trial.run import make_backend
 
         def factory(prep):  # the backend reaches the emulator's bus faults through .emulator
             backend = make_backend(prep)
@@ -301,7 +301,7 @@ def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=Non
 
     from bench.config.models import ConfigError
     from bench.core.interrupts import NO_SIGNALS
-    from bench.core.trial import TrialError, run_trial
+    from bench.trial.run import TrialError, run_trial
     from drivers import ActuatorError
 
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
@@ -359,7 +359,7 @@ def emulate(config: Path = typer.Argument(..., help="A config with backend.kind:
 def report(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
            as_json: bool = typer.Option(False, "--json")) -> None:
     """Rebuild a trial's report (Markdown, HTML, figures) from its record alone."""
-    from bench.core.trial import TrialError, rebuild_report
+    from bench.trial.run import TrialError, rebuild_report
 
     try:
         res = rebuild_report(run_dir)
@@ -375,7 +375,7 @@ def report(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
 def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory trials wrote into."),
          as_json: bool = typer.Option(False, "--json", help="Print the runs as one JSON line.")) -> None:
     """List past trials: date, config, verdict, deviations and report, oldest first."""
-    from bench.core.runs import list_runs
+    from bench.trial.runs import list_runs
 
     found = list_runs(out)
     if as_json:

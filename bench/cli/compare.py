@@ -101,7 +101,7 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
     from bench.compare.session import CompareError, run_comparison
     from bench.config.models import ConfigError, load_trial_config
     from bench.core.interrupts import SignalGuard, TrialInterrupted, signal_name
-    from bench.core.trial import TrialError
+    from bench.trial.run import TrialError
     from drivers import ActuatorError
 
     try:

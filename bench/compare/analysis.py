@@ -751,7 +751,7 @@ class Side:
 
 def _status(log: TrialLog) -> tuple[bool, str]:
     """(completed, why it stopped early), as the trial record reads them."""
-    from bench.core.trial import status_from_log
+    from bench.trial.run import status_from_log
 
     return status_from_log(log)
 

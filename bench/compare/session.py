@@ -123,7 +123,7 @@ def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
     closed here. The homing log is saved to ``log_path``.
     """
     from bench.core.runner import Runner, Segment
-    from bench.core.trial import make_backend, prepare
+    from bench.trial.run import make_backend, prepare
     from trajectories import LSPB
 
     prep = prepare(config)
@@ -186,7 +186,7 @@ def _hold_until_home(act: Actuators, home: np.ndarray, kinds: list[str], period:
 
 def _safe_stop(config: TrialConfig) -> None:
     """Apply the config's own safe stop to the rig (best effort: the bus may be gone)."""
-    from bench.core.trial import make_backend, prepare
+    from bench.trial.run import make_backend, prepare
 
     try:
         act = make_backend(prepare(config))
@@ -216,7 +216,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     that lost the bus or its sensor is run again. Raises :class:`CompareError` (nothing moved)
     for a config or port that cannot be used.
     """
-    from bench.core.trial import TrialError, prepare, run_trial
+    from bench.trial.run import TrialError, prepare, run_trial
 
     if repeats < 1:
         raise CompareError(f"--repeats must be at least 1, got {repeats}")
@@ -330,7 +330,7 @@ def _rig_repeat(i: int, repeats: int, base_cfg: TrialConfig, hold_cfg: TrialConf
                 home_dir: Path, retries: int, lost: list[LostAttempt], progress: ProgressFn,
                 interrupts: Interruptible = NO_SIGNALS):
     """Home, then one trial (the last with the config's safe stop); a lost bus is retried."""
-    from bench.core.trial import run_trial
+    from bench.trial.run import run_trial
     from drivers import ActuatorError, CommunicationError
 
     cfg = base_cfg if i == repeats - 1 else hold_cfg

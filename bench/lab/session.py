@@ -68,7 +68,7 @@ def open_backend(config: TrialConfig, *, ultrasonic: bool = True,
     import serial
 
     from bench.kinematics.registry import get_robot
-    from bench.core.trial import PreparedTrial, make_dynamixel_backend, target_of
+    from bench.trial.run import PreparedTrial, make_dynamixel_backend, target_of
 
     require_dynamixel(config, "this tool")
     check_ports(config, ultrasonic)

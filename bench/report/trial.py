@@ -13,7 +13,7 @@ import numpy as np
 from bench.core.log import TrialLog
 
 if TYPE_CHECKING:  # pragma: no cover
-    from bench.core.trial import PreparedTrial, TrialResult
+    from bench.trial.run import PreparedTrial, TrialResult
 
 
 def joint_display(robot, name: str, values: np.ndarray) -> tuple[np.ndarray, str, str]:
@@ -300,7 +300,7 @@ def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTria
     (d / "report.md").write_text(md)
     images = {v: d / v for v in figures.values()}
     (d / "report.html").write_text(markdown_to_html(md, images, f"Trial {prep.config.name}"))
-    from bench.core.trial import write_result_json
+    from bench.trial.run import write_result_json
 
     write_result_json(result)
     return {k: d / v for k, v in figures.items()}

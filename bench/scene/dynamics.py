@@ -11,7 +11,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from bench.config.models import REPO_ROOT
+from bench.paths import REPO_ROOT
 
 __all__ = ["gravity_torques", "robot_urdf"]
 

@@ -25,7 +25,7 @@ from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
 from bench.core.outcome import NeedleOutcome, needle_outcome, settled_position
 from bench.core.interrupts import NO_SIGNALS, TrialInterrupted
 from bench.core.runner import Interruptible, Runner, Segment, abort_reason
-from bench.core.preflight import limits_of, needle_direction_problem, planned_path_trip
+from bench.trial.preflight import limits_of, needle_direction_problem, planned_path_trip
 from drivers import Actuators, ActuatorError, JointLimits
 
 PACKAGES = ("needle-hil-bench", "numpy", "pybullet", "ruckig", "dynamixel-sdk", "pyserial", "pydantic")

@@ -116,7 +116,7 @@ def check_config(path, emulate: bool = False) -> list[CheckResult]:
     ``emulate``: the ports will be the emulated rig's, so the configured ones are not checked.
     """
     from bench.config.models import ConfigError, load_trial_config
-    from bench.core.trial import TrialError, prepare
+    from bench.trial.run import TrialError, prepare
 
     try:
         config = load_trial_config(path)
