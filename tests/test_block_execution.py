@@ -9,7 +9,8 @@ import pytest
 from bench.kinematics.arc_train import TARGET_1
 from bench.scene.room import URDF_DIR
 from drivers import NotEnabledError
-from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, default_scene
+from bench.scene.room import default_scene
+from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings
 from trajectories import LSPB
 
 

@@ -7,7 +7,8 @@ import pytest
 
 from bench.scene.room import URDF_DIR
 from drivers import Actuators, ConfigurationError, NotEnabledError
-from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, default_scene
+from bench.scene.room import default_scene
+from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings
 
 
 def settings(arc_train, **kw) -> PyBulletSettings:

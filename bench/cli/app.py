@@ -146,7 +146,7 @@ def ik(name: str = typer.Argument(..., help="arc-train"),
     pose = r.needle(q)
     out = {"joints": {n: float(v) for n, v in zip(r.joint_names, q)}, **_needle_json(pose)}
     if render is not None:
-        from drivers.pybullet.backend import render_robot
+        from bench.scene.render import render_robot
 
         render_robot(name, q, render)
         out["render"] = str(render)

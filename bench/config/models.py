@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
-from bench.paths import REPO_ROOT
+from bench.paths import REPO_ROOT, robot_urdf
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 
@@ -354,7 +354,7 @@ class TrialConfig(Strict):
 
     @property
     def robot_urdf(self) -> Path:
-        return self.resolve(self.urdf_dir) / f"{self.robot.replace('-', '_')}.urdf"
+        return robot_urdf(self.robot, self.resolve(self.urdf_dir))
 
 
 def _format_error(path: Path, err: ValidationError) -> str:

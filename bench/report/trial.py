@@ -287,7 +287,7 @@ def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTria
         (d / "joints.png").unlink(missing_ok=True)  # a rebuilt report drops a stale figure
     if picture and len(log):
         try:
-            from drivers.pybullet.backend import render_robot
+            from bench.scene.render import render_robot
 
             insert = log.segment_names.index("insert") if "insert" in log.segment_names else -1
             idx = np.flatnonzero(log.segment == insert)

@@ -11,15 +11,9 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from bench.paths import REPO_ROOT
+from bench.paths import robot_urdf
 
-__all__ = ["gravity_torques", "robot_urdf"]
-
-
-def robot_urdf(robot: str, urdf_dir: Optional[Path | str] = None) -> Path:
-    """The URDF of ``robot`` ("arc-train" → urdf/arc_train.urdf); relative dirs from the project."""
-    d = Path(urdf_dir) if urdf_dir is not None else Path("urdf")
-    return (d if d.is_absolute() else REPO_ROOT / d) / f"{robot.replace('-', '_')}.urdf"
+__all__ = ["gravity_torques"]
 
 
 def gravity_torques(robot: str, q: Sequence[float], urdf_dir: Optional[Path | str] = None,

@@ -6,6 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.kinematics.registry import get_robot
+from bench.paths import robot_urdf
+from bench.scene.room import default_scene
+from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings
+
 
 def render_png(client: int, path: Path, target=(-0.22, 0.2, 0.12), distance: float = 0.95,
                yaw: float = -50.0, pitch: float = -30.0, size: tuple[int, int] = (960, 720)) -> Path:
@@ -30,3 +35,11 @@ def render_png(client: int, path: Path, target=(-0.22, 0.2, 0.12), distance: flo
     path.parent.mkdir(parents=True, exist_ok=True)
     mpimg.imsave(path, img)
     return path
+
+
+def render_robot(robot: str, q: np.ndarray, path: Path) -> Path:
+    """A picture of the robot at ``q`` in the CT room."""
+    settings = PyBulletSettings(robot_urdf(robot), get_robot(robot).joint_names, default_scene(),
+                                initial_position=q)
+    with PyBulletActuators(settings) as sim:
+        return render_png(sim.client, path)

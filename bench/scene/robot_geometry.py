@@ -19,6 +19,7 @@ import numpy as np
 from bench.geometry.mesh_ops import enclosing_radius, refine
 from bench.geometry.urdf_shapes import parse_collisions, parse_joints
 from bench.kinematics.dh import DHChain, joint_split
+from bench.paths import robot_urdf
 
 __all__ = ["RobotGeometry", "ChainPoser"]
 
@@ -226,9 +227,7 @@ class RobotGeometry:
                   patch_size: int = 48):
         """Geometry of a bench robot model (its URDF under ``urdf/`` unless given)."""
         if urdf is None:
-            from bench.scene.room import URDF_DIR
-
-            urdf = URDF_DIR / f"{model.name.replace('-', '_')}.urdf"
+            urdf = robot_urdf(model.name)
         # Built once per chain and mesh file: every trial (and the plan replay before it)
         # needs the same geometry, and building it costs tens of milliseconds.
         try:

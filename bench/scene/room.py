@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.paths import URDF_DIR
+from drivers.pybullet.backend import SceneObject
 from bench.kinematics.arc_train import TARGET_1, ArcTrainParams, build_chain
 from bench.scene.urdf_writer import LinkSpec, Shape, chain_to_urdf, next_joint_offsets, segment
 from bench.scene.zerobot_urdf import zerobot_urdf
@@ -191,3 +192,10 @@ def write_scene(out_dir: Path = URDF_DIR) -> list[Path]:
         path.write_text(text)
         written.append(path)
     return written
+
+
+def default_scene(urdf_dir: Path | None = None) -> list[SceneObject]:
+    """The CT room of seed 000 as generated in ``urdf/``: the gantry (out of the contact pairs), bed, phantom."""
+    d = Path(urdf_dir) if urdf_dir else URDF_DIR
+    return [SceneObject(d / "ct_gantry.urdf", collide=False), SceneObject(d / "ct_bed.urdf"),
+            SceneObject(d / "phantom.urdf")]

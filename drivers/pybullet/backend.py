@@ -366,25 +366,3 @@ class PyBulletActuators(ActuatorsBase):
             raise ConfigurationError("reset_position() while enabled would jump the robot")
         for j, v in zip(self._joint_index, q):
             self._pb.resetJointState(self.robot, j, float(v), 0.0, physicsClientId=self._client)
-
-
-def default_scene(urdf_dir: Path | None = None) -> list[SceneObject]:
-    """The CT room of seed 000 as generated in ``urdf/``."""
-    from bench.scene.room import URDF_DIR
-
-    d = Path(urdf_dir) if urdf_dir else URDF_DIR
-    return [SceneObject(d / "ct_gantry.urdf", collide=False), SceneObject(d / "ct_bed.urdf"),
-            SceneObject(d / "phantom.urdf")]
-
-
-def render_robot(robot: str, q: np.ndarray, path: Path) -> Path:
-    """A picture of the robot at ``q`` in the CT room."""
-    from bench.scene.render import render_png
-    from bench.kinematics.registry import get_robot
-    from bench.scene.room import URDF_DIR
-
-    model = get_robot(robot)
-    settings = PyBulletSettings(URDF_DIR / f"{robot.replace('-', '_')}.urdf", model.joint_names,
-                                default_scene(), initial_position=q)
-    with PyBulletActuators(settings) as sim:
-        return render_png(sim.client, path)
