@@ -16,6 +16,7 @@ a safe stop (torque off or hold, per configuration) and closes it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Protocol, Sequence, runtime_checkable
 
@@ -25,6 +26,8 @@ __all__ = [
     "Actuators",
     "ActuatorsBase",
     "ActuatorError",
+    "BenchError",
+    "CommandError",
     "CommunicationError",
     "ConfigurationError",
     "HardwareFault",
@@ -34,8 +37,20 @@ __all__ = [
 ]
 
 
-class ActuatorError(RuntimeError):
+class BenchError(Exception):
+    """The root of every error the bench and its drivers raise on purpose.
+
+    Like ``gymnasium.error.Error``: one ``except BenchError`` handles every
+    refusal and failure the project itself reports, and nothing else.
+    """
+
+
+class ActuatorError(BenchError, RuntimeError):
     """Base class of everything a backend raises on purpose."""
+
+
+class CommandError(ActuatorError, ValueError):
+    """A command the actuators refuse before it reaches the hardware (wrong shape, not finite)."""
 
 
 class NotEnabledError(ActuatorError):
@@ -149,7 +164,7 @@ class ActuatorsBase:
     def _finite_probe(self) -> np.ndarray:
         z = self.__dict__.get("_finite_probe_cached")
         if z is None:
-            z = self.__dict__["_finite_probe_cached"] = np.zeros(self._n_joints)
+            z = self.__dict__["_finite_probe_cached"] = np.ones(self._n_joints)
         return z
 
     @property
@@ -177,13 +192,13 @@ class ActuatorsBase:
         position = np.asarray(position, dtype=float)
         n = self._n_joints
         if position.shape != (n,):
-            raise ValueError(f"command position has shape {position.shape}, expected ({n},)")
-        if position.dot(self._finite_probe) != 0.0:  # NaN exactly when an entry is NaN or infinite
-            raise ValueError(f"command position is not finite: {position}")
+            raise CommandError(f"command position has shape {position.shape}, expected ({n},)")
+        if not math.isfinite(position.dot(self._finite_probe)):  # NaN or inf iff an entry is
+            raise CommandError(f"command position is not finite: {position}")
         if velocity is not None:
             velocity = np.asarray(velocity, dtype=float)
             if velocity.shape != (n,):
-                raise ValueError(f"command velocity has shape {velocity.shape}, expected ({n},)")
+                raise CommandError(f"command velocity has shape {velocity.shape}, expected ({n},)")
         self._command(position, velocity)
 
     def close(self) -> None:

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Literal, Optional
 import yaml
 from pydantic import Field, ValidationError
 
-from bench.config.models import ConfigError, Strict
+from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 
 if TYPE_CHECKING:
     from bench.config.models import TrialConfig
@@ -89,17 +89,12 @@ class CalibrationFile(Strict):
 
 def load_calibration(path: Path | str) -> CalibrationFile:
     """Read and validate a calibration file; ConfigError with one line otherwise."""
-    from bench.config.models import read_yaml_mapping
-
     path = Path(path)
     data = read_yaml_mapping(path, "calibration file", ConfigError)
     try:
         return CalibrationFile.model_validate(data)
     except ValidationError as e:
-        first = e.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-        msg = "unknown field" if first["type"] == "extra_forbidden" else first["msg"]
-        raise ConfigError(f"{path}: {where}: {msg}") from None
+        raise ConfigError(describe_validation_error(e, CalibrationFile, path)) from None
 
 
 _HEADER = """\

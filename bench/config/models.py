@@ -10,14 +10,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
-import yaml
+from pydantic import Field, ValidationError, field_validator, model_validator
+
+from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
+from bench.config.calibration import check_calibration
+from bench.faults import parse_faults
+from bench.kinematics.registry import get_robot
 from bench.paths import REPO_ROOT, robot_urdf
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from drivers.dynamixel.control_table import BAUD_RATES, supported_models
 
-
-
-class ConfigError(ValueError):
-    """A configuration file that cannot be used; the message names the field."""
 
 
 #: Longest plan a trial may run (s): longer is a typo (a tiny speed, a huge settle time).
@@ -26,19 +27,6 @@ SEED_MAX = 2**63 - 1  # campaigns derive 63-bit trial seeds
 #: A trial's name becomes its run directory's name: a plain file name, nothing else.
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 SERIAL_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
-
-
-class Strict(BaseModel):
-    """Unknown fields refused, values frozen, every float finite, no control characters."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    @field_validator("*", mode="after")
-    @classmethod
-    def _printable(cls, value: Any) -> Any:
-        if isinstance(value, (str, Path)) and any(ord(c) < 32 or ord(c) == 127 for c in str(value)):
-            raise ValueError("control characters are not allowed")
-        return value
 
 
 class TargetConfig(Strict):
@@ -115,8 +103,6 @@ class ServoConfig(Strict):
 
     @model_validator(mode="after")
     def _known_model(self) -> "ServoConfig":
-        from drivers.dynamixel.control_table import supported_models
-
         names = set(supported_models().values())
         if self.model not in names:
             raise ValueError(f"unknown servo model {self.model!r}; supported: {sorted(names)}")
@@ -127,8 +113,6 @@ class ServoConfig(Strict):
 
 def model_number(name: str) -> int:
     """Dynamixel model number for a model name such as 'XM430-W350'."""
-    from drivers.dynamixel.control_table import supported_models
-
     by_name = {v: k for k, v in supported_models().items()}
     return by_name[name]
 
@@ -174,8 +158,6 @@ class DynamixelBackendConfig(Strict):
     @field_validator("baud")
     @classmethod
     def _x_series_baud(cls, v: int) -> int:
-        from drivers.dynamixel.control_table import BAUD_RATES
-
         if v not in BAUD_RATES.values():
             raise ValueError(f"baud {v} is not an X-series rate; choose from "
                              f"{sorted(BAUD_RATES.values())}")
@@ -315,8 +297,6 @@ class TrialConfig(Strict):
 
     @model_validator(mode="after")
     def _joint_names_known(self) -> "TrialConfig":
-        from bench.kinematics.registry import get_robot
-
         names = get_robot(self.robot).joint_names
         unknown = sorted(set(getattr(self.backend, "joints", {})) - set(names))
         if unknown:
@@ -336,8 +316,6 @@ class TrialConfig(Strict):
                                  f"{self.backend.physics_hz:g} (a control period is a whole number "
                                  f"of physics steps)")
         if self.faults:
-            from bench.faults import parse_faults
-
             parse_faults(self.faults, names)  # raises ValueError naming the bad fault
         return self
 
@@ -357,53 +335,6 @@ class TrialConfig(Strict):
         return robot_urdf(self.robot, self.resolve(self.urdf_dir))
 
 
-def _format_error(path: Path, err: ValidationError) -> str:
-    """One line: the field's path, what is wrong, and for a misspelt field what was meant."""
-    from bench.config.safe_yaml import quote
-
-    first = err.errors()[0]
-    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-    msg = first["msg"]
-    if first["type"] == "extra_forbidden":
-        msg = "unknown field" + _did_you_mean(str(first["loc"][-1]))
-    elif first["type"] == "string_pattern_mismatch" and first["loc"][-1] == "name":
-        msg = "must be a plain name: letters, digits, '.', '_' or '-', at most 64 characters"
-    elif isinstance(first.get("input"), (str, int, float, bool)) and first["type"] != "missing":
-        msg = f"{msg} (got {quote(first['input'])})"
-    msg = msg.removeprefix("Value error, ")
-    extra = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
-    return f"{path}: {where}: {msg}{extra}".replace("\n", " ")
-
-
-def _did_you_mean(name: str) -> str:
-    import difflib
-
-    fields = {f for model in _config_models() for f in model.model_fields}
-    close = difflib.get_close_matches(name, sorted(fields), n=1, cutoff=0.6)
-    return f"; did you mean {close[0]!r}?" if close else ""
-
-
-def _config_models() -> list[type[BaseModel]]:
-    return [m for m in globals().values()
-            if isinstance(m, type) and issubclass(m, Strict) and m is not Strict]
-
-
-def read_yaml_mapping(path: Path | str, what: str = "config file",
-                      error: type[Exception] = ValueError) -> dict:
-    """A YAML file whose top level is a mapping, or ``error`` with one line saying why not."""
-    from bench.config.safe_yaml import YamlRefused, read_mapping
-
-    path = Path(path)
-    if not path.is_file():
-        raise error(f"{what} not found: {path}")
-    try:
-        return read_mapping(path)
-    except YamlRefused as e:
-        raise error(f"{path}: {e}") from None
-    except OSError as e:
-        raise error(f"{path}: cannot read the {what}: {e.strerror}") from None
-
-
 def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialConfig:
     """Read and validate a trial config; raise ConfigError with one clear line."""
     path = Path(path)
@@ -412,9 +343,7 @@ def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialC
     try:
         config = TrialConfig.model_validate({**data, "source": path})
     except ValidationError as e:
-        raise ConfigError(_format_error(path, e)) from None
+        raise ConfigError(describe_validation_error(e, TrialConfig, path)) from None
     if config.calibration is not None:
-        from bench.config.calibration import check_calibration
-
         check_calibration(config)  # raises ConfigError naming the problem
     return config

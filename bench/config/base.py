@@ -1,0 +1,98 @@
+"""What every file the bench reads shares: strict models, one error type, one line per refusal.
+
+Trial configs, calibration files and campaign specs all refuse a bad file the
+same way: :class:`ConfigError` with one line naming the file, the field path
+and what is wrong (with "did you mean" for a misspelt field), before anything
+is built or moves.
+"""
+
+from __future__ import annotations
+
+import difflib
+import typing
+from pathlib import Path
+from typing import Any, Iterator, Optional
+
+from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+
+from bench.config.safe_yaml import YamlRefused, quote, read_mapping
+from drivers import BenchError
+
+__all__ = ["ConfigError", "Strict", "describe_validation_error", "read_yaml_mapping"]
+
+
+class ConfigError(BenchError, ValueError):
+    """A configuration file that cannot be used; the message names the field."""
+
+
+class Strict(BaseModel):
+    """Unknown fields refused, values frozen, every float finite, no control characters."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _printable(cls, value: Any) -> Any:
+        if isinstance(value, (str, Path)) and any(ord(c) < 32 or ord(c) == 127 for c in str(value)):
+            raise ValueError("control characters are not allowed")
+        return value
+
+
+def _models_in(annotation: Any) -> Iterator[type[BaseModel]]:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        yield annotation
+    for arg in typing.get_args(annotation):
+        yield from _models_in(arg)
+
+
+def field_names(model: type[BaseModel]) -> set[str]:
+    """Every field name of ``model`` and of the models nested in it: what a misspelling may have meant."""
+    seen: set[type[BaseModel]] = set()
+    names: set[str] = set()
+    todo = [model]
+    while todo:
+        m = todo.pop()
+        if m in seen:
+            continue
+        seen.add(m)
+        for name, info in m.model_fields.items():
+            names.add(name)
+            todo.extend(_models_in(info.annotation))
+    return names
+
+
+def did_you_mean(name: str, candidates: set[str]) -> str:
+    close = difflib.get_close_matches(name, sorted(candidates), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+def describe_validation_error(err: ValidationError, model: type[BaseModel],
+                              source: Optional[object] = None) -> str:
+    """One line: ``source: field.path: what is wrong`` (a misspelt field gets what was meant)."""
+    first = err.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    msg = first["msg"]
+    if first["type"] == "extra_forbidden":
+        msg = "unknown field" + did_you_mean(str(first["loc"][-1]), field_names(model))
+    elif first["type"] == "string_pattern_mismatch" and first["loc"][-1] == "name":
+        msg = "must be a plain name: letters, digits, '.', '_' or '-', at most 64 characters"
+    elif isinstance(first.get("input"), (str, int, float, bool)) and first["type"] != "missing":
+        msg = f"{msg} (got {quote(first['input'])})"
+    msg = msg.removeprefix("Value error, ")
+    extra = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
+    head = f"{source}: " if source is not None else ""
+    return f"{head}{where}: {msg}{extra}".replace("\n", " ")
+
+
+def read_yaml_mapping(path: Path | str, what: str = "config file",
+                      error: type[Exception] = ConfigError) -> dict:
+    """A YAML file whose top level is a mapping, or ``error`` with one line saying why not."""
+    path = Path(path)
+    if not path.is_file():
+        raise error(f"{what} not found: {path}")
+    try:
+        return read_mapping(path)
+    except YamlRefused as e:
+        raise error(f"{path}: {e}") from None
+    except OSError as e:
+        raise error(f"{path}: cannot read the {what}: {e.strerror}") from None
