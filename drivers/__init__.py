@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Protocol, Sequence, runtime_checkable
+from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -27,6 +27,7 @@ __all__ = [
     "ActuatorsBase",
     "ActuatorError",
     "BenchError",
+    "require_capability",
     "CommandError",
     "CommunicationError",
     "ConfigurationError",
@@ -137,6 +138,14 @@ class Actuators(Protocol):
     def close(self) -> None:
         """Safe stop and release every resource; idempotent."""
 
+    @property
+    def unwrapped(self) -> "Actuators":
+        """The backend itself, under any wrappers (Gymnasium's ``Env.unwrapped``)."""
+
+    @property
+    def capabilities(self) -> frozenset[str]:
+        """The extras beyond this contract the backend offers, by method name (declared, not probed)."""
+
     def __enter__(self) -> "Actuators": ...
 
     def __exit__(self, *exc: object) -> None: ...
@@ -149,6 +158,19 @@ class ActuatorsBase:
     this class enforces the order (``OrderEnforcing`` in Gymnasium's terms) and
     the shape of commands, so every backend refuses bad calls the same way.
     """
+
+    #: Extras beyond the contract, by method name: ``set_effort_limit`` (torque
+    #: limits), ``joint_kinds``, ``servo_info``, ``link_pose``... Declared, as
+    #: ros2_control declares its interfaces, so callers ask instead of probing.
+    capabilities: frozenset[str] = frozenset()
+    #: Where bus-level faults are set (``drop_prob``, ``delay_s``, ``corrupt_crc_prob``,
+    #: ``silent``) when the bus is an emulator; None on real hardware and in simulation.
+    fault_hooks: Any = None
+
+    @property
+    def unwrapped(self) -> "ActuatorsBase":
+        return self
+
 
     _enabled: bool = False
     _closed: bool = False
@@ -228,3 +250,11 @@ class ActuatorsBase:
 
     def _close(self) -> None:
         raise NotImplementedError
+
+
+def require_capability(actuators: Actuators, name: str, what: str) -> Actuators:
+    """The backend under ``actuators`` if it declares ``name``; else one line naming it and ``what`` needs it."""
+    backend = actuators.unwrapped
+    if name not in backend.capabilities:
+        raise ConfigurationError(f"{what} needs a backend with {name}(); {type(backend).__name__} has none")
+    return backend

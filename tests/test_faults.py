@@ -333,7 +333,7 @@ def test_status_faults_go_to_the_emulator_when_the_backend_has_one():
     from drivers.emulator import BusFaults
 
     faults = BusFaults()
-    base = Kinematic(emulator=SimpleNamespace(faults=faults))
+    base = Kinematic(fault_hooks=faults)
     specs = parse_faults([{"name": "dropped_status", "prob": 0.2},
                           {"name": "corrupt_crc", "prob": 0.1},
                           {"name": "late_status", "prob": 1.0, "delay_ms": 3.0},

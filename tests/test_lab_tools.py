@@ -138,7 +138,6 @@ def test_doctor_flags_exactly_the_planted_problems(faulty_rig):
 
 def test_doctor_port_and_latency_lines(tmp_path, monkeypatch):
     import bench.lab.doctor as doctor
-    import drivers.dynamixel.backend as backend
 
     port = tmp_path / "ttyUSB0"
     port.write_text("")
@@ -147,9 +146,9 @@ def test_doctor_port_and_latency_lines(tmp_path, monkeypatch):
     def add(name, status, detail):
         checks.append((name, status, detail))
 
-    monkeypatch.setattr(backend, "latency_timer_ms", lambda p: 16)
+    monkeypatch.setattr(doctor, "latency_timer_ms", lambda p: 16)
     doctor._latency_check(add, str(port), True)
-    monkeypatch.setattr(backend, "latency_timer_ms", lambda p: 1)
+    monkeypatch.setattr(doctor, "latency_timer_ms", lambda p: 1)
     doctor._latency_check(add, str(port), True)
     monkeypatch.setattr(doctor.os, "access", lambda p, mode: False)
     doctor._port_check(add, "servo port", str(port))

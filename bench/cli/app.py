@@ -15,7 +15,8 @@ from typing import Optional
 
 import numpy as np
 import typer
-from rich.console import Console
+
+from bench.cli.common import console, emit_json, err_console, fail
 from rich.table import Table
 
 app = typer.Typer(no_args_is_help=True,
@@ -23,19 +24,10 @@ app = typer.Typer(no_args_is_help=True,
 urdf_app = typer.Typer(no_args_is_help=True, help="Generate or check the URDF scene files.")
 app.add_typer(urdf_app, name="urdf")
 
-console = Console()
-err_console = Console(stderr=True)
 
 
-def fail(message: str, code: int = 2) -> "typer.Exit":
-    """Print one line on stderr and leave with ``code``."""
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
 
 
-def emit_json(obj: object) -> None:
-    sys.stdout.write(json.dumps(obj) + "\n")
-    sys.stdout.flush()
 
 
 def _version(value: bool) -> None:
@@ -267,9 +259,9 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
     if rig is not None:
         from bench.trial.run import make_backend
 
-        def factory(prep):  # the backend reaches the emulator's bus faults through .emulator
+        def factory(prep):  # bus-level faults reach the emulator through the backend's hooks
             backend = make_backend(prep)
-            backend.emulator = rig
+            backend.fault_hooks = rig.faults
             return backend
     try:
         return _run_with_progress(cfg, out, gui, note, factory, guard), cfg.name

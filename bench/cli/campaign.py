@@ -8,19 +8,16 @@ ends with 130 after the trials in flight are recorded.
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
+
+from bench.cli.common import console, emit_json, err_console, fail
 from typer.core import TyperGroup
 
 __all__ = ["campaign_app"]
 
-err_console = Console(stderr=True)
-console = Console()
 
 
 class _RunByDefault(TyperGroup):
@@ -37,14 +34,8 @@ campaign_app = typer.Typer(
     help="Fault-injection campaigns: `hilbench campaign SPEC` (= run), resume, rerun, export, report.")
 
 
-def _fail(message: str, code: int = 2) -> typer.Exit:
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
 
 
-def _emit(obj: object) -> None:
-    sys.stdout.write(json.dumps(obj) + "\n")
-    sys.stdout.flush()
 
 
 def _progress_bar():
@@ -73,9 +64,9 @@ def _run(campaign_dir: Path, workers: Optional[int], scheduler: Optional[str], a
                                    progress=on_progress, report=report,
                                    notify=lambda m: err_console.print(f"[yellow]note:[/] {m}", highlight=False))
         except (CampaignError, RuntimeError, ValueError) as e:
-            _fail(str(e))
+            fail(str(e))
     if as_json:
-        _emit(summary.as_json())
+        emit_json(summary.as_json())
     else:
         rate = f" ({100 * summary.passed / summary.completed:.1f} %)" if summary.completed else ""
         console.print(f"campaign {campaign_dir}: planned {summary.planned}, done {summary.completed}, "
@@ -110,7 +101,7 @@ def run(spec: Path = typer.Argument(..., help="A campaign spec, e.g. hil_configs
     try:
         campaign_dir = create_campaign(spec, out)
     except (CampaignSpecError, CampaignError) as e:
-        _fail(str(e))
+        fail(str(e))
     err_console.print(f"campaign directory: {campaign_dir}", highlight=False)
     _run(campaign_dir, workers, scheduler, as_json, report)
 
@@ -133,9 +124,9 @@ def rerun(campaign_dir: Path = typer.Argument(...), trial_id: int = typer.Argume
     try:
         res = rerun_trial(campaign_dir, trial_id, out)
     except (CampaignError, KeyError) as e:
-        _fail(str(e.args[0] if isinstance(e, KeyError) else e))
+        fail(str(e.args[0] if isinstance(e, KeyError) else e))
     if as_json:
-        _emit(res)
+        emit_json(res)
     else:
         console.print(f"trial {res['trial']} ({res['name']}, seed {res['seed']}): "
                       + ("identical to the record" if res["identical"] else
@@ -162,9 +153,9 @@ def export(campaign_dir: Path = typer.Argument(...),
     try:
         path = export_csv(campaign_dir, csv)
     except CampaignError as e:
-        _fail(str(e))
+        fail(str(e))
     if as_json:
-        _emit({"csv": str(path)})
+        emit_json({"csv": str(path)})
     else:
         err_console.print(f"wrote {path}", highlight=False)
 
@@ -179,10 +170,10 @@ def report_cmd(campaign_dir: Path = typer.Argument(...),
     try:
         open_store(campaign_dir).close()
     except CampaignError as e:
-        _fail(str(e))
+        fail(str(e))
     paths = write_campaign_report(campaign_dir)
     if as_json:
-        _emit({k: str(v) for k, v in paths.items()})
+        emit_json({k: str(v) for k, v in paths.items()})
     else:
         console.print(f"report: {paths['html']}", highlight=False)
 
@@ -195,9 +186,9 @@ def status(campaign_dir: Path = typer.Argument(...), as_json: bool = _JSON) -> N
     try:
         s = summarize(campaign_dir)
     except CampaignError as e:
-        _fail(str(e))
+        fail(str(e))
     if as_json:
-        _emit(s.as_json())
+        emit_json(s.as_json())
     else:
         console.print(f"planned {s.planned}, done {s.completed}, passed {s.passed}, errors {s.errors}, "
                       f"not run {s.pending}", highlight=False)

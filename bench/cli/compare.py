@@ -5,29 +5,19 @@ Kept in its own module; ``bench/cli/app.py`` registers :func:`compare`.
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
-from typing import NoReturn, Optional
+from typing import Optional
 
 import typer
-from rich.console import Console
+
+from bench.cli.common import console, emit_json, err_console, fail
 
 __all__ = ["compare"]
 
-_console = Console()
-_err = Console(stderr=True)
 
 
-def _fail(message: str, code: int = 2) -> NoReturn:
-    """One line on stderr, then exit with ``code`` (2: bad input, nothing moved)."""
-    _err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
 
 
-def _emit(obj: object) -> None:
-    sys.stdout.write(json.dumps(obj) + "\n")
-    sys.stdout.flush()
 
 
 def _is_config(path: Path) -> bool:
@@ -39,13 +29,13 @@ def _log_path(path: Path) -> Path:
     if path.is_dir():
         p = path / "trial.npz"
         if not p.is_file():
-            _fail(f"{path}: not a trial run directory (no trial.npz in it)")
+            fail(f"{path}: not a trial run directory (no trial.npz in it)")
         return p
     if path.is_file() and path.suffix == ".npz":
         return path
     if not path.exists():
-        _fail(f"{path}: no such file or directory")
-    _fail(f"{path}: expected a trial config (.yaml), a trial run directory or a trial.npz")
+        fail(f"{path}: no such file or directory")
+    fail(f"{path}: expected a trial config (.yaml), a trial run directory or a trial.npz")
 
 
 def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with backend.kind: dynamixel, "
@@ -64,32 +54,32 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
             as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Compare sim and real tracking: run a config's plan on both backends N times, or compare two runs."""
     if align not in ("motion", "xcorr"):
-        _fail(f"--align must be 'motion' or 'xcorr', got {align!r}")
+        fail(f"--align must be 'motion' or 'xcorr', got {align!r}")
     if _is_config(first):
         if second is not None:
-            _fail(f"{second}: a second argument only goes with a run as the first (got a config, {first})")
+            fail(f"{second}: a second argument only goes with a run as the first (got a config, {first})")
         result, out_dir = _from_config(first, repeats, emulate, retries, align, out)
     else:
         if second is None:
-            _fail(f"{first}: give two runs to compare (RUN_A RUN_B), or a trial config (.yaml)")
+            fail(f"{first}: give two runs to compare (RUN_A RUN_B), or a trial config (.yaml)")
         if emulate or repeats != 5 or retries is not None:
-            _fail("--repeats, --emulate and --retries go with a config, not with two saved runs")
+            fail("--repeats, --emulate and --retries go with a config, not with two saved runs")
         result, out_dir = _from_runs(first, second, align, out)
     summary = result.summary()
     summary["report"] = str(out_dir / "report.html")
     if as_json:
-        _emit(summary)
+        emit_json(summary)
     else:
         verdict = "[green]PASSED[/]" if result.passed else "[red]FAILED[/]"
         sub = result.subject
-        _console.print(f"{sub.label}: {verdict} over {len(sub.logs)} repeat(s) "
+        console.print(f"{sub.label}: {verdict} over {len(sub.logs)} repeat(s) "
                        f"({result.acceptance[0]:g} mm / {result.acceptance[1]:g}°)")
-        _console.print(f"tip deviation (mm): mean {summary['tip_deviation_mm']['mean']}, "
+        console.print(f"tip deviation (mm): mean {summary['tip_deviation_mm']['mean']}, "
                        f"max {summary['tip_deviation_mm']['max']}")
-        _console.print(f"worst joint: {summary['worst_joint']}")
-        _console.print(f"report: {out_dir / 'report.html'}")
+        console.print(f"worst joint: {summary['worst_joint']}")
+        console.print(f"report: {out_dir / 'report.html'}")
     if not result.passed:
-        _err.print(f"[bold red]compare failed:[/] {summary['reason']}", highlight=False,
+        err_console.print(f"[bold red]compare failed:[/] {summary['reason']}", highlight=False,
                    soft_wrap=True)
     raise typer.Exit(0 if result.passed else 1)
 
@@ -107,9 +97,9 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
     try:
         cfg = load_trial_config(path)
     except ConfigError as e:
-        _fail(str(e))
+        fail(str(e))
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                  TimeElapsedColumn(), console=_err, transient=True) as bar:
+                  TimeElapsedColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task(f"compare {cfg.name}", total=1.0)
 
         def progress(what: str, fraction: float) -> None:
@@ -120,10 +110,10 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
                 res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
                                      align=align, progress=progress, interrupts=guard)
             except (CompareError, ConfigError, TrialError, PlanMismatchError, ActuatorError) as e:
-                _fail(str(e))
+                fail(str(e))
             except TrialInterrupted as e:
                 bar.stop()
-                _err.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] compare stopped; "
+                err_console.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] compare stopped; "
                            f"the rig got its safe stop ({cfg.backend.safe_stop}); the runs so far "
                            f"are under {out}", highlight=False, soft_wrap=True)
                 raise typer.Exit(e.exit_code)
@@ -141,7 +131,7 @@ def _from_runs(a: Path, b: Path, align: str, out: Path):
     try:
         la, lb = TrialLog.load(pa), TrialLog.load(pb)
     except (OSError, ValueError, KeyError) as e:
-        _fail(f"cannot read the trial logs: {e}")
+        fail(f"cannot read the trial logs: {e}")
     # the run on hardware (or its emulator) is the one judged; with two alike, the second
     if la.metadata.get("backend") == "dynamixel" and lb.metadata.get("backend") != "dynamixel":
         (la, pa, a), (lb, pb, b) = (lb, pb, b), (la, pa, a)
@@ -152,7 +142,7 @@ def _from_runs(a: Path, b: Path, align: str, out: Path):
         result = compare_logs([la], [lb], labels=labels, sources=([str(a)], [str(b)]),
                               align=align)  # type: ignore[arg-type]
     except (PlanMismatchError, ValueError, KeyError) as e:
-        _fail(str(e).replace("\n", " "))
+        fail(str(e).replace("\n", " "))
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     name = (la.metadata.get("config") or {}).get("name", "runs")
     out_dir = Path(out) / f"{stamp}-compare-{name}"

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
+
+from bench.cli.common import console, emit_json, err_console, fail
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
 
@@ -22,13 +21,6 @@ def contact_protocol(
     out: Optional[Path] = typer.Option(None, "--out", help="Also write DIR/report.md with the tables."),
 ) -> None:
     """Run the paper's 64 contact trials (P1-P3, six postures, 25 and 15 mm, 20 mm margin)."""
-    console = Console()
-    err = Console(stderr=True)
-
-    def fail(message: str) -> None:
-        err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
-        raise typer.Exit(2)
-
     from bench.contact.protocol import POINTS, PAPER_CORRECT, markdown_report, run_protocol
     from bench.kinematics.registry import get_robot
 
@@ -44,7 +36,7 @@ def contact_protocol(
     if out is not None and out.exists() and not out.is_dir():
         fail(f"--out {out} exists and is not a directory")
     progress = Progress(TextColumn("contact trials"), BarColumn(), MofNCompleteColumn(),
-                        console=err, transient=True, disable=as_json or not err.is_terminal)
+                        console=err_console, transient=True, disable=as_json or not err_console.is_terminal)
     with progress:
         task = progress.add_task("trials", total=None)
         try:
@@ -57,8 +49,7 @@ def contact_protocol(
         out.mkdir(parents=True, exist_ok=True)
         (out / "report.md").write_text(markdown_report(result))
     if as_json:
-        sys.stdout.write(json.dumps(result.summary()) + "\n")
-        sys.stdout.flush()
+        emit_json(result.summary())
         return
     for point in POINTS:
         pts = [t for t in result.trials if t.point == point]

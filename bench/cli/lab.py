@@ -10,33 +10,26 @@ found while working ends with one line and exit code 1, torque off.
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator, NoReturn, Optional
+from typing import TYPE_CHECKING, Iterator, Optional
 
 import typer
-from rich.console import Console
+
+from bench.cli.common import emit_json, err_console, fail
 
 if TYPE_CHECKING:
     from bench.config.models import TrialConfig
 
 __all__ = ["calibrate", "doctor", "jog", "scan"]
 
-err = Console(stderr=True, highlight=False)
 
 _STATUS = {"pass": "[green]PASS[/]", "warn": "[yellow]WARN[/]", "fail": "[bold red]FAIL[/]"}
 
 
-def _fail(message: str, code: int = 2) -> NoReturn:
-    err.print(f"[bold red]error:[/] {message}", soft_wrap=True)
-    raise typer.Exit(code)
 
 
-def _emit(obj: object) -> None:
-    sys.stdout.write(json.dumps(obj) + "\n")
-    sys.stdout.flush()
 
 
 def _load(config: Path, tool: str) -> "TrialConfig":
@@ -49,7 +42,7 @@ def _load(config: Path, tool: str) -> "TrialConfig":
         cfg = load_trial_config(config)
         require_dynamixel(cfg, tool)
     except (ConfigError, ConfigurationError) as e:
-        _fail(str(e))
+        fail(str(e))
     return cfg
 
 
@@ -68,7 +61,7 @@ def _rig(config: Path, cfg: "TrialConfig", emulate: bool) -> Iterator["TrialConf
     try:
         rig = EmulatorProcess(config)
     except RuntimeError as e:
-        _fail(str(e))
+        fail(str(e))
     try:
         yield rig.retarget(cfg)
     finally:
@@ -100,15 +93,15 @@ def scan(port: str = typer.Option(..., "--port", help="Serial port of the servo 
     from drivers.dynamixel.bus import open_error
 
     if baud and all_bauds:
-        _fail("give --baud or --all-bauds, not both")
+        fail("give --baud or --all-bauds, not both")
     try:
         rates = check_bauds(ALL_BAUDS if all_bauds else (baud or DEFAULT_BAUDS))
     except ValueError as e:
-        _fail(str(e))
+        fail(str(e))
     if not os.path.exists(port) or not os.access(port, os.R_OK | os.W_OK):
-        _fail(f"servo {open_error(port)}")
+        fail(f"servo {open_error(port)}")
     progress = Progress(TextColumn("scanning {task.description}"), BarColumn(), MofNCompleteColumn(),
-                        console=err, transient=True, disable=not err.is_terminal)
+                        console=err_console, transient=True, disable=not err_console.is_terminal)
     try:
         with progress:
             task = progress.add_task(f"{port}", total=len(rates))
@@ -120,11 +113,11 @@ def scan(port: str = typer.Option(..., "--port", help="Serial port of the servo 
             progress.update(task, description=f"{port} at {rates[0]} bps")
             found = scan_bus(port, rates, max_id, progress=step)
     except ActuatorError as e:
-        _fail(str(e), 1 if os.path.exists(port) else 2)
+        fail(str(e), 1 if os.path.exists(port) else 2)
     except KeyboardInterrupt:
-        _fail("interrupted", 130)
+        fail("interrupted", 130)
     if as_json:
-        _emit([servo_row(s) for s in found])
+        emit_json([servo_row(s) for s in found])
         return
     t = Table(title=f"{len(found)} servo(s) on {port}", box=box.SIMPLE_HEAD, title_justify="left")
     for col in ("ID", "model", "fw", "baud", "mode", "torque", "error", "V", "°C"):
@@ -136,8 +129,8 @@ def scan(port: str = typer.Option(..., "--port", help="Serial port of the servo 
                   f"{s.voltage_v:.1f}" if s.voltage_v is not None else "?",
                   f"{s.temperature_c:.0f}" if s.temperature_c is not None else "?",
                   style="red" if s.hardware_error else None)
-    err.print(t)
-    err.print(f"scanned {', '.join(str(r) for r in rates)} bps, IDs 0–{max_id}")
+    err_console.print(t)
+    err_console.print(f"scanned {', '.join(str(r) for r in rates)} bps, IDs 0–{max_id}")
 
 
 # ---------------------------------------------------------------------------
@@ -164,7 +157,7 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
 
     cfg = _load(config, "doctor")
     counts = {"pass": 0, "warn": 0, "fail": 0}
-    spinner = Status("doctor: checking", console=err) if not as_json else contextlib.nullcontext()
+    spinner = Status("doctor: checking", console=err_console) if not as_json else contextlib.nullcontext()
 
     def show(c) -> None:
         counts[c.status] += 1
@@ -172,22 +165,22 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
             return
         spinner.update(f"doctor: {sum(counts.values())} checks, last: {c.name}")
         if verbose or c.status != "pass":
-            err.print(f"{_STATUS[c.status]}  {c.name}: {c.detail}", soft_wrap=True)
+            err_console.print(f"{_STATUS[c.status]}  {c.name}: {c.detail}", soft_wrap=True)
 
     try:
         with _rig(config, cfg, emulate) as cfg, spinner:
             checks = run_doctor(cfg, listen_s=listen_s, on_check=show)
     except KeyboardInterrupt:
-        _fail("interrupted", 130)
+        fail("interrupted", 130)
     ok = not any(c.status == "fail" for c in checks)
     failed = [c for c in checks if c.status == "fail"]
     reason = "; ".join(f"{c.name}: {c.detail}" for c in failed)
     if as_json:
-        _emit({"checks": [c.as_dict() for c in checks], "ok": ok, "reason": reason})
+        emit_json({"checks": [c.as_dict() for c in checks], "ok": ok, "reason": reason})
     else:
         n = {s: sum(c.status == s for c in checks) for s in ("pass", "warn", "fail")}
         verdict = "[green]ready for a trial[/]" if ok else "[bold red]not ready[/]"
-        err.print(f"{verdict}: {n['fail']} failed, {n['warn']} warning(s), {n['pass']} passed")
+        err_console.print(f"{verdict}: {n['fail']} failed, {n['warn']} warning(s), {n['pass']} passed")
     raise typer.Exit(0 if ok else 1)
 
 
@@ -227,31 +220,31 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
 
     cfg = _load(config, "calibrate")
     if write not in ("config", "homing"):
-        _fail(f"--write must be config or homing, got {write!r}")
+        fail(f"--write must be config or homing, got {write!r}")
     if 0 < stops < 3:
-        _fail(f"--stops must be 0 (no ultrasonic fit) or at least 3, got {stops}")
+        fail(f"--stops must be 0 (no ultrasonic fit) or at least 3, got {stops}")
     if not yes and not sys.stdin.isatty():
-        _fail("calibrate asks the technician at each step: run it in a terminal, or pass --yes")
+        fail("calibrate asks the technician at each step: run it in a terminal, or pass --yes")
     if not emulate:
         try:
             check_ports(cfg, ultrasonic=stops > 0)
         except ActuatorError as e:
-            _fail(str(e))
+            fail(str(e))
 
     def confirm(message: str) -> bool:
         if yes:
             return True
-        answer = err.input(f"[bold]{message}[/] — Enter when ready, s to skip: ")
+        answer = err_console.input(f"[bold]{message}[/] — Enter when ready, s to skip: ")
         return answer.strip().lower() not in ("s", "skip")
 
     def note(message: str) -> None:
         if not as_json:
-            err.print(message, soft_wrap=True)
+            err_console.print(message, soft_wrap=True)
 
     if write == "homing" and not yes and not confirm(
             "--write homing stores the zeros in each servo's Homing Offset (EEPROM, torque off "
             "for the write); the calibration file then holds no joint offsets"):
-        _fail("calibration cancelled; nothing written", 1)
+        fail("calibration cancelled; nothing written", 1)
     if out is None and emulate:  # an emulated rig's calibration is not the rig's: keep them apart
         from bench.lab.calibrate import default_output
 
@@ -263,12 +256,12 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
                                   confirm=confirm, note=note, accept_large=accept_large,
                                   span=math.radians(span_deg) if span_deg is not None else None)
     except KeyboardInterrupt:
-        _fail("interrupted: no calibration file written", 130)
+        fail("interrupted: no calibration file written", 130)
     except (ActuatorError, ValueError) as e:
-        _fail(f"{e}; no calibration file written", 1)
+        fail(f"{e}; no calibration file written", 1)
     f = res.file
     if as_json:
-        _emit({"file": str(res.path), "write": write,
+        emit_json({"file": str(res.path), "write": write,
                "joints": {j: {"offset": z.offset, "change": z.change} for j, z in res.zeros.items()},
                "homing_offsets": f.homing_offsets, "refused": res.refused,
                "ultrasonic": None if f.ultrasonic is None else {
@@ -288,14 +281,14 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
 
         t.add_row(j, fmt(z.configured), fmt(z.offset),
                   fmt(z.change, "+") + (" [yellow](not written)[/]" if j in res.refused else ""))
-    err.print(t)
+    err_console.print(t)
     if f.ultrasonic is not None:
-        err.print(f"ultrasonic: reading = {f.ultrasonic.offset_mm:.2f} mm + {f.ultrasonic.scale:.5f} · d2 "
+        err_console.print(f"ultrasonic: reading = {f.ultrasonic.offset_mm:.2f} mm + {f.ultrasonic.scale:.5f} · d2 "
                   f"(config standoff {cfg.backend.ultrasonic.standoff_mm:.1f} mm), residual "
                   f"{f.ultrasonic.residual_mm:.2f} mm RMS over {len(f.ultrasonic.stops)} stops")
     for joint, why in res.refused.items():
-        err.print(f"[yellow]warning:[/] {joint}: zero not written: {why}", soft_wrap=True)
-    err.print(f"calibration written: [bold]{res.path}[/]; use it with `calibration: {res.path}` in {config}")
+        err_console.print(f"[yellow]warning:[/] {joint}: zero not written: {why}", soft_wrap=True)
+    err_console.print(f"calibration written: [bold]{res.path}[/]; use it with `calibration: {res.path}` in {config}")
 
 
 # ---------------------------------------------------------------------------
@@ -315,13 +308,13 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
 
     cfg = _load(config, "jog")
     if not (sys.stdin.isatty() and sys.stderr.isatty()):
-        _fail("jog reads keys from a terminal: stdin and stderr must be a TTY "
+        fail("jog reads keys from a terminal: stdin and stderr must be a TTY "
               "(not a pipe, a file or a script)")
     if not emulate:
         try:
             check_ports(cfg)
         except ActuatorError as e:
-            _fail(str(e))
+            fail(str(e))
     robot = get_robot(cfg.robot)
     revolute = [row.kind == "revolute" for row in robot.chain.rows]
     reason = "error"
@@ -330,11 +323,11 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
                 open_backend(cfg) as act:  # torque off when this block is left, however it is left
             act.enable()
             with RawKeys(sys.stdin.fileno()) as keys, \
-                    Live(console=err, auto_refresh=False, transient=False) as live:
+                    Live(console=err_console, auto_refresh=False, transient=False) as live:
                 reason = run_jog(act, keys, lambda s, st: live.update(jog_view(s, st, f"jog {cfg.name}"),
                                                                         refresh=True), revolute)
     except KeyboardInterrupt:
-        _fail("interrupted: torque off", 130)
+        fail("interrupted: torque off", 130)
     except ActuatorError as e:
-        _fail(f"{e}; torque off", 1)
-    err.print(f"jog ended ({reason}): torque off on every servo")
+        fail(f"{e}; torque off", 1)
+    err_console.print(f"jog ended ({reason}): torque off on every servo")

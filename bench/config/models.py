@@ -19,8 +19,6 @@ from bench.kinematics.registry import get_robot
 from bench.paths import REPO_ROOT, robot_urdf
 from drivers.dynamixel.control_table import BAUD_RATES, supported_models
 
-
-
 #: Longest plan a trial may run (s): longer is a typo (a tiny speed, a huge settle time).
 MAX_PLAN_S = 600.0
 SEED_MAX = 2**63 - 1  # campaigns derive 63-bit trial seeds

@@ -25,11 +25,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench.geometry.torus import Torus, box_point_distance, cylinder_point_distance, sphere_point_distance
+from bench.kinematics.needle import UnreachableError
+from bench.kinematics.zerobot import ZerobotRobot
 from bench.scene.contact import DEFAULT_MARGIN, GantryClearance, GantryContact, default_gantry
 from bench.scene.robot_geometry import RobotGeometry
-from bench.geometry.torus import (Torus, box_point_distance, cylinder_point_distance,
-                                  sphere_point_distance)
-from bench.kinematics.needle import UnreachableError
 
 __all__ = ["POSTURES", "POINTS", "DISTANCES", "Approach", "Trial", "ProtocolResult",
            "run_protocol", "caliper_distance", "markdown_report", "PAPER_CORRECT"]
@@ -196,7 +196,7 @@ def _start(model, approach: Approach, posture: int) -> tuple[np.ndarray, tuple]:
 
 def _approach_to(model, geometry, torus, entry, angles, direction, target, tol=1e-9):
     """Move along ``direction`` until the caliper reads ``target`` (the first crossing)."""
-    from scipy.optimize import brentq
+    from scipy.optimize import brentq  # heavy: scipy, only for the fit
 
     def q_at(s: float) -> np.ndarray:
         return model.place(entry + s * direction, angles[0], angles[1], 0.0)
@@ -227,7 +227,6 @@ def _approach_to(model, geometry, torus, entry, angles, direction, target, tol=1
 def run_protocol(model=None, margin: float = DEFAULT_MARGIN, progress=None) -> ProtocolResult:
     """All 64 trials; ``progress(done, total)`` is called after each one."""
     if model is None:
-        from bench.kinematics.zerobot import ZerobotRobot
 
         model = ZerobotRobot()
     if getattr(model, "name", None) != "zerobot":

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.scene.contact import GantryClearance
+from drivers.quiet import muted_output, quiet_pybullet
 
 __all__ = ["interesting_poses", "PyBulletDistances"]
 
@@ -61,7 +62,6 @@ class PyBulletDistances:
     gantry_urdf: Path
 
     def __post_init__(self) -> None:
-        from drivers.quiet import muted_output, quiet_pybullet
 
         pb = quiet_pybullet()
         self._pb = pb

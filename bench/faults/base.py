@@ -4,8 +4,10 @@ Like ``gymnasium.Wrapper``, a :class:`FaultWrapper` forwards the whole
 contract to the actuators it wraps, so a fault only overrides the call it
 changes (``read`` for a sensor fault, ``command`` for a servo fault), faults
 stack in any order, and the same fault runs on the simulator and on the real
-bus. ``unwrapped`` reaches the backend under the stack, for the extras a
-fault needs (``set_effort_limit``, emulator hooks).
+bus. ``unwrapped`` reaches the backend under the stack, for the extras it
+declares in ``capabilities`` (``set_effort_limit``...) and its ``fault_hooks``;
+nothing else is forwarded implicitly (Gymnasium dropped ``__getattr__``
+forwarding for the same reason: a typo must not reach the hardware).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bench.kinematics.registry import ROBOTS
 from drivers import Actuators, ConfigurationError, JointLimits, JointState
 
 __all__ = ["FaultWrapper", "joint_kinds", "kinds_for_names"]
@@ -69,16 +72,12 @@ class FaultWrapper:
     # -- the stack ----------------------------------------------------------------
     @property
     def unwrapped(self) -> Actuators:
-        """The backend under every wrapper."""
-        inner = self.actuators
-        return inner.unwrapped if isinstance(inner, FaultWrapper) else inner
+        """The backend under every wrapper: where its declared extras are called."""
+        return self.actuators.unwrapped
 
-    def __getattr__(self, name: str):
-        # Backend extras (link_pose, client, joint_kinds...) stay reachable
-        # through the stack; private names are never forwarded.
-        if name.startswith("_") or name == "actuators":
-            raise AttributeError(name)
-        return getattr(self.actuators, name)
+    @property
+    def capabilities(self) -> frozenset[str]:
+        return self.actuators.capabilities
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__}{self.actuators!r}>"
@@ -96,8 +95,6 @@ class FaultWrapper:
 @lru_cache(maxsize=None)
 def kinds_for_names(joint_names: tuple[str, ...]) -> tuple[str, ...] | None:
     """Joint kinds (``revolute``/``prismatic``) of the known robot with these joints, if any."""
-    from bench.kinematics.registry import ROBOTS
-
     for factory in ROBOTS.values():
         robot = factory()
         if tuple(robot.joint_names) == joint_names:
@@ -107,7 +104,8 @@ def kinds_for_names(joint_names: tuple[str, ...]) -> tuple[str, ...] | None:
 
 def joint_kinds(actuators: Actuators) -> list[str]:
     """Kinds of the actuators' joints: from the backend if it says, else from the robot model."""
-    kinds = getattr(_unwrap(actuators), "joint_kinds", None)
+    backend = actuators.unwrapped
+    kinds = backend.joint_kinds if "joint_kinds" in backend.capabilities else None
     if kinds is None:
         kinds = kinds_for_names(tuple(actuators.joint_names))
     if kinds is None:
@@ -115,7 +113,3 @@ def joint_kinds(actuators: Actuators) -> list[str]:
             f"cannot tell revolute from prismatic joints among {list(actuators.joint_names)}: "
             "the backend has no joint_kinds and no known robot has these joints")
     return list(kinds)
-
-
-def _unwrap(actuators: Actuators) -> Actuators:
-    return actuators.unwrapped if isinstance(actuators, FaultWrapper) else actuators

@@ -17,27 +17,16 @@ from typing import Any
 
 import numpy as np
 
-from drivers import Actuators, ConfigurationError, JointState
-
 from bench.faults.base import FaultWrapper
+from drivers import Actuators, ConfigurationError, JointState
 
 __all__ = ["DroppedStatus", "EmulatorStatusFault", "LateStatus", "emulator_fault_target"]
 
 
 def emulator_fault_target(actuators: Actuators, field: str) -> Any | None:
-    """The object whose ``field`` injects a bus fault (e.g. ``BusFaults.drop_prob``), if any.
-
-    Accepts ``backend.emulator`` being the bus emulator (``.faults``), a rig
-    holding it (``.bus.faults``), or the fault settings themselves.
-    """
-    backend = actuators.unwrapped if isinstance(actuators, FaultWrapper) else actuators
-    em = getattr(backend, "emulator", None)
-    if em is None:
-        return None
-    for candidate in (getattr(em, "faults", None), getattr(getattr(em, "bus", None), "faults", None), em):
-        if candidate is not None and hasattr(candidate, field):
-            return candidate
-    return None
+    """The backend's ``fault_hooks`` if they have ``field`` (e.g. ``BusFaults.drop_prob``), else None."""
+    hooks = actuators.unwrapped.fault_hooks
+    return hooks if hooks is not None and hasattr(hooks, field) else None
 
 
 class EmulatorStatusFault(FaultWrapper):

@@ -24,13 +24,12 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from drivers import Actuators, ConfigurationError
-
 from bench.faults.base import joint_kinds, kinds_for_names
 from bench.faults.comms import DroppedStatus, EmulatorStatusFault, LateStatus, emulator_fault_target
 from bench.faults.tolerance import Backlash, Bias, Deadband, Noise, Quantisation
 from bench.faults.torque import TorqueLimit, check_effort_limit
 from bench.faults.ultrasonic import UltrasonicDropout, UltrasonicNoise, UltrasonicStuck
+from drivers import Actuators, ConfigurationError
 
 __all__ = ["FAULTS", "FaultDef", "FaultSpec", "Param", "apply_faults", "fault_names", "parse_faults"]
 
@@ -237,7 +236,7 @@ def _check_hook(field_name: str) -> Callable[[Actuators, FaultSpec], None]:
         if spec.params.get("level", "bus") != "bus":
             return
         if emulator_fault_target(act, field_name) is None:
-            backend = getattr(act, "unwrapped", act)
+            backend = act.unwrapped
             raise ConfigurationError(
                 f"{spec.name} needs a backend with emulator hooks (the emulated Dynamixel backend, "
                 f"--emulate); {type(backend).__name__} has none"

@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers import Actuators, JointState
-
 from bench.faults.base import FaultWrapper
+from drivers import Actuators, JointState
 
 __all__ = ["Backlash", "Bias", "Deadband", "Noise", "Quantisation"]
 

@@ -12,17 +12,16 @@ from typing import Sequence
 
 import numpy as np
 
-from drivers import Actuators, ConfigurationError
-
 from bench.faults.base import FaultWrapper
+from drivers import Actuators, ConfigurationError
 
 __all__ = ["TorqueLimit", "check_effort_limit"]
 
 
 def check_effort_limit(actuators: Actuators) -> None:
     """Refuse, naming the backend, when it cannot limit a joint's effort."""
-    backend = actuators.unwrapped if isinstance(actuators, FaultWrapper) else actuators
-    if not callable(getattr(backend, "set_effort_limit", None)):
+    backend = actuators.unwrapped
+    if "set_effort_limit" not in backend.capabilities:
         raise ConfigurationError(
             f"torque_limit needs a backend with set_effort_limit(joint_index, effort); "
             f"{type(backend).__name__} has none")

@@ -14,10 +14,9 @@ import math
 
 import numpy as np
 
-from drivers import Actuators, JointState
-
 from bench.faults.base import FaultWrapper
 from bench.kinematics.arc_train import ArcTrainParams, epsilon_from_d2, train_pose
+from drivers import Actuators, JointState
 
 __all__ = ["UltrasonicDropout", "UltrasonicNoise", "UltrasonicStuck"]
 

@@ -32,10 +32,22 @@ from typing import Callable, Literal, Optional
 
 import numpy as np
 
-from bench.config.models import TrialConfig
 from bench.config.calibration import (
-    CalibrationFile, ServoCalibration, UltrasonicCalibration, UltrasonicStop, save_calibration,
+    CalibrationFile,
+    ServoCalibration,
+    UltrasonicCalibration,
+    UltrasonicStop,
+    save_calibration,
 )
+from bench.config.models import TrialConfig
+from bench.kinematics.arc_train import train_pose
+from bench.kinematics.registry import get_robot
+from bench.lab.motion import Ramp, move, wait_still
+from bench.lab.session import check_ports, check_servos, open_backend, require_dynamixel
+from bench.scene.dynamics import gravity_torques
+from drivers import ActuatorError, CommunicationError
+from drivers.dynamixel.bus import ServoBus
+from drivers.ultrasonic import UltrasonicSensor
 
 __all__ = ["CalibrationResult", "JointZero", "UltrasonicFit", "calibrate", "default_output",
            "fit_ultrasonic", "reference_text", "stop_angles"]
@@ -133,7 +145,6 @@ PLAUSIBLE_CHANGE = {"revolute": math.radians(2.0), "prismatic": 2e-3}
 def implausible_zeros(config: TrialConfig, robot, zeros: dict[str, "JointZero"]) -> dict[str, str]:
     """The zeros that moved further than :data:`PLAUSIBLE_CHANGE`, each with the likely cause:
     the gravity load the joint carries at its reference (from the URDF)."""
-    from bench.scene.dynamics import gravity_torques
 
     load = None
     out: dict[str, str] = {}
@@ -173,8 +184,6 @@ def calibrate(config: TrialConfig, *, write: WriteMode = "config", stops: int = 
     unless ``accept_large``. The arm is left held (torque on) after the ultrasonic
     stops, never dropped.
     """
-    from bench.lab.session import check_ports, require_dynamixel
-    from bench.kinematics.registry import get_robot
 
     require_dynamixel(config, "calibrate")
     if write not in ("config", "homing"):
@@ -227,8 +236,6 @@ def calibrate(config: TrialConfig, *, write: WriteMode = "config", stops: int = 
 def measure_zeros(config: TrialConfig, robot, confirm: Callable[[str], bool],
                   note: Callable[[str], None]) -> dict[str, JointZero]:
     """Each joint's zero offset, read at its reference (torque left as it is)."""
-    from bench.lab.session import check_servos
-    from drivers.dynamixel.bus import ServoBus
 
     b = config.backend
     reference = robot.chain.home
@@ -258,11 +265,6 @@ def measure_ultrasonic(config: TrialConfig, offsets: dict[str, float], train: in
                        samples: int = STOP_SAMPLES) -> list[UltrasonicStop]:
     """Drive the train to each stop and read the sensor there; back to the start, held there
     (torque on: letting go would drop the arm onto its stops)."""
-    from bench.kinematics.arc_train import train_pose
-    from bench.lab.motion import Ramp, move, wait_still
-    from bench.lab.session import open_backend
-    from bench.kinematics.registry import get_robot
-    from drivers.ultrasonic import UltrasonicSensor
 
     u = config.backend.ultrasonic
     assert u is not None
@@ -297,7 +299,6 @@ def measure_ultrasonic(config: TrialConfig, offsets: dict[str, float], train: in
 
 def _sample(act, sensor, train: int, n: int, timeout_s: float = 10.0) -> tuple[float, float]:
     """Mean arc angle (servo) and mean of ``n`` fresh ultrasonic readings (m)."""
-    from drivers import CommunicationError
 
     distances, angles = [], []
     seen = sensor.counters.readings
@@ -321,9 +322,7 @@ def _sample(act, sensor, train: int, n: int, timeout_s: float = 10.0) -> tuple[f
 def write_homing(config: TrialConfig, zeros: dict[str, JointZero],
                  note: Callable[[str], None]) -> dict[str, float]:
     """Write each zero into its servo's Homing Offset (torque off for the write); shifts in shaft rad."""
-    from drivers.dynamixel.bus import ServoBus
 
-    from drivers import ActuatorError
 
     b = config.backend
     shifts: dict[str, float] = {}

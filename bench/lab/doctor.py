@@ -20,9 +20,14 @@ from typing import Callable, Literal, Optional
 
 import numpy as np
 
+from bench.config.calibration import calibration_of, calibration_path
 from bench.config.models import ConfigError, TrialConfig
+from bench.kinematics.arc_train import train_pose
+from bench.kinematics.registry import get_robot
 from drivers import ActuatorError
+from drivers.dynamixel.backend import latency_timer_ms
 from drivers.dynamixel.bus import BAUD_RATES, PingReply, ServoBus, ServoStatus, open_error
+from drivers.ultrasonic import UltrasonicSensor
 
 __all__ = ["Check", "run_doctor"]
 
@@ -79,7 +84,6 @@ def _port_check(add: Add, name: str, port: str) -> bool:
 
 
 def _latency_check(add: Add, port: str, exists: bool) -> None:
-    from drivers.dynamixel.backend import latency_timer_ms
 
     real = os.path.realpath(port)
     if not exists:
@@ -106,7 +110,6 @@ def _latency_check(add: Add, port: str, exists: bool) -> None:
 
 def _servo_checks(add: Add, config: TrialConfig) -> Optional[float]:
     """Per-servo checks; the train's joint value from its encoder (None if not read)."""
-    from bench.kinematics.registry import get_robot
 
     b = config.backend
     order = [j for j in get_robot(config.robot).joint_names if j in b.servos]
@@ -201,7 +204,6 @@ def _health_checks(add: Add, joint: str, s: ServoStatus, config: TrialConfig) ->
 
 
 def _joint_value(config: TrialConfig, joint: str, shaft: float) -> float:
-    from bench.config.calibration import calibration_of
 
     sc = config.backend.servos[joint]
     try:
@@ -216,10 +218,6 @@ def _joint_value(config: TrialConfig, joint: str, shaft: float) -> float:
 
 
 def _ultrasonic_checks(add: Add, config: TrialConfig, listen_s: float, train_q: Optional[float]) -> None:
-    from bench.kinematics.arc_train import train_pose
-    from bench.config.calibration import calibration_of
-    from bench.kinematics.registry import get_robot
-    from drivers.ultrasonic import UltrasonicSensor
 
     u = config.backend.ultrasonic
     assert u is not None
@@ -302,7 +300,6 @@ def _ultrasonic_checks(add: Add, config: TrialConfig, listen_s: float, train_q: 
 
 
 def _calibration_check(add: Add, config: TrialConfig) -> None:
-    from bench.config.calibration import calibration_of, calibration_path
 
     if config.calibration is None:
         add("calibration", "pass", "none: joint offsets and ultrasonic standoff as configured")

@@ -25,7 +25,11 @@ import termios
 from typing import Callable, Optional, Sequence
 
 import numpy as np
+from rich.console import Group
+from rich.table import Table
+from rich.text import Text
 
+from bench.lab.motion import Ramp
 from drivers import Actuators, JointState
 
 __all__ = ["JogState", "RawKeys", "STEPS", "jog_view", "parse_keys", "run_jog"]
@@ -119,9 +123,6 @@ def format_value(revolute: bool, value: float) -> str:
 
 def jog_view(state: JogState, st: JointState, title: str = "jog"):
     """The live view: every joint's measured value and target, the selected one marked."""
-    from rich.console import Group
-    from rich.table import Table
-    from rich.text import Text
 
     t = Table(title=f"{title} — torque ON", title_justify="left")
     for col, just in (("key", "right"), ("joint", "left"), ("position", "right"),
@@ -148,7 +149,6 @@ def run_jog(act: Actuators, read_keys: Callable[[float], list[str]],
     ``read_keys(timeout)`` returns key tokens (waiting at most ``timeout`` s);
     ``show(state, joint_state)`` draws the view. Actuator errors propagate.
     """
-    from bench.lab.motion import Ramp
 
     lim = act.limits
     st = act.read()

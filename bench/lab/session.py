@@ -11,7 +11,11 @@ from __future__ import annotations
 import os
 from typing import Mapping, Optional
 
+import serial
+
 from bench.config.models import TrialConfig
+from bench.kinematics.registry import get_robot
+from bench.trial.run import PreparedTrial, make_dynamixel_backend, target_of
 from drivers import Actuators, ConfigurationError
 from drivers.dynamixel.bus import ServoBus, open_error
 
@@ -65,10 +69,7 @@ def open_backend(config: TrialConfig, *, ultrasonic: bool = True,
     replace joint zero offsets (rad or m); ``calibrated=False`` ignores the
     config's calibration file.
     """
-    import serial
 
-    from bench.kinematics.registry import get_robot
-    from bench.trial.run import PreparedTrial, make_dynamixel_backend, target_of
 
     require_dynamixel(config, "this tool")
     check_ports(config, ultrasonic)

@@ -9,6 +9,7 @@ noise, rate and dropouts. The real driver then talks to it byte for byte.
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import json
 import math
@@ -16,6 +17,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +26,12 @@ from typing import Mapping, Optional
 import numpy as np
 
 from bench.config.models import DynamixelBackendConfig, TrialConfig, model_number
+from bench.kinematics.arc_train import train_pose
+from bench.kinematics.registry import get_robot
+from drivers.dynamixel.backend import MODES
+from drivers.dynamixel.control_table import BAUD_RATES, model_spec
+from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
+from drivers.emulator.pybullet_plant import PyBulletPlant
 
 
 @dataclass
@@ -61,9 +69,6 @@ class EmulatedRig:
         long (integrators charged, gravity sag gone) before the ports open.
         ``rest_after_s``: pause the physics once nothing has moved or been written for
         that long (``hilbench emulate`` does, so an idle rig costs no CPU)."""
-        from bench.kinematics.registry import get_robot
-        from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
-        from drivers.emulator.pybullet_plant import PyBulletPlant
 
         if config.backend.kind != "dynamixel":
             raise ValueError(f"{config.source}: --emulate needs backend.kind: dynamixel")
@@ -78,14 +83,12 @@ class EmulatedRig:
         ratio = [b.servos[n].ratio for n in names]
         offset = [b.servos[n].offset + planted.zero_errors.get(n, 0.0) for n in names]
         friction = [e.joint_friction.get(n, 0.0) for n in names]
-        from drivers.dynamixel.control_table import model_spec
 
         models = {n: model_number(planted.servo_models.get(n, b.servos[n].model)) for n in names}
         motors = [model_spec(models[n]).motor for n in names]
         self.plant = PyBulletPlant(config.robot_urdf, names, ratio, offset, q0,
                                    motor_damping=[m.kt * m.ke / m.resistance for m in motors],
                                    physics_dt=1.0 / e.physics_hz, friction=friction)
-        from drivers.dynamixel.backend import MODES
 
         baud_index = _baud_index(b.baud)
         servos = {}
@@ -132,7 +135,6 @@ class EmulatedRig:
                                                  scale=planted.ultrasonic_scale)
 
     def _d2_function(self):
-        from bench.kinematics.arc_train import train_pose
 
         params = self.robot.params
         return lambda eps: float(train_pose(eps, params).d2)
@@ -165,7 +167,6 @@ class EmulatedRig:
 
 
 def _baud_index(baud: int) -> int:
-    from drivers.dynamixel.control_table import BAUD_RATES
 
     for k, v in BAUD_RATES.items():
         if v == baud:
@@ -262,7 +263,6 @@ class EmulatorProcess:
         exe = Path(sys.executable).with_name("hilbench")
         cmd = ([str(exe)] if exe.exists() else [sys.executable, "-m", "bench.cli.app"])
         env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-        import tempfile
 
         self._stderr = tempfile.TemporaryFile(mode="w+")
         # Its own session: a Ctrl-C or hang-up meant for the trial must not take the rig
@@ -343,7 +343,6 @@ class EmulatorProcess:
 def _die_with_parent() -> None:
     """In the child before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
     if sys.platform.startswith("linux"):
-        import ctypes
 
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1

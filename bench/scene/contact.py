@@ -36,10 +36,18 @@ from functools import lru_cache
 import numpy as np
 
 from bench.geometry.bvh import BoxIndex
-from bench.scene.robot_geometry import RobotGeometry
 from bench.geometry.torus import Torus, mesh_slack
-from bench.geometry.tri_distance import (TriangleSet, edge_distance2, pair_distance2,
-                                         paper_intersects, prism_bounds, triangle_distance)
+from bench.geometry.tri_distance import (
+    TriangleSet,
+    edge_distance2,
+    pair_distance2,
+    paper_intersects,
+    prism_bounds,
+    triangle_distance,
+)
+from bench.kinematics.arc_train import ArcTrainParams
+from bench.scene.robot_geometry import RobotGeometry
+from bench.scene.room import SceneParams, gantry_mesh
 
 __all__ = ["Gantry", "GantryContact", "ContactReport", "GantryClearance", "Clearance",
            "RobotGeometry", "all_pairs_distance", "all_pairs_contact", "default_gantry",
@@ -102,8 +110,6 @@ class Gantry:
 
 @lru_cache(maxsize=2)
 def _default_gantry(major_sections: int, minor_sections: int) -> Gantry:
-    from bench.kinematics.arc_train import ArcTrainParams
-    from bench.scene.room import SceneParams, gantry_mesh
 
     s, bed = SceneParams(), ArcTrainParams().bed_width
     torus = Torus(s.gantry_centre(bed), np.array([1.0, 0.0, 0.0]),

@@ -12,6 +12,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from bench.paths import robot_urdf
+from drivers.quiet import quiet_pybullet
 
 __all__ = ["gravity_torques"]
 
@@ -20,7 +21,6 @@ def gravity_torques(robot: str, q: Sequence[float], urdf_dir: Optional[Path | st
                     gravity: float = 9.81) -> np.ndarray:
     """Signed torque (N·m) or force (N) each joint must exert to hold pose ``q`` still,
     from PyBullet's inverse dynamics on the robot's URDF (masses and inertias from the file)."""
-    from drivers.quiet import quiet_pybullet
 
     q = np.asarray(q, dtype=float)
     pb = quiet_pybullet()

@@ -10,16 +10,16 @@ from bench.kinematics.registry import get_robot
 from bench.paths import robot_urdf
 from bench.scene.room import default_scene
 from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings
+from drivers.quiet import quiet_pybullet
 
 
 def render_png(client: int, path: Path, target=(-0.22, 0.2, 0.12), distance: float = 0.95,
                yaw: float = -50.0, pitch: float = -30.0, size: tuple[int, int] = (960, 720)) -> Path:
     """Render the world of a PyBullet client to ``path`` (PNG) with TinyRenderer."""
-    import matplotlib
+    import matplotlib  # heavy: matplotlib, only when a plot is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.image as mpimg
-    from drivers.quiet import quiet_pybullet
+    import matplotlib.image as mpimg  # heavy: matplotlib, only when a plot is drawn
 
     pb = quiet_pybullet()
 

@@ -20,12 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.paths import URDF_DIR
-from drivers.pybullet.backend import SceneObject
 from bench.kinematics.arc_train import TARGET_1, ArcTrainParams, build_chain
+from bench.paths import URDF_DIR
 from bench.scene.urdf_writer import LinkSpec, Shape, chain_to_urdf, next_joint_offsets, segment
 from bench.scene.zerobot_urdf import zerobot_urdf
-
+from drivers.pybullet.backend import SceneObject
 
 SERVO_MASS = 0.082  # kg, Dynamixel XM430-W350
 SERVO_BOX = (0.0285, 0.0465, 0.034)  # m
@@ -114,7 +113,7 @@ def arc_rail_mesh(p: ArcTrainParams = ArcTrainParams(), tube: float = 0.012,
 def gantry_mesh(s: SceneParams = SceneParams(), bed_width: float = ArcTrainParams().bed_width,
                 major_sections: int = 96, minor_sections: int = 32):
     """The CT gantry: a torus around the X axis with the bore radius of seed 000 (70 cm)."""
-    import trimesh
+    import trimesh  # heavy: trimesh, only when meshes are built
 
     ring = trimesh.creation.torus(s.bore_radius + s.gantry_tube_radius, s.gantry_tube_radius,
                                   major_sections=major_sections, minor_sections=minor_sections)

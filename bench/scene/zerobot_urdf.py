@@ -25,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 
 from bench.kinematics.dh import translation
-from bench.scene.urdf_writer import LinkSpec, Shape, chain_to_urdf
 from bench.kinematics.zerobot import ZerobotParams, build_chain
+from bench.scene.urdf_writer import LinkSpec, Shape, chain_to_urdf
 
 STEEL = (0.55, 0.57, 0.6, 1.0)
 COVER = (0.9, 0.9, 0.92, 1.0)

@@ -1,1 +1,1 @@
-"""pybullet"""
+"""The PyBullet backend: the robot's joints in a private physics world behind ``Actuators``."""
