@@ -126,3 +126,22 @@ class Trajectory(Protocol):
     def goal(self) -> np.ndarray: ...
 
     def sample(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+class PointToPoint:
+    """What every move from ``start`` to ``goal`` answers the same way (the protocol's endpoints)."""
+
+    _start: np.ndarray
+    _goal: np.ndarray
+
+    @property
+    def dof(self) -> int:
+        return int(self._start.size)
+
+    @property
+    def start(self) -> np.ndarray:
+        return self._start
+
+    @property
+    def goal(self) -> np.ndarray:
+        return self._goal

@@ -44,7 +44,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .base import Limits, TrajectoryError, as_joint_vector, as_times
+from .base import Limits, PointToPoint, TrajectoryError, as_joint_vector, as_times
 
 __all__ = ["LSPB"]
 
@@ -60,7 +60,7 @@ def _per_joint(name: str, value: ArrayLike, dof: int) -> np.ndarray:
     return as_joint_vector(name, value, dof)
 
 
-class LSPB:
+class LSPB(PointToPoint):
     """Straight-line joint-space move with trapezoidal (or triangular) speed.
 
     ``velocity_limit`` and ``acceleration_limit`` are per-joint magnitudes
@@ -156,18 +156,6 @@ class LSPB:
     @property
     def duration(self) -> float:
         return self._tf
-
-    @property
-    def dof(self) -> int:
-        return int(self._start.size)
-
-    @property
-    def start(self) -> np.ndarray:
-        return self._start
-
-    @property
-    def goal(self) -> np.ndarray:
-        return self._goal
 
     @property
     def blend_time(self) -> float:

@@ -20,7 +20,7 @@ import numpy as np
 import ruckig
 from numpy.typing import ArrayLike
 
-from .base import Limits, TrajectoryError, as_joint_vector, as_times
+from .base import Limits, PointToPoint, TrajectoryError, as_joint_vector, as_times
 
 __all__ = ["RuckigOnline", "RuckigTrajectory"]
 
@@ -83,7 +83,7 @@ def _plan(inp: ruckig.InputParameter) -> ruckig.Trajectory:
     return traj
 
 
-class RuckigTrajectory:
+class RuckigTrajectory(PointToPoint):
     """Offline time-optimal trajectory, computed once at construction.
 
     ``start_velocity`` and ``goal_velocity`` default to rest; accelerations at
@@ -118,18 +118,6 @@ class RuckigTrajectory:
         return self._duration
 
     @property
-    def dof(self) -> int:
-        return int(self._start.size)
-
-    @property
-    def start(self) -> np.ndarray:
-        return self._start
-
-    @property
-    def goal(self) -> np.ndarray:
-        return self._goal
-
-    @property
     def limits(self) -> Limits:
         return self._limits
 
@@ -152,7 +140,7 @@ class RuckigTrajectory:
         return q, qd, qdd
 
 
-class RuckigOnline:
+class RuckigOnline(PointToPoint):
     """Online generator for a control loop running at a fixed period ``dt``.
 
     Each :meth:`sample` advances ruckig's ``update`` cycle by cycle up to
@@ -211,14 +199,6 @@ class RuckigOnline:
     def duration(self) -> float:
         """Absolute time at which the current plan ends."""
         return self._plan_start + self._plan_duration
-
-    @property
-    def dof(self) -> int:
-        return int(self._start.size)
-
-    @property
-    def start(self) -> np.ndarray:
-        return self._start
 
     @property
     def goal(self) -> np.ndarray:
