@@ -12,9 +12,17 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from typer.core import TyperGroup
 
 from bench.cli.common import console, emit_json, err_console, fail
-from typer.core import TyperGroup
 
 __all__ = ["campaign_app"]
 
@@ -39,8 +47,6 @@ campaign_app = typer.Typer(
 
 
 def _progress_bar():
-    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                               TimeRemainingColumn)
 
     return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                     TextColumn("[red]{task.fields[failed]} failed[/] · {task.fields[errors]} errors"),
@@ -50,7 +56,7 @@ def _progress_bar():
 
 def _run(campaign_dir: Path, workers: Optional[int], scheduler: Optional[str], as_json: bool,
          report: bool = True) -> None:
-    from bench.campaign.run import CampaignError, run_campaign
+    from bench.campaign.run import CampaignError, run_campaign  # deferred: --help and completion stay fast
 
     with _progress_bar() as bar:
         task = bar.add_task("campaign", total=None, failed=0, errors=0)
@@ -95,8 +101,8 @@ def run(spec: Path = typer.Argument(..., help="A campaign spec, e.g. hil_configs
         as_json: bool = _JSON,
         report: bool = typer.Option(True, "--report/--no-report", help="Write report.md/.html at the end.")) -> None:
     """Plan a campaign into DIR/campaign.db and run it."""
-    from bench.campaign.run import CampaignError, create_campaign
-    from bench.campaign.spec import CampaignSpecError
+    from bench.campaign.run import CampaignError, create_campaign  # deferred: --help and completion stay fast
+    from bench.campaign.spec import CampaignSpecError  # deferred: --help and completion stay fast
 
     try:
         campaign_dir = create_campaign(spec, out)
@@ -119,7 +125,7 @@ def rerun(campaign_dir: Path = typer.Argument(...), trial_id: int = typer.Argume
           out: Optional[Path] = typer.Option(None, "--out", help="Where the run directory goes (default DIR/reruns)."),
           as_json: bool = typer.Option(False, "--json")) -> None:
     """Run one trial again from its stored config and seed, with its full report; compare the numbers."""
-    from bench.campaign.run import CampaignError, rerun_trial
+    from bench.campaign.run import CampaignError, rerun_trial  # deferred: --help and completion stay fast
 
     try:
         res = rerun_trial(campaign_dir, trial_id, out)
@@ -148,7 +154,7 @@ def export(campaign_dir: Path = typer.Argument(...),
            as_json: bool = typer.Option(False, "--json", help='Print {"csv": PATH}.')) -> None:
     """Write the trials table as CSV: one row per trial, one column per varying parameter,
     times in ISO 8601 UTC."""
-    from bench.campaign.run import CampaignError, export_csv
+    from bench.campaign.run import CampaignError, export_csv  # deferred: --help and completion stay fast
 
     try:
         path = export_csv(campaign_dir, csv)
@@ -164,8 +170,8 @@ def export(campaign_dir: Path = typer.Argument(...),
 def report_cmd(campaign_dir: Path = typer.Argument(...),
                as_json: bool = typer.Option(False, "--json", help='Print {"markdown", "html"}: the paths.')) -> None:
     """Write report.md and report.html from the database as it stands."""
-    from bench.campaign.run import CampaignError, open_store
-    from bench.campaign.report import write_campaign_report
+    from bench.campaign.report import write_campaign_report  # deferred: --help and completion stay fast
+    from bench.campaign.run import CampaignError, open_store  # deferred: --help and completion stay fast
 
     try:
         open_store(campaign_dir).close()
@@ -181,7 +187,7 @@ def report_cmd(campaign_dir: Path = typer.Argument(...),
 @campaign_app.command("status")
 def status(campaign_dir: Path = typer.Argument(...), as_json: bool = _JSON) -> None:
     """Counts of the campaign's trials (pending, running, done, error, passed)."""
-    from bench.campaign.run import CampaignError, summarize
+    from bench.campaign.run import CampaignError, summarize  # deferred: --help and completion stay fast
 
     try:
         s = summarize(campaign_dir)

@@ -5,10 +5,12 @@ Kept in its own module; ``bench/cli/app.py`` registers :func:`compare`.
 
 from __future__ import annotations
 
+import datetime as dt
 from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from bench.cli.common import console, emit_json, err_console, fail
 
@@ -85,14 +87,23 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
 
 
 def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path):
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from bench.compare.analysis import PlanMismatchError
-    from bench.compare.session import CompareError, run_comparison
-    from bench.config.models import ConfigError, load_trial_config
-    from bench.core.interrupts import SignalGuard, TrialInterrupted, signal_name
-    from bench.trial.run import TrialError
-    from drivers import ActuatorError
+    from bench.compare.analysis import PlanMismatchError  # deferred: --help and completion stay fast
+    from bench.compare.session import (  # deferred: --help and completion stay fast
+        CompareError,
+        run_comparison,
+    )
+    from bench.config.models import (  # deferred: --help and completion stay fast
+        ConfigError,
+        load_trial_config,
+    )
+    from bench.core.interrupts import (  # deferred: --help and completion stay fast
+        SignalGuard,
+        TrialInterrupted,
+        signal_name,
+    )
+    from bench.trial.run import TrialError  # deferred: --help and completion stay fast
+    from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     try:
         cfg = load_trial_config(path)
@@ -121,11 +132,13 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
 
 
 def _from_runs(a: Path, b: Path, align: str, out: Path):
-    import datetime as dt
 
-    from bench.compare.analysis import PlanMismatchError, compare_logs
-    from bench.compare.report import write_compare_report
-    from bench.core.log import TrialLog
+    from bench.compare.analysis import (  # deferred: --help and completion stay fast
+        PlanMismatchError,
+        compare_logs,
+    )
+    from bench.compare.report import write_compare_report  # deferred: --help and completion stay fast
+    from bench.core.log import TrialLog  # deferred: --help and completion stay fast
 
     pa, pb = _log_path(a), _log_path(b)
     try:

@@ -6,10 +6,10 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-
-from bench.cli.common import console, emit_json, err_console, fail
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
+
+from bench.cli.common import console, emit_json, err_console, fail
 
 __all__ = ["contact_protocol"]
 
@@ -21,8 +21,13 @@ def contact_protocol(
     out: Optional[Path] = typer.Option(None, "--out", help="Also write DIR/report.md with the tables."),
 ) -> None:
     """Run the paper's 64 contact trials (P1-P3, six postures, 25 and 15 mm, 20 mm margin)."""
-    from bench.contact.protocol import POINTS, PAPER_CORRECT, markdown_report, run_protocol
-    from bench.kinematics.registry import get_robot
+    from bench.contact.protocol import (  # deferred: --help and completion stay fast
+        PAPER_CORRECT,
+        POINTS,
+        markdown_report,
+        run_protocol,
+    )
+    from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
 
     try:
         model = get_robot(robot)

@@ -11,11 +11,17 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterator, Optional
 
 import typer
+from rich import box
+from rich.live import Live
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+from rich.status import Status
+from rich.table import Table
 
 from bench.cli.common import emit_json, err_console, fail
 
@@ -34,9 +40,12 @@ _STATUS = {"pass": "[green]PASS[/]", "warn": "[yellow]WARN[/]", "fail": "[bold r
 
 def _load(config: Path, tool: str) -> "TrialConfig":
     """The config, or exit 2 with one line (unreadable, or not the Dynamixel backend)."""
-    from bench.config.models import ConfigError, load_trial_config
-    from bench.lab.session import require_dynamixel
-    from drivers import ConfigurationError
+    from bench.config.models import (  # deferred: --help and completion stay fast
+        ConfigError,
+        load_trial_config,
+    )
+    from bench.lab.session import require_dynamixel  # deferred: --help and completion stay fast
+    from drivers import ConfigurationError  # deferred: --help and completion stay fast
 
     try:
         cfg = load_trial_config(config)
@@ -56,7 +65,7 @@ def _rig(config: Path, cfg: "TrialConfig", emulate: bool) -> Iterator["TrialConf
     if not emulate:
         yield cfg
         return
-    from bench.rig.emulated import EmulatorProcess
+    from bench.rig.emulated import EmulatorProcess  # deferred: --help and completion stay fast
 
     try:
         rig = EmulatorProcess(config)
@@ -82,15 +91,17 @@ def scan(port: str = typer.Option(..., "--port", help="Serial port of the servo 
                                     help="Highest ID to wait for (a lower one shortens each ping)."),
          as_json: bool = typer.Option(False, "--json", help="Print one line: a list of servos.")) -> None:
     """Find every servo on a bus: ID, model, firmware, baud, mode, torque, hardware error."""
-    import os
 
-    from rich import box
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
-    from rich.table import Table
 
-    from bench.lab.scan import ALL_BAUDS, DEFAULT_BAUDS, check_bauds, scan_bus, servo_row
-    from drivers import ActuatorError
-    from drivers.dynamixel.bus import open_error
+    from bench.lab.scan import (  # deferred: --help and completion stay fast
+        ALL_BAUDS,
+        DEFAULT_BAUDS,
+        check_bauds,
+        scan_bus,
+        servo_row,
+    )
+    from drivers import ActuatorError  # deferred: --help and completion stay fast
+    from drivers.dynamixel.bus import open_error  # deferred: --help and completion stay fast
 
     if baud and all_bauds:
         fail("give --baud or --all-bauds, not both")
@@ -151,9 +162,8 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
     Prints the problems as they are found (every check with --verbose), then one
     count line; exit 0 when ready for a trial, 1 when a check failed.
     """
-    from rich.status import Status
 
-    from bench.lab.doctor import run_doctor
+    from bench.lab.doctor import run_doctor  # deferred: --help and completion stay fast
 
     cfg = _load(config, "doctor")
     counts = {"pass": 0, "warn": 0, "fail": 0}
@@ -211,12 +221,11 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
               as_json: bool = typer.Option(False, "--json",
                                            help="Print the result as one JSON line.")) -> None:
     """Calibrate joint zero offsets and the ultrasonic sensor; write a dated calibration file."""
-    from rich.table import Table
 
-    from bench.lab.calibrate import calibrate as run_calibration
-    from bench.lab.session import check_ports
-    from bench.kinematics.registry import get_robot
-    from drivers import ActuatorError
+    from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
+    from bench.lab.calibrate import calibrate as run_calibration  # deferred: --help and completion stay fast
+    from bench.lab.session import check_ports  # deferred: --help and completion stay fast
+    from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     cfg = _load(config, "calibrate")
     if write not in ("config", "homing"):
@@ -246,7 +255,7 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
             "for the write); the calibration file then holds no joint offsets"):
         fail("calibration cancelled; nothing written", 1)
     if out is None and emulate:  # an emulated rig's calibration is not the rig's: keep them apart
-        from bench.lab.calibrate import default_output
+        from bench.lab.calibrate import default_output  # deferred: --help and completion stay fast
 
         default = default_output(cfg)
         out = default.with_name("emulated-" + default.name)
@@ -299,12 +308,11 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
 def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dynamixel."),
         emulate: bool = _EMULATE) -> None:
     """Move one joint at a time in small steps within limits (keys: 1-9, +/-, s, q); torque off on exit."""
-    from rich.live import Live
 
-    from bench.lab.jog import RawKeys, jog_view, run_jog
-    from bench.lab.session import check_ports, open_backend
-    from bench.kinematics.registry import get_robot
-    from drivers import ActuatorError
+    from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
+    from bench.lab.jog import RawKeys, jog_view, run_jog  # deferred: --help and completion stay fast
+    from bench.lab.session import check_ports, open_backend  # deferred: --help and completion stay fast
+    from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     cfg = _load(config, "jog")
     if not (sys.stdin.isatty() and sys.stderr.isatty()):

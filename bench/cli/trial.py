@@ -1,0 +1,257 @@
+"""``hilbench check | trial | emulate | report | runs``: one trial, from the check before moving
+to the list of past runs."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import typer
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from bench.cli.common import console, emit_json, err_console, fail
+
+__all__ = ["check", "emulate", "report", "runs", "trial"]
+
+
+# ---------------------------------------------------------------------------
+# Trials
+# ---------------------------------------------------------------------------
+
+
+def check(config: Path = typer.Argument(..., help="A trial config to check."),
+          emulate: bool = typer.Option(False, "--emulate", help="Do not check the configured serial ports (the emulated rig brings its own)."),
+          as_json: bool = typer.Option(False, "--json", help="Print the checks as one JSON line.")) -> None:
+    """Check a config as a trial would before moving, without moving anything.
+
+    Schema and bounds, target reachability and needle direction, plan length,
+    the trial's interlocks along the planned path, and the serial ports of a real
+    backend. Exit 0 when a trial would start, 2 when it would be refused.
+    """
+    from bench.trial.preflight import check_config  # deferred: --help and completion stay fast
+
+    results = check_config(config, emulate=emulate)
+    ok = all(r.ok for r in results)
+    failed = next((r for r in results if not r.ok), None)
+    if as_json:
+        emit_json({"config": str(config), "ok": ok,
+                   "checks": [{"name": r.name, "ok": r.ok, "detail": r.detail} for r in results],
+                   "reason": failed.detail if failed else ""})
+    else:
+        for r in results:
+            mark = "[green]ok[/]  " if r.ok else "[red]FAIL[/]"
+            console.print(f"{mark} {r.name}: {r.detail}", highlight=False, soft_wrap=True)
+    if failed is not None:
+        line = failed.detail if as_json else f"a trial would be refused ({failed.name}, above)"
+        err_console.print(f"[bold red]error:[/] {line}", highlight=False, soft_wrap=True)
+        raise typer.Exit(2)
+
+
+def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_configs/sim_target1.yaml."),
+          out: Path = typer.Option(Path("runs"), "--out", help="Directory for the run directory."),
+          gui: bool = typer.Option(False, "--gui", help="Show the PyBullet window (sim backend)."),
+          note: str = typer.Option("", "--note", help="Operator note stored in the trial record."),
+          emulate: bool = typer.Option(False, "--emulate", help="Run the real backend against the emulated servo bus and sensor."),
+          as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
+    """Run one trial: home -> Target -> insertion -> retract, with its log and report.
+
+    Exit codes: 0 passed, 1 ran and failed, 2 refused before anything moved,
+    128 + N when stopped by signal N (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP).
+    """
+    from bench.core.interrupts import (  # deferred: --help and completion stay fast
+        SignalGuard,
+        TrialInterrupted,
+    )
+
+    if gui and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                         or os.environ.get("WAYLAND_DISPLAY")):
+        fail("--gui needs a display and DISPLAY is not set; run without --gui (the report has "
+             "the pictures) or under xvfb-run")
+    with SignalGuard() as guard:  # first, so no signal can land before it
+        try:
+            res, name = _trial(config, out, gui, note, emulate, guard)
+        except TrialInterrupted as e:
+            _interrupted(e)
+    if not res.passed:
+        err_console.print(f"[bold red]trial failed:[/] {res.why_not}", highlight=False, soft_wrap=True)
+    if as_json:
+        emit_json(res.summary())
+    else:
+        o = res.outcome
+        verdict = "[green]PASSED[/]" if res.passed else "[red]FAILED[/]"
+        console.print(f"trial {name}: {verdict}  ({res.run_dir})")
+        if not res.completed:
+            console.print(f"[red]stopped early:[/] {res.reason}")
+        if o is not None:  # short lines: an 80-column terminal never splits a value from its name
+            x, y, z = (round(v, 3) + 0.0 for v in o.tip_deviation_mm)
+            console.print(f"tip deviation: X {x:+.3f}  Y {y:+.3f}  Z {z:+.3f} mm", highlight=False)
+            console.print(f"depth {round(o.depth_deviation_mm, 3) + 0.0:+.3f} mm, angle "
+                          f"{round(o.angle_deviation_deg, 4) + 0.0:+.4f}°", highlight=False)
+        console.print(f"report: {res.run_dir / 'report.html'}")
+    raise typer.Exit(0 if res.passed else 1)
+
+
+def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
+    from bench.config.models import (  # deferred: --help and completion stay fast
+        ConfigError,
+        load_trial_config,
+    )
+    from bench.trial.run import TrialError  # deferred: --help and completion stay fast
+
+    try:
+        cfg = load_trial_config(config)
+    except ConfigError as e:
+        fail(str(e))
+    guard.check()
+    rig = None
+    if emulate:
+        from bench.rig.emulated import EmulatorProcess  # deferred: --help and completion stay fast
+        from bench.trial.run import prepare  # deferred: --help and completion stay fast
+
+        if cfg.backend.kind != "dynamixel":
+            fail(f"{config}: --emulate needs backend.kind: dynamixel (this config is {cfg.backend.kind})")
+        try:
+            prepare(cfg)  # nothing starts for a trial that cannot run
+            rig = EmulatorProcess(config)
+        except (TrialError, RuntimeError) as e:
+            fail(str(e))
+        cfg = rig.retarget(cfg)
+    factory = None
+    if rig is not None:
+        from bench.trial.run import make_backend  # deferred: --help and completion stay fast
+
+        def factory(prep):  # bus-level faults reach the emulator through the backend's hooks
+            backend = make_backend(prep)
+            backend.fault_hooks = rig.faults
+            return backend
+    try:
+        return _run_with_progress(cfg, out, gui, note, factory, guard), cfg.name
+    finally:
+        if rig is not None:
+            rig.close()
+            skipped = rig.stats.get("physics_skipped_s", 0.0)
+            if skipped:
+                err_console.print(f"warning: the emulated rig's physics fell behind real time and "
+                                  f"skipped {skipped:.2f} s; the machine was too busy for a faithful "
+                                  f"rehearsal", highlight=False, soft_wrap=True)
+
+
+def _interrupted(e) -> None:
+    """One line on stderr for a trial stopped by a signal, then exit 128 + N."""
+    from bench.core.interrupts import signal_name  # deferred: --help and completion stay fast
+
+    run_dir = getattr(e, "run_dir", None)
+    stop = getattr(e, "safe_stop", None)
+    where = f"log saved in {run_dir}" if run_dir else "nothing had moved; no log"
+    what = f"; {stop}" if stop else ""
+    err_console.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] trial stopped{what}; "
+                      f"{where}", highlight=False, soft_wrap=True)
+    raise typer.Exit(e.exit_code)
+
+
+def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=None, guard=None):
+
+    from bench.config.models import ConfigError  # deferred: --help and completion stay fast
+    from bench.core.interrupts import NO_SIGNALS  # deferred: --help and completion stay fast
+    from bench.trial.run import TrialError, run_trial  # deferred: --help and completion stay fast
+    from drivers import ActuatorError  # deferred: --help and completion stay fast
+
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                  TimeRemainingColumn(), console=err_console, transient=True) as bar:
+        task = bar.add_task(f"trial {cfg.name}: checking", total=None)
+
+        def on_phase(what: str) -> None:
+            moving = what not in ("connecting", "planning", "report")  # a segment of the plan
+            bar.update(task, description=f"trial {cfg.name}: {what}",
+                       total=1.0 if moving else None)
+
+        try:
+            return run_trial(cfg, out, gui=gui, note=note, backend_factory=backend_factory,
+                             progress=lambda f: bar.update(task, completed=f),
+                             interrupts=guard or NO_SIGNALS, phase=on_phase)
+        except (TrialError, ConfigError, ActuatorError) as e:
+            fail(str(e))
+
+
+def emulate(config: Path = typer.Argument(..., help="A config with backend.kind: dynamixel."),
+            as_json: bool = typer.Option(False, "--json", help="Print the ports as one JSON line.")) -> None:
+    """Serve the emulated servo bus and ultrasonic sensor of a config until Ctrl-C or SIGTERM."""
+    from bench.config.models import (  # deferred: --help and completion stay fast
+        ConfigError,
+        load_trial_config,
+    )
+    from bench.rig.emulated import serve  # deferred: --help and completion stay fast
+
+    try:
+        cfg = load_trial_config(config)
+    except ConfigError as e:
+        fail(str(e))
+    if cfg.backend.kind != "dynamixel":
+        fail(f"{config}: backend.kind must be dynamixel to emulate its rig")
+
+    def announce(ports) -> None:
+        if as_json:
+            emit_json({"dynamixel_port": ports.dynamixel_port, "ultrasonic_port": ports.ultrasonic_port})
+        else:
+            console.print(f"Dynamixel bus on [bold]{ports.dynamixel_port}[/], ultrasonic sensor on "
+                          f"[bold]{ports.ultrasonic_port}[/]; Ctrl-C to stop")
+
+    def report(stats: dict) -> None:
+        if as_json:
+            emit_json({"stats": stats})
+        elif stats.get("physics_skipped_s"):
+            err_console.print(f"warning: the emulator's physics fell behind real time and skipped "
+                              f"{stats['physics_skipped_s']:.2f} s (the machine was too busy)")
+
+    try:
+        serve(cfg, announce, report)
+    except (ValueError, RuntimeError) as e:
+        fail(str(e))
+
+
+def report(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
+           as_json: bool = typer.Option(False, "--json")) -> None:
+    """Rebuild a trial's report (Markdown, HTML, figures) from its record alone."""
+    from bench.trial.run import TrialError, rebuild_report  # deferred: --help and completion stay fast
+
+    try:
+        res = rebuild_report(run_dir)
+    except (TrialError, FileNotFoundError) as e:
+        fail(str(e))
+    if as_json:
+        emit_json(res.summary())
+    else:
+        console.print(f"rebuilt {res.run_dir / 'report.md'} and {res.run_dir / 'report.html'}")
+
+
+def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory trials wrote into."),
+         as_json: bool = typer.Option(False, "--json", help="Print the runs as one JSON line.")) -> None:
+    """List past trials: date, config, verdict, deviations and report, oldest first."""
+    from bench.trial.runs import list_runs  # deferred: --help and completion stay fast
+
+    found = list_runs(out)
+    if as_json:
+        emit_json({"out": str(out), "runs": [r.as_dict() for r in found]})
+        return
+    if not found:
+        console.print(f"no trial runs in {out}", highlight=False)
+        return
+    colour = {"passed": "green", "failed": "red", "stopped": "red", "incomplete": "yellow"}
+    t = Table(title=f"trials in {out}", title_justify="left")
+    t.add_column("run (started, config)", no_wrap=True)
+    t.add_column("backend", no_wrap=True)
+    t.add_column("verdict", no_wrap=True)
+    t.add_column("tip mm", justify="right", no_wrap=True)
+    t.add_column("angle °", justify="right", no_wrap=True)
+    for r in found:
+        tip = "" if r.tip_deviation_mm is None else f"{r.tip_deviation_mm:.2f}"
+        angle = "" if r.angle_deviation_deg is None else f"{r.angle_deviation_deg:+.3f}"
+        t.add_row(Path(r.run_dir).name, r.backend or "?", f"[{colour[r.status]}]{r.status}[/]",
+                  tip, angle)
+    console.print(t)
+    for r in found:
+        if r.reason:
+            console.print(f"{Path(r.run_dir).name}: {r.reason}", highlight=False, soft_wrap=True)
+    console.print(f"{len(found)} runs; reports: {out}/RUN/report.html", highlight=False)
