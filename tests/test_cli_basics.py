@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
@@ -99,3 +100,31 @@ def test_trial_summary_fits_80_columns_without_splitting_a_value(tmp_path):
     assert len(tip) <= 80 and all(f" {axis} " in tip for axis in "XYZ") and tip.endswith(" mm")
     rest = next(ln for ln in lines if ln.startswith("depth "))
     assert len(rest) <= 80 and rest.endswith("°") and "angle " in rest and "-0.000" not in rest
+
+
+NUMBER = r"[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
+
+
+def _numbers(text: str) -> list[str]:
+    import re
+
+    return re.findall(NUMBER, text)
+
+
+@pytest.mark.parametrize("args", [
+    ("robot", "arc-train"),
+    ("robot", "zerobot"),
+    ("ik", "arc-train", "--x-mm", "0", "--y-mm", "88.2", "--z-mm", "66", "--depth-mm", "30.1",
+     "--angle-deg", "47"),
+    ("check", str(SIM)),
+    ("accuracy", "arc-train", "--samples", "500"),
+], ids=lambda a: a[0] + "-" + a[1].split("/")[-1])
+def test_summaries_fit_80_columns_and_never_split_a_value(args):
+    """On an 80-column terminal every line fits, and every number printed on a wide terminal
+    is printed whole (tables shrink their padding and wrap words, never digits)."""
+    wide = _cli(*args, env={**os.environ, "COLUMNS": "200"})
+    narrow = _cli(*args, env={**os.environ, "COLUMNS": "80"})
+    assert wide.returncode == narrow.returncode == 0, narrow.stderr
+    too_long = [ln for ln in narrow.stdout.splitlines() if len(ln) > 80]
+    assert not too_long, too_long
+    assert _numbers(narrow.stdout) == _numbers(wide.stdout)

@@ -42,7 +42,7 @@ def check(config: Path = typer.Argument(..., help="A trial config to check."),
     else:
         for r in results:
             mark = "[green]ok[/]  " if r.ok else "[red]FAIL[/]"
-            console.print(f"{mark} {r.name}: {r.detail}", highlight=False, soft_wrap=True)
+            console.print(f"{mark} {r.name}: {r.detail}", highlight=False)
     if failed is not None:
         line = failed.detail if as_json else f"a trial would be refused ({failed.name}, above)"
         err_console.print(f"[bold red]error:[/] {line}", highlight=False, soft_wrap=True)
