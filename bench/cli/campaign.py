@@ -150,7 +150,7 @@ def rerun(campaign_dir: Path = typer.Argument(...), trial_id: int = typer.Argume
 
 @campaign_app.command("export")
 def export(campaign_dir: Path = typer.Argument(...),
-           csv: Path = typer.Option(..., "--csv", help="CSV file to write."),
+           csv: Path = typer.Option(..., "--out", "--csv", help="CSV file to write (--csv: the same)."),
            as_json: bool = typer.Option(False, "--json", help='Print {"csv": PATH}.')) -> None:
     """Write the trials table as CSV: one row per trial, one column per varying parameter,
     times in ISO 8601 UTC."""
