@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import json
 import sys
-from typing import NoReturn
+from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
 
 import typer
 from rich.console import Console
 
-__all__ = ["console", "emit_json", "err_console", "fail"]
+if TYPE_CHECKING:
+    from bench.config.models import TrialConfig
+
+__all__ = ["console", "emit_json", "err_console", "fail", "load_config"]
 
 console = Console()
 err_console = Console(stderr=True, highlight=False)
@@ -29,3 +33,13 @@ def emit_json(obj: object) -> None:
     """The command's result as one JSON line on stdout (flushed: scripts read it at once)."""
     sys.stdout.write(json.dumps(obj) + "\n")
     sys.stdout.flush()
+
+
+def load_config(path: Path) -> "TrialConfig":
+    """The trial config at ``path``, or exit 2 with the one line saying what is wrong in it."""
+    from bench.config.models import ConfigError, load_trial_config  # deferred: --help stays fast
+
+    try:
+        return load_trial_config(path)
+    except ConfigError as e:
+        fail(str(e))

@@ -12,14 +12,9 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from bench.cli.common import console, emit_json, err_console, fail
+from bench.cli.common import console, emit_json, err_console, fail, load_config
 
 __all__ = ["compare"]
-
-
-
-
-
 
 
 def _is_config(path: Path) -> bool:
@@ -95,7 +90,6 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
     )
     from bench.config.models import (  # deferred: --help and completion stay fast
         ConfigError,
-        load_trial_config,
     )
     from bench.core.interrupts import (  # deferred: --help and completion stay fast
         SignalGuard,
@@ -105,10 +99,7 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
     from bench.trial.run import TrialError  # deferred: --help and completion stay fast
     from drivers import ActuatorError  # deferred: --help and completion stay fast
 
-    try:
-        cfg = load_trial_config(path)
-    except ConfigError as e:
-        fail(str(e))
+    cfg = load_config(path)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeElapsedColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task(f"compare {cfg.name}", total=1.0)

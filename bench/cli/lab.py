@@ -23,7 +23,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.status import Status
 from rich.table import Table
 
-from bench.cli.common import emit_json, err_console, fail
+from bench.cli.common import emit_json, err_console, fail, load_config
 
 if TYPE_CHECKING:
     from bench.config.models import TrialConfig
@@ -34,23 +34,15 @@ __all__ = ["calibrate", "doctor", "jog", "scan"]
 _STATUS = {"pass": "[green]PASS[/]", "warn": "[yellow]WARN[/]", "fail": "[bold red]FAIL[/]"}
 
 
-
-
-
-
 def _load(config: Path, tool: str) -> "TrialConfig":
     """The config, or exit 2 with one line (unreadable, or not the Dynamixel backend)."""
-    from bench.config.models import (  # deferred: --help and completion stay fast
-        ConfigError,
-        load_trial_config,
-    )
     from bench.lab.session import require_dynamixel  # deferred: --help and completion stay fast
     from drivers import ConfigurationError  # deferred: --help and completion stay fast
 
+    cfg = load_config(config)
     try:
-        cfg = load_trial_config(config)
         require_dynamixel(cfg, tool)
-    except (ConfigError, ConfigurationError) as e:
+    except ConfigurationError as e:
         fail(str(e))
     return cfg
 

@@ -11,7 +11,7 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from bench.cli.common import console, emit_json, err_console, fail
+from bench.cli.common import console, emit_json, err_console, fail, load_config
 
 __all__ = ["check", "emulate", "report", "runs", "trial"]
 
@@ -94,16 +94,9 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
 
 
 def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
-    from bench.config.models import (  # deferred: --help and completion stay fast
-        ConfigError,
-        load_trial_config,
-    )
     from bench.trial.run import TrialError  # deferred: --help and completion stay fast
 
-    try:
-        cfg = load_trial_config(config)
-    except ConfigError as e:
-        fail(str(e))
+    cfg = load_config(config)
     guard.check()
     rig = None
     if emulate:
@@ -178,16 +171,9 @@ def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=Non
 def emulate(config: Path = typer.Argument(..., help="A config with backend.kind: dynamixel."),
             as_json: bool = typer.Option(False, "--json", help="Print the ports as one JSON line.")) -> None:
     """Serve the emulated servo bus and ultrasonic sensor of a config until Ctrl-C or SIGTERM."""
-    from bench.config.models import (  # deferred: --help and completion stay fast
-        ConfigError,
-        load_trial_config,
-    )
     from bench.rig.emulated import serve  # deferred: --help and completion stay fast
 
-    try:
-        cfg = load_trial_config(config)
-    except ConfigError as e:
-        fail(str(e))
+    cfg = load_config(config)
     if cfg.backend.kind != "dynamixel":
         fail(f"{config}: backend.kind must be dynamixel to emulate its rig")
 
