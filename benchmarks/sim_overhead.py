@@ -25,7 +25,8 @@ import numpy as np
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
 from bench.core.runner import Runner
-from bench.trial.run import interlocks_for, make_backend, plan, prepare
+from bench.rig.backends import make_backend
+from bench.trial.plan import interlocks_for, plan, prepare
 
 CONFIG = Path(__file__).resolve().parent.parent / "hil_configs" / "sim_target1.yaml"
 
@@ -33,7 +34,7 @@ CONFIG = Path(__file__).resolve().parent.parent / "hil_configs" / "sim_target1.y
 def bench_loop(control_hz: float, interlocks: bool = False) -> tuple[float, float, int]:
     cfg = load_trial_config(CONFIG, {"control_hz": control_hz})
     prep = prepare(cfg)
-    act = make_backend(prep)
+    act = make_backend(prep.config, prep.robot)
     with act:
         segments = plan(prep, act.read().position, act.limits.velocity)
         log = TrialLog(list(prep.robot.joint_names))
@@ -49,7 +50,7 @@ def bare_loop(control_hz: float) -> tuple[float, float, int]:
     """Same scene and commands, no bench: the reference a script would write."""
     cfg = load_trial_config(CONFIG, {"control_hz": control_hz})
     prep = prepare(cfg)
-    act = make_backend(prep)  # the same world, built the same way; driven by hand below
+    act = make_backend(prep.config, prep.robot)  # the same world, built the same way; driven by hand below
     pb, c, body = act._pb, act.client, act.robot
     idx = act._joint_index
     n = len(idx)

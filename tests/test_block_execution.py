@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 
 from bench.kinematics.arc_train import TARGET_1
-from bench.scene.room import URDF_DIR
+from bench.scene.room import URDF_DIR, default_scene
 from drivers import NotEnabledError
-from bench.scene.room import default_scene
 from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings
 from trajectories import LSPB
 
@@ -90,18 +89,20 @@ def test_runner_blocks_trip_at_the_cycle_checking_every_cycle_trips(on_trip, mon
     """A plan aimed through the gantry, run in blocks and cycle by cycle: the same trip at the
     same cycle with the same cause, the same samples up to it, and the same hold after it to
     within the solver's tolerance (the block path rewinds the physics to the tripping cycle)."""
+    from test_interlock_trial import INTO_GANTRY
+
     import bench.core.runner as runner_module
     from bench.config.models import TrialConfig
     from bench.core.log import TrialLog
-    from bench.trial.run import interlocks_for, make_backend, plan, prepare
-    from test_interlock_trial import INTO_GANTRY
+    from bench.rig.backends import make_backend
+    from bench.trial.plan import interlocks_for, plan, prepare
 
     cfg = TrialConfig.model_validate({**INTO_GANTRY, "safety": {**INTO_GANTRY["safety"],
                                                                  "on_trip": on_trip}})
 
     def run(blocks: bool) -> TrialLog:
         prep = prepare(cfg)
-        with make_backend(prep) as act:
+        with make_backend(prep.config, prep.robot) as act:
             assert runner_module.runs_blocks(act, interlocks_for(prep, act))
             monkeypatch.setattr(runner_module, "runs_blocks", lambda a, i: blocks)
             log = TrialLog(list(prep.robot.joint_names))

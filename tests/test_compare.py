@@ -14,7 +14,12 @@ import pytest
 import yaml
 
 from bench.compare.analysis import (
-    PlanMismatchError, align_logs, check_same_plan, compare_logs, joint_tracking, profile_difference,
+    PlanMismatchError,
+    align_logs,
+    check_same_plan,
+    compare_logs,
+    joint_tracking,
+    profile_difference,
 )
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
@@ -33,13 +38,13 @@ LIGHT = ("theta7", "theta8", "d9", "d10")
 
 @pytest.fixture(scope="module")
 def prep():
-    from bench.trial.run import prepare
+    from bench.trial.plan import prepare
 
     return prepare(load_trial_config(LAB))
 
 
 def _segments(prep):
-    from bench.trial.run import plan
+    from bench.trial.plan import plan
 
     rows = prep.robot.chain.rows
     return plan(prep, prep.robot.chain.home, np.array([r.velocity for r in rows]))

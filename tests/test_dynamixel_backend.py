@@ -13,9 +13,12 @@ import numpy as np
 import pytest
 
 from bench.config.models import load_trial_config
-from bench.rig.emulated import EmulatedRig
 from bench.core.log import TrialLog
-from bench.trial.run import make_dynamixel_backend, prepare, run_trial
+from bench.kinematics.registry import get_robot
+from bench.rig.backends import make_dynamixel_backend
+from bench.rig.emulated import EmulatedRig
+from bench.trial.plan import prepare
+from bench.trial.run import run_trial
 from drivers import CommunicationError, ConfigurationError, HardwareFault, NotEnabledError
 
 REPO = Path(__file__).resolve().parent.parent
@@ -40,7 +43,7 @@ def cold_rig():
 
 
 def backend_for(cfg):
-    return make_dynamixel_backend(prepare(cfg))
+    return make_dynamixel_backend(cfg, get_robot(cfg.robot))
 
 
 def test_reads_home_in_si_and_refuses_commands_before_enable(rig):
@@ -186,7 +189,7 @@ def test_full_unplug_ends_within_one_second(tmp_path):
     with EmulatedRig(cfg) as r:
         cfg2 = r.retarget(cfg)
         prep = prepare(cfg2)
-        act = make_dynamixel_backend(prep)
+        act = make_dynamixel_backend(prep.config, prep.robot)
         with act:
             act.enable()
             r.bus.unplug()

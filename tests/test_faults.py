@@ -6,20 +6,21 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import yaml
 
 from bench.config.models import TrialConfig
-from bench.faults import (FAULTS, Backlash, Deadband, FaultWrapper, apply_faults, parse_faults)
-from bench.kinematics.arc_train import JOINTS, TARGET_1, epsilon_from_d2, train_pose
 from bench.core.log import TrialLog
 from bench.core.outcome import settled_position
 from bench.core.runner import Runner, Segment
-from bench.trial.run import make_backend, prepare, run_trial
 from bench.core.truth import GroundTruth, settled_truth
+from bench.faults import FAULTS, Backlash, Deadband, FaultWrapper, apply_faults, parse_faults
+from bench.kinematics.arc_train import JOINTS, TARGET_1, epsilon_from_d2, train_pose
+from bench.rig.backends import make_backend
+from bench.trial.plan import prepare
+from bench.trial.run import run_trial
 from drivers import Actuators, ActuatorsBase, ConfigurationError, JointLimits, JointState
 from trajectories import LSPB
 
@@ -165,7 +166,7 @@ def test_bias_shifts_the_achieved_joint_by_minus_bias(tmp_path, target_prep):
 
 def test_backlash_leaves_a_prismatic_joint_off_by_the_play_after_a_reversal(target_prep):
     play = 0.8e-3
-    backend = make_backend(target_prep)
+    backend = make_backend(target_prep.config, target_prep.robot)
     names = list(JOINTS)
     i9 = names.index("d9")
     spec = parse_faults([{"name": "backlash", "joints": ["d9"], "play_mm": 0.8}], names)
@@ -220,7 +221,7 @@ def test_quantisation_rounds_reads_and_commands_to_ticks():
 def test_noise_has_the_configured_std(target_prep):
     names = list(JOINTS)
     spec = parse_faults([{"name": "noise", "joints": "all", "std_deg": 0.2, "std_mm": 0.1}], names)
-    backend = make_backend(target_prep)
+    backend = make_backend(target_prep.config, target_prep.robot)
     with apply_faults(backend, spec, np.random.default_rng(3)) as act:
         n = 3000
         err = np.array([act.read().position - backend.read().position for _ in range(n)])
@@ -347,7 +348,7 @@ def test_status_faults_go_to_the_emulator_when_the_backend_has_one():
 
 
 def test_crc_faults_are_refused_on_the_sim_backend(target_prep):
-    backend = make_backend(target_prep)
+    backend = make_backend(target_prep.config, target_prep.robot)
     try:
         spec = parse_faults([{"name": "corrupt_crc", "prob": 0.1}], JOINTS)
         with pytest.raises(ConfigurationError, match="corrupt_crc needs a backend with emulator hooks.*"
@@ -396,7 +397,7 @@ def test_ultrasonic_stuck_repeats_one_reading_without_a_flag():
 
 
 def test_ultrasonic_noise_is_gaussian_in_d2(target_prep):
-    backend = make_backend(target_prep)
+    backend = make_backend(target_prep.config, target_prep.robot)
     spec = parse_faults([{"name": "ultrasonic_noise", "std_mm": 2.0}], JOINTS)
     with apply_faults(backend, spec, np.random.default_rng(4)) as act:
         eps_true = backend.read().position[0]

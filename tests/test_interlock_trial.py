@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.scene.contact import GantryContact
-from bench.kinematics.arc_train import ArcTrainRobot
 from bench.core.log import TrialLog
+from bench.kinematics.arc_train import ArcTrainRobot
+from bench.scene.contact import GantryContact
 
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 
@@ -28,7 +28,8 @@ INTO_GANTRY = {"name": "into-gantry", "robot": "arc-train", "control_hz": 500,
 def test_target_really_is_inside_the_gantry():
     robot = ArcTrainRobot()
     from bench.config.models import TrialConfig
-    from bench.trial.run import TrialError, prepare
+    from bench.core.result import TrialError
+    from bench.trial.plan import prepare
 
     prep = prepare(TrialConfig.model_validate(INTO_GANTRY))
     report = GantryContact(robot, 0.020).check(prep.q_entry)

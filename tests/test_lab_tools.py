@@ -17,6 +17,7 @@ import pytest
 import yaml
 
 from bench.config.models import ConfigError, load_trial_config
+from bench.kinematics.registry import get_robot
 from bench.rig.emulated import EmulatedRig, Planted
 
 REPO = Path(__file__).resolve().parent.parent
@@ -230,15 +231,14 @@ def test_calibrate_recovers_planted_zero_offsets_and_ultrasonic(miscalibrated_ri
     assert len(u["stops"]) == 4 and u["residual_mm"] < 1.0
 
     # 3. A trial config naming the file reads the true joint values (registers + sensor fit).
-    from bench.trial.run import make_dynamixel_backend, prepare
-
     from bench.kinematics.arc_train import train_pose
+    from bench.rig.backends import make_dynamixel_backend
 
     cfg = load_trial_config(rig_config(tmp_path / "calibrated.yaml", rig, base,
                                        calibration=str(cal_file)))
     ratio = np.array([servos[n].get("ratio", 1.0) for n in rig.robot.joint_names])
     p = rig.robot.params
-    with make_dynamixel_backend(prepare(cfg)) as act:
+    with make_dynamixel_backend(cfg, get_robot(cfg.robot)) as act:
         act.enable()  # the arm fell when the calibration let go of it: hold it where it is
         deadline = time.monotonic() + 10.0
         while True:  # (a wrong zero would never agree; a swinging arm agrees once it slows down)
@@ -291,7 +291,9 @@ def test_doctor_on_the_emulated_rig_prints_problems_then_one_count_line(tmp_path
 def test_trial_record_names_its_calibration(tmp_path):
     from bench.config.calibration import CalibrationFile, ServoCalibration, save_calibration
     from bench.core.log import TrialLog
-    from bench.trial.run import make_backend, prepare, run_trial
+    from bench.rig.backends import make_backend
+    from bench.trial.plan import prepare
+    from bench.trial.run import run_trial
 
     cal = save_calibration(CalibrationFile(
         config_name="lab-target1", created="2026-01-01T00:00:00+00:00",
@@ -301,7 +303,7 @@ def test_trial_record_names_its_calibration(tmp_path):
     (tmp_path / "lab.yaml").write_text(yaml.safe_dump(data))
     cfg = load_trial_config(tmp_path / "lab.yaml")
     sim = prepare(load_trial_config(REPO / "hil_configs" / "sim_target1_fast.yaml"))
-    res = run_trial(cfg, tmp_path / "runs", backend_factory=lambda prep: make_backend(sim), report=False)
+    res = run_trial(cfg, tmp_path / "runs", backend_factory=lambda prep: make_backend(sim.config, sim.robot), report=False)
     meta = TrialLog.load(res.log_path).metadata
     assert meta["calibration"]["path"] == str(cal)
     assert meta["calibration"]["content"]["servos"]["theta5"]["offset"] == 0.01

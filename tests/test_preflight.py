@@ -12,9 +12,10 @@ import pytest
 import yaml
 
 from bench.config.models import load_trial_config
-from bench.trial.preflight import needle_direction_problem
+from bench.core.result import TrialError
 from bench.kinematics.registry import get_robot
-from bench.trial.run import TrialError, prepare
+from bench.trial.plan import prepare
+from bench.trial.preflight import needle_direction_problem
 
 REPO = Path(__file__).resolve().parent.parent
 SIM = REPO / "hil_configs" / "sim_target1.yaml"

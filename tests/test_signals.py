@@ -121,7 +121,7 @@ def test_signal_while_the_report_is_drawn(tmp_path, monkeypatch):
     """The record is complete before the report: a signal then still leaves a rebuildable run."""
     from typer.testing import CliRunner
 
-    import bench.report.trial
+    import bench.trial.run
     from bench.cli.app import app
 
     def drawing(*args, **kwargs):
@@ -129,7 +129,7 @@ def test_signal_while_the_report_is_drawn(tmp_path, monkeypatch):
         time.sleep(1.0)  # the handler raises here
         raise AssertionError("the signal did not stop the report")
 
-    monkeypatch.setattr(bench.report.trial, "write_trial_report", drawing)
+    monkeypatch.setattr(bench.trial.run, "write_trial_report", drawing)
     res = CliRunner().invoke(app, ["trial", str(REPO / "hil_configs" / "sim_target1_fast.yaml"),
                                    "--out", str(tmp_path)])
     assert res.exit_code == 143, res.output

@@ -13,7 +13,9 @@ import yaml
 
 from bench.config.models import ConfigError, load_trial_config
 from bench.core.log import TrialLog
-from bench.trial.run import TrialError, prepare, run_trial
+from bench.core.result import TrialError
+from bench.trial.plan import prepare
+from bench.trial.run import run_trial
 
 REPO = Path(__file__).resolve().parent.parent
 SIM = REPO / "hil_configs" / "sim_target1.yaml"

@@ -55,9 +55,10 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
     try:
         from bench.config.models import TrialConfig
         from bench.core.log import TrialLog
-        from bench.kinematics.registry import get_robot
-        from bench.trial.run import run_trial, target_of
         from bench.core.truth import GroundTruth, true_outcome
+        from bench.kinematics.registry import get_robot
+        from bench.trial.plan import target_of
+        from bench.trial.run import run_trial
 
         cfg = TrialConfig.model_validate(task["config"])
         recorder: list[GroundTruth] = []

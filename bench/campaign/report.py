@@ -236,7 +236,7 @@ def worst_trials(rows: Sequence[dict], pos: float, ang: float, n: int = 10) -> l
 def write_worst_reports(campaign_dir: Path, rows: Sequence[dict], pos: float, ang: float) -> int:
     """Each worst trial's own HTML report, from its record (campaign trials are run without one);
     returns how many were written. A trial whose record cannot be read keeps its log link."""
-    from bench.trial.run import rebuild_report
+    from bench.trial.record import rebuild_report
 
     written = 0
     for r in worst_trials(rows, pos, ang):

@@ -88,15 +88,13 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
         CompareError,
         run_comparison,
     )
-    from bench.config.models import (  # deferred: --help and completion stay fast
-        ConfigError,
-    )
+    from bench.config.models import ConfigError  # deferred: --help and completion stay fast
     from bench.core.interrupts import (  # deferred: --help and completion stay fast
         SignalGuard,
         TrialInterrupted,
         signal_name,
     )
-    from bench.trial.run import TrialError  # deferred: --help and completion stay fast
+    from bench.core.result import TrialError  # deferred: --help and completion stay fast
     from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     cfg = load_config(path)

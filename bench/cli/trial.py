@@ -30,7 +30,7 @@ def check(config: Path = typer.Argument(..., help="A trial config to check."),
     the trial's interlocks along the planned path, and the serial ports of a real
     backend. Exit 0 when a trial would start, 2 when it would be refused.
     """
-    from bench.trial.preflight import check_config  # deferred: --help and completion stay fast
+    from bench.trial.check import check_config  # deferred: --help and completion stay fast
 
     results = check_config(config, emulate=emulate)
     ok = all(r.ok for r in results)
@@ -94,14 +94,14 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
 
 
 def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
-    from bench.trial.run import TrialError  # deferred: --help and completion stay fast
+    from bench.core.result import TrialError  # deferred: --help and completion stay fast
 
     cfg = load_config(config)
     guard.check()
     rig = None
     if emulate:
         from bench.rig.emulated import EmulatorProcess  # deferred: --help and completion stay fast
-        from bench.trial.run import prepare  # deferred: --help and completion stay fast
+        from bench.trial.plan import prepare  # deferred: --help and completion stay fast
 
         if cfg.backend.kind != "dynamixel":
             fail(f"{config}: --emulate needs backend.kind: dynamixel (this config is {cfg.backend.kind})")
@@ -113,10 +113,10 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
         cfg = rig.retarget(cfg)
     factory = None
     if rig is not None:
-        from bench.trial.run import make_backend  # deferred: --help and completion stay fast
+        from bench.rig.backends import make_backend  # deferred: --help and completion stay fast
 
         def factory(prep):  # bus-level faults reach the emulator through the backend's hooks
-            backend = make_backend(prep)
+            backend = make_backend(prep.config, prep.robot)
             backend.fault_hooks = rig.faults
             return backend
     try:
@@ -148,7 +148,8 @@ def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=Non
 
     from bench.config.models import ConfigError  # deferred: --help and completion stay fast
     from bench.core.interrupts import NO_SIGNALS  # deferred: --help and completion stay fast
-    from bench.trial.run import TrialError, run_trial  # deferred: --help and completion stay fast
+    from bench.core.result import TrialError  # deferred: --help and completion stay fast
+    from bench.trial.run import run_trial  # deferred: --help and completion stay fast
     from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
@@ -200,7 +201,8 @@ def emulate(config: Path = typer.Argument(..., help="A config with backend.kind:
 def report(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
            as_json: bool = typer.Option(False, "--json")) -> None:
     """Rebuild a trial's report (Markdown, HTML, figures) from its record alone."""
-    from bench.trial.run import TrialError, rebuild_report  # deferred: --help and completion stay fast
+    from bench.core.result import TrialError  # deferred: --help and completion stay fast
+    from bench.trial.record import rebuild_report  # deferred: --help and completion stay fast
 
     try:
         res = rebuild_report(run_dir)

@@ -49,10 +49,10 @@ from typing import Literal, Optional, Sequence
 
 import numpy as np
 
-from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET
-from bench.kinematics.needle import NeedleTarget
 from bench.core.log import TrialLog
 from bench.core.outcome import SETTLED_WINDOW_S, NeedleOutcome, needle_outcome
+from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET
+from bench.kinematics.needle import NeedleTarget
 
 __all__ = [
     "DEFAULT_MAX_LAG_S",
@@ -751,7 +751,7 @@ class Side:
 
 def _status(log: TrialLog) -> tuple[bool, str]:
     """(completed, why it stopped early), as the trial record reads them."""
-    from bench.trial.run import status_from_log
+    from bench.core.result import status_from_log
 
     return status_from_log(log)
 

@@ -19,8 +19,14 @@ from typing import Optional, Sequence
 import numpy as np
 
 from bench.compare.analysis import (
-    TABLE3_MEASURED, TABLE3_TARGET, TABLE4_CURRENT_RESEARCH_MM, Comparison, Side, _nanmean,
-    first_motion_time, table3_deviations,
+    TABLE3_MEASURED,
+    TABLE3_TARGET,
+    TABLE4_CURRENT_RESEARCH_MM,
+    Comparison,
+    Side,
+    _nanmean,
+    first_motion_time,
+    table3_deviations,
 )
 from bench.core.log import TrialLog
 

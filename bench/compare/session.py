@@ -35,10 +35,11 @@ from typing import Callable, Optional
 import numpy as np
 
 from bench.compare.analysis import Comparison, compare_logs
-from bench.core.interrupts import NO_SIGNALS
-from bench.core.runner import Interruptible
 from bench.config.models import ConfigError, PyBulletBackendConfig, TrialConfig
+from bench.core.interrupts import NO_SIGNALS
 from bench.core.log import TrialLog
+from bench.core.runner import Interruptible
+from bench.kinematics.registry import get_robot
 from drivers import Actuators
 
 __all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "home_rig",
@@ -123,7 +124,8 @@ def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
     closed here. The homing log is saved to ``log_path``.
     """
     from bench.core.runner import Runner, Segment
-    from bench.trial.run import make_backend, prepare
+    from bench.rig.backends import make_backend
+    from bench.trial.plan import prepare
     from trajectories import LSPB
 
     prep = prepare(config)
@@ -131,7 +133,7 @@ def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
     home = robot.chain.home
     ins = robot.joint_names.index(robot.insertion_joint)
     p = config.plan
-    act = make_backend(prep)
+    act = make_backend(prep.config, prep.robot)
     log = TrialLog(list(robot.joint_names), metadata={"purpose": "homing before a repeat",
                                                         "robot": config.robot})
     try:
@@ -186,10 +188,10 @@ def _hold_until_home(act: Actuators, home: np.ndarray, kinds: list[str], period:
 
 def _safe_stop(config: TrialConfig) -> None:
     """Apply the config's own safe stop to the rig (best effort: the bus may be gone)."""
-    from bench.trial.run import make_backend, prepare
+    from bench.rig.backends import make_backend
 
     try:
-        act = make_backend(prepare(config))
+        act = make_backend(config, get_robot(config.robot))
         act.close()
     except Exception:  # noqa: BLE001 - nothing more can be done from here
         pass
@@ -216,7 +218,9 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     that lost the bus or its sensor is run again. Raises :class:`CompareError` (nothing moved)
     for a config or port that cannot be used.
     """
-    from bench.trial.run import TrialError, prepare, run_trial
+    from bench.core.result import TrialError
+    from bench.trial.plan import prepare
+    from bench.trial.run import run_trial
 
     if repeats < 1:
         raise CompareError(f"--repeats must be at least 1, got {repeats}")

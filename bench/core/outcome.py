@@ -6,8 +6,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from bench.kinematics.needle import NeedleTarget
 from bench.core.log import TrialLog
+from bench.kinematics.needle import NeedleTarget
 
 SETTLED_WINDOW_S = 0.1  # the median over this window of the insertion's settle is "achieved"
 

@@ -23,11 +23,10 @@ from typing import Callable, Iterator, Literal, Optional, Protocol, Sequence, ru
 
 import numpy as np
 
-from drivers import Actuators, ActuatorError, JointState
-from trajectories import Trajectory
-
 from bench.core.interrupts import NO_SIGNALS
 from bench.core.log import TrialLog
+from drivers import Actuators, JointState
+from trajectories import Trajectory
 
 #: Cycles sampled from a trajectory at once: bounds a segment's memory, amortises sampling.
 SAMPLE_CHUNK = 2048

@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers import Actuators, JointState
-
-from bench.faults.base import FaultWrapper
 from bench.core.log import TrialLog
 from bench.core.outcome import SETTLED_WINDOW_S, NeedleOutcome, needle_outcome
+from bench.faults.base import FaultWrapper
+from drivers import Actuators, JointState
 
 __all__ = ["GroundTruth", "has_ground_truth", "settled_truth", "true_outcome"]
 

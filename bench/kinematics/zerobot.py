@@ -45,8 +45,14 @@ from typing import Mapping
 import numpy as np
 
 from bench.kinematics.dh import DHChain, DHRow, check_rows
-from bench.kinematics.needle import (NeedlePose, NeedleTarget, UnreachableError, angles_of,
-                                     needle_direction, pose_from_axis)
+from bench.kinematics.needle import (
+    NeedlePose,
+    NeedleTarget,
+    UnreachableError,
+    angles_of,
+    needle_direction,
+    pose_from_axis,
+)
 
 __all__ = ["JOINTS", "ZerobotParams", "ZerobotRobot", "build_chain", "eq3_tip_pose",
            "NeedlePose", "NeedleTarget", "UnreachableError"]

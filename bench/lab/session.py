@@ -15,7 +15,7 @@ import serial
 
 from bench.config.models import TrialConfig
 from bench.kinematics.registry import get_robot
-from bench.trial.run import PreparedTrial, make_dynamixel_backend, target_of
+from bench.rig.backends import make_dynamixel_backend
 from drivers import Actuators, ConfigurationError
 from drivers.dynamixel.bus import ServoBus, open_error
 
@@ -83,9 +83,7 @@ def open_backend(config: TrialConfig, *, ultrasonic: bool = True,
                                    "ultrasonic": b.ultrasonic if ultrasonic else None})
     cfg = config.model_copy(update={"backend": backend,
                                     "calibration": config.calibration if calibrated else None})
-    robot = get_robot(cfg.robot)
-    home = robot.chain.home
-    try:  # no trial is planned: entry and insertion poses are placeholders
-        return make_dynamixel_backend(PreparedTrial(cfg, robot, target_of(cfg), home, home))
+    try:
+        return make_dynamixel_backend(cfg, get_robot(cfg.robot))
     except (serial.SerialException, OSError) as e:
         raise ConfigurationError(f"servo {open_error(b.port, e)}") from None

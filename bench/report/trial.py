@@ -6,14 +6,11 @@ import base64
 import html
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.core.log import TrialLog
-
-if TYPE_CHECKING:  # pragma: no cover
-    from bench.trial.run import PreparedTrial, TrialResult
+from bench.core.result import PreparedTrial, TrialResult, write_result_json
 
 
 def joint_display(robot, name: str, values: np.ndarray) -> tuple[np.ndarray, str, str]:
@@ -300,7 +297,5 @@ def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTria
     (d / "report.md").write_text(md)
     images = {v: d / v for v in figures.values()}
     (d / "report.html").write_text(markdown_to_html(md, images, f"Trial {prep.config.name}"))
-    from bench.trial.run import write_result_json
-
     write_result_json(result)
     return {k: d / v for k, v in figures.items()}

@@ -17,9 +17,6 @@ from typing import Sequence
 
 import numpy as np
 
-from drivers import JointLimits
-
-
 
 @dataclass(frozen=True)
 class PathTrip:
@@ -87,54 +84,3 @@ def port_problems(config) -> list[str]:
     return problems
 
 
-def limits_of(rows, overrides=None) -> JointLimits:
-    """Joint limits from the robot's rows, with a backend's per-joint velocity/effort overrides."""
-    overrides = overrides or {}
-
-    def pick(row, name: str) -> float:
-        o = overrides.get(row.name)
-        value = getattr(o, name, None) if o is not None else None
-        return float(value) if value else float(getattr(row, name))
-
-    return JointLimits(np.array([r.lower for r in rows]), np.array([r.upper for r in rows]),
-                       np.array([pick(r, "velocity") for r in rows]),
-                       np.array([pick(r, "effort") for r in rows]))
-
-
-@dataclass(frozen=True)
-class CheckResult:
-    """One named check of `hilbench check`: passed or not, and what it found."""
-
-    name: str
-    ok: bool
-    detail: str
-
-
-def check_config(path, emulate: bool = False) -> list[CheckResult]:
-    """Every check a trial makes before moving, on a config file; stops at the first failure.
-
-    ``emulate``: the ports will be the emulated rig's, so the configured ones are not checked.
-    """
-    from bench.config.models import ConfigError, load_trial_config
-    from bench.trial.run import TrialError, prepare
-
-    try:
-        config = load_trial_config(path)
-    except ConfigError as e:
-        return [CheckResult("config", False, str(e))]
-    results = [CheckResult("config", True, f"{config.name}: {config.robot}, {config.backend.kind} "
-                                           f"backend, {config.control_hz:g} Hz")]
-    try:
-        prep = prepare(config)
-    except TrialError as e:
-        return results + [CheckResult("target and plan", False, str(e))]
-    entry = prep.robot.needle(prep.q_insert)
-    results.append(CheckResult(
-        "target and plan", True,
-        f"reachable; needle {np.degrees(entry.angle):.1f}° into the bed; the planned path "
-        f"clears every interlock" + ("" if config.safety.enabled else " (interlocks disabled)")))
-    if config.backend.kind == "dynamixel" and not emulate:
-        problems = port_problems(config)
-        results.append(CheckResult("ports", not problems, "; ".join(problems) or "present and "
-                                                                                 "writable"))
-    return results

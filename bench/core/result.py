@@ -1,0 +1,109 @@
+"""What a trial is before it runs and what it came to: the prepared trial, its result, result.json.
+
+Below the report and the trial runner, so both speak of the same objects: a report is
+drawn from a :class:`TrialResult` and a :class:`PreparedTrial` and nothing else.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from bench.config.models import TrialConfig
+from bench.core.log import TrialLog
+from bench.core.outcome import NeedleOutcome, needle_outcome, settled_position
+from bench.kinematics.needle import NeedleTarget
+from drivers import BenchError
+
+__all__ = ["PreparedTrial", "TrialError", "TrialResult", "result_from_log", "status_from_log",
+           "write_result_json"]
+
+
+class TrialError(BenchError, RuntimeError):
+    """The trial could not start; nothing moved."""
+
+
+@dataclass
+class PreparedTrial:
+    """A trial that passed every check that can be made before anything moves."""
+
+    config: TrialConfig
+    robot: object
+    target: NeedleTarget
+    q_entry: np.ndarray
+    q_insert: np.ndarray
+
+
+@dataclass
+class TrialResult:
+    run_dir: Path
+    log_path: Path
+    completed: bool
+    reason: str
+    outcome: Optional[NeedleOutcome]
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        return self.completed and self.outcome is not None and self.outcome.passed
+
+    @property
+    def why_not(self) -> str:
+        """Why the trial did not pass, in one line ("" when it passed)."""
+        if self.passed:
+            return ""
+        if not self.completed:
+            return f"stopped early: {self.reason}"
+        if self.outcome is None:
+            return "no settled insertion to measure"
+        return f"outside the acceptance limits: {self.outcome.failures()}"
+
+    def summary(self) -> dict:
+        o = self.outcome
+        return {
+            "run_dir": str(self.run_dir),
+            "tip_deviation_mm": o.tip_deviation_mm if o else None,
+            "depth_deviation_mm": o.depth_deviation_mm if o else None,
+            "angle_deviation_deg": o.angle_deviation_deg if o else None,
+            "passed": self.passed,
+            "completed": self.completed,
+            "reason": self.why_not,
+        }
+
+
+def status_from_log(log: TrialLog) -> tuple[bool, str]:
+    """(completed, why it stopped early) from the log's events alone."""
+    kinds = [e.kind for e in log.events]
+    if "done" in kinds:
+        return True, ""
+    for e in reversed(log.events):
+        if e.kind == "abort":
+            return False, e.message
+        if e.kind == "interlock":
+            return False, f"interlock {e.message}"
+    return False, "the log ends before the plan did"
+
+
+def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialResult:
+    """The trial's result computed from its log, identically at the end of a trial and later."""
+    cfg = prep.config
+    outcome = None
+    try:
+        q_final = settled_position(log, "insert")
+        outcome = needle_outcome(prep.robot, q_final, prep.target,
+                                 cfg.acceptance.position_mm, cfg.acceptance.angle_deg)
+    except (KeyError, ValueError):
+        pass
+    completed, reason = status_from_log(log)
+    return TrialResult(Path(run_dir), Path(run_dir) / "trial.npz", completed, reason, outcome)
+
+
+def write_result_json(res: TrialResult) -> None:
+    summary = res.summary()
+    summary.update({"completed": res.completed, "reason": res.reason,
+                    "outcome": res.outcome.as_dict() if res.outcome else None})
+    (res.run_dir / "result.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -1,0 +1,135 @@
+"""A trial before anything moves: the target solved, the plan built and checked, its interlocks.
+
+Everything that can be wrong with a trial (the config, the URDF, the target, a plan
+that is too long or would trip an interlock) is found by :func:`prepare` before a
+backend is built, so a bad trial never moves anything.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.config.models import MAX_PLAN_S, TrialConfig
+from bench.core.result import PreparedTrial, TrialError
+from bench.core.runner import Segment
+from bench.core.safety import (
+    GantryClearanceInterlock,
+    Interlocks,
+    JointLimitInterlock,
+    StaleDataInterlock,
+    TrackingErrorInterlock,
+    VelocityLimitInterlock,
+)
+from bench.kinematics.needle import NeedleTarget, UnreachableError
+from bench.kinematics.registry import get_robot
+from bench.rig.backends import backend_limits
+from bench.trial.preflight import needle_direction_problem, planned_path_trip
+from drivers import Actuators, JointLimits
+from trajectories import LSPB, Limits, RuckigOnline, RuckigTrajectory, TrajectoryError
+
+__all__ = ["interlocks_for", "plan", "planned_limits", "prepare", "target_of"]
+
+
+def target_of(config: TrialConfig) -> NeedleTarget:
+    t = config.target
+    return NeedleTarget(np.array([t.x_mm, t.y_mm, t.z_mm]) * 1e-3, t.depth_mm * 1e-3,
+                        np.radians(t.angle_deg), np.radians(t.tilt_deg))
+
+
+def prepare(config: TrialConfig) -> PreparedTrial:
+    """Check the URDF and solve the target; raise TrialError naming the problem."""
+
+    robot = get_robot(config.robot)
+    if not config.robot_urdf.is_file():
+        raise TrialError(f"robot URDF not found: {config.robot_urdf} (urdf_dir: {config.urdf_dir})")
+    for name in ("ct_gantry", "ct_bed", "phantom"):
+        p = config.resolve(config.urdf_dir) / f"{name}.urdf"
+        if not p.is_file():
+            raise TrialError(f"scene URDF not found: {p} (urdf_dir: {config.urdf_dir})")
+    target = target_of(config)
+    try:
+        q_insert = robot.ik(target)
+    except UnreachableError as e:
+        raise TrialError(f"target: {e}") from None
+    q_entry = q_insert.copy()
+    q_entry[robot.joint_names.index(robot.insertion_joint)] = 0.0
+    prep = PreparedTrial(config, robot, target, q_entry, q_insert)
+    problem = needle_direction_problem(robot, q_insert, config.target.angle_deg)
+    if problem:
+        raise TrialError(problem)
+    _check_plan(prep)
+    return prep
+
+
+def _check_plan(prep: PreparedTrial) -> None:
+    """Refuse a plan that would run longer than MAX_PLAN_S from home (a typo, not a trial),
+    or whose path from home, followed perfectly, would trip the trial's interlocks."""
+
+    limits = planned_limits(prep)
+    try:
+        segments = plan(prep, prep.robot.chain.home, limits.velocity)
+    except (TrajectoryError, ValueError) as e:
+        raise TrialError(f"plan: {e}") from None
+    total = sum(s.trajectory.duration + s.settle for s in segments)
+    if not total <= MAX_PLAN_S:
+        raise TrialError(f"plan: the trial would last {total:.0f} s from home, more than the "
+                         f"{MAX_PLAN_S:.0f} s allowed; raise plan.velocity_scale or "
+                         f"plan.acceleration_scale, or shorten plan.settle_s")
+    if not prep.config.safety.refuse_planned_trips:
+        return
+    trip = planned_path_trip(segments, interlocks_for(prep, limits), prep.config.control_period)
+    if trip is not None:
+        raise TrialError(trip.message())
+
+
+def planned_limits(prep: PreparedTrial) -> JointLimits:
+    """The joint limits the backend will have: the robot's, with the backend's overrides."""
+    return backend_limits(prep.config, prep.robot)
+
+
+def plan(prep: PreparedTrial, q_start: np.ndarray, limits_velocity: np.ndarray) -> list[Segment]:
+    """home -> entry pose -> insertion along the needle axis -> retract."""
+
+    p = prep.config.plan
+    vmax = limits_velocity * p.velocity_scale
+    amax = vmax * p.acceleration_scale
+    jmax = amax * p.jerk_scale
+    dt_ctrl = prep.config.control_period
+
+    def traj(a: np.ndarray, b: np.ndarray):
+        if p.trajectory == "lspb":
+            return LSPB(a, b, vmax, amax)
+        if p.trajectory == "ruckig":
+            return RuckigTrajectory(a, b, Limits(vmax, amax, jmax))
+        return RuckigOnline(a, b, Limits(vmax, amax, jmax), dt_ctrl)
+
+    segs = [Segment("approach", traj(q_start, prep.q_entry), p.settle_s),
+            Segment("insert", traj(prep.q_entry, prep.q_insert), p.settle_s)]
+    if p.retract:
+        segs.append(Segment("retract", traj(prep.q_insert, prep.q_entry), 0.0))
+    return segs
+
+
+def interlocks_for(prep: PreparedTrial, act: Actuators | JointLimits):
+    """The configured interlocks for this robot and backend (None when disabled).
+
+    ``act``: the backend, or the limits it will have (to replay a plan before it exists)."""
+
+    s = prep.config.safety
+    if not s.enabled:
+        return None
+    names = list(prep.robot.joint_names)
+    kinds = [r.kind for r in prep.robot.chain.rows]
+    lim = act if isinstance(act, JointLimits) else act.limits
+    tol = s.joint_limit_tolerance
+    bound = [np.radians(s.tracking_error_deg) if k == "revolute" else s.tracking_error_mm * 1e-3
+             for k in kinds]
+    checks = [JointLimitInterlock(lim.lower - tol, lim.upper + tol, names, kinds=kinds),
+              VelocityLimitInterlock(lim.velocity, names, s.velocity_factor, kinds=kinds),
+              TrackingErrorInterlock(bound, names, kinds=kinds)]
+    if s.stale_data:
+        checks.append(StaleDataInterlock())
+    if s.gantry_margin_mm > 0:
+        checks.append(GantryClearanceInterlock(prep.robot, s.gantry_margin_mm * 1e-3,
+                                               lookahead_s=s.gantry_lookahead_s))
+    return Interlocks(checks)
