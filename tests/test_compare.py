@@ -13,14 +13,10 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.compare.analysis import (
-    PlanMismatchError,
-    align_logs,
-    check_same_plan,
-    compare_logs,
-    joint_tracking,
-    profile_difference,
-)
+from bench.compare.alignment import align_logs, check_same_plan, profile_difference
+from bench.compare.analysis import compare_logs
+from bench.compare.signals import PlanMismatchError
+from bench.compare.tracking import joint_tracking
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
 

@@ -74,12 +74,13 @@ reach it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Literal, Mapping, Optional, Sequence, Union
+from typing import Callable, Literal, Mapping, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, TARGET_1, ArcTrainRobot
+from bench.kinematics.batch import angle_tilt, needle_jacobian, needle_vectors, wrap_angle
 from bench.kinematics.needle import UnreachableError
 from bench.kinematics.para_brachy_robot import ParaBrachyRobot
 
@@ -102,8 +103,6 @@ __all__ = [
     "default_tolerances",
     "jacobian_budget",
     "monte_carlo_budget",
-    "needle_vectors",
-    "numerical_jacobian",
     "perturbation_sweep",
     "pose_from_joints",
     "resolve_tolerances",
@@ -123,9 +122,6 @@ PAPER_EPS_LINEAR = 0.05e-3  #: seed 003's ε for a sliding joint (m)
 PAPER_EPS_ANGULAR = 0.05 * DEG  #: seed 003's ε for a rotating joint (rad)
 SERVO_TOL_DEG = 0.29  #: seed 000 section 6: the Dynamixel servos' position tolerance (±deg)
 PINION_RADIUS = 0.010  #: assumed rack-and-pinion radius of every servo-driven slide (m)
-JACOBIAN_STEP = 1e-6  #: central-difference step (m or rad)
-_CHUNK = 50_000  # rows of one batch FK call: bounds the memory of chain.frames
-
 
 
 # ---------------------------------------------------------------------------
@@ -266,97 +262,14 @@ def _joint_index(robot, joint: Union[str, int]) -> int:
 # ---------------------------------------------------------------------------
 
 
-def _loop_fk(robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    poses = [robot.needle(row) for row in q]
-    return (np.array([p.entry for p in poses], dtype=float), np.array([p.tip for p in poses], dtype=float),
-            np.array([p.direction for p in poses], dtype=float))
-
-
-def _candidates(robot, q: np.ndarray) -> Iterable[Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """Vectorised FKs a model may offer, most direct first; each is checked before use."""
-    if callable(getattr(robot, "needle_vectors", None)):
-        yield lambda: tuple(np.asarray(a, dtype=float) for a in robot.needle_vectors(q))  # type: ignore[misc]
-    chain = getattr(robot, "chain", None)
-    if callable(getattr(chain, "tool_pose", None)):
-        def via_tool() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            # A DH chain whose tool frame is the needle tip with z along the needle;
-            # the entry point sits `depth` back along it, depth affine in q.
-            T = chain.tool_pose(q)
-            tip, axis = T[:, :3, 3], T[:, :3, 2]
-            q0 = q[0]
-            d0 = robot.needle(q0).depth
-            grad = np.empty(q.shape[1])
-            for j in range(q.shape[1]):
-                e = np.zeros(q.shape[1])
-                e[j] = 1e-3
-                grad[j] = (robot.needle(q0 + e).depth - robot.needle(q0 - e).depth) / 2e-3
-            depth = d0 + (q - q0) @ grad
-            return tip - depth[:, None] * axis, tip, axis
-
-        yield via_tool
-    if callable(getattr(robot, "needle_batch", None)):
-        def via_batch() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            entry, tip = (np.asarray(a, dtype=float) for a in robot.needle_batch(q)[:2])
-            length = np.linalg.norm(tip - entry, axis=1)
-            if np.min(length) < 1e-6:
-                raise ValueError("needle axis undefined at zero depth")
-            return entry, tip, (tip - entry) / length[:, None]
-
-        yield via_batch
-
-
-def _agrees(robot, q: np.ndarray, out: tuple[np.ndarray, np.ndarray, np.ndarray]) -> bool:
-    rows = sorted({0, len(q) // 2, len(q) - 1})
-    for i in rows:
-        p = robot.needle(q[i])
-        for a, b in zip(out, (p.entry, p.tip, p.direction)):
-            if a.shape != (len(q), 3) or not np.all(np.abs(a[i] - b) <= 1e-9):
-                return False
-    return True
-
-
-def needle_vectors(robot, q: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact FK of a batch (N, n) → entry, tip and unit needle direction, each (N, 3), in m.
-
-    Uses the model's vectorised FK when it has one (``needle_vectors``, a DH
-    ``chain.tool_pose`` or ``needle_batch``), after checking three of the
-    rows against ``robot.needle``; otherwise calls ``robot.needle`` per row.
-    """
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    if q.shape[1] != len(_names(robot)):
-        raise ValueError(f"expected {len(_names(robot))} joint values per row, got shape {q.shape}")
-    if len(q) > _CHUNK:
-        parts = [needle_vectors(robot, q[i:i + _CHUNK]) for i in range(0, len(q), _CHUNK)]
-        return tuple(np.concatenate([p[k] for p in parts]) for k in range(3))  # type: ignore[return-value]
-    for compute in _candidates(robot, q):
-        try:
-            out = compute()
-        except (ValueError, TypeError, IndexError, AttributeError) as e:
-            if isinstance(e, UnreachableError):
-                raise
-            continue
-        if _agrees(robot, q, out):
-            return out
-    return _loop_fk(robot, q)
-
-
 def _psi_theta(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Seed 003's ψ (azimuth) and θ (from the downward vertical) of unit directions (…, 3)."""
     return np.arctan2(d[..., 1], d[..., 0]), np.arctan2(np.hypot(d[..., 0], d[..., 1]), -d[..., 2])
 
 
-def _angle_tilt(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The bench's insertion angle and tilt of unit directions (…, 3), as needle.angles_of."""
-    return np.arctan2(d[..., 1], -d[..., 2]), np.arcsin(np.clip(d[..., 0], -1.0, 1.0))
-
-
 def _axis_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle between unit vectors, accurate for tiny angles."""
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
 
 
 # ---------------------------------------------------------------------------
@@ -473,7 +386,7 @@ def _sweep_generic(robot, q0: np.ndarray, j: int, vals: np.ndarray, step: np.nda
         robot=robot_label(robot), joint_names=_names(robot), kinds=_kinds(robot), joint=_names(robot)[j],
         values=vals, q=q, eps=step, tip_mm=tip0 * 1e3,
         pos_change_mm=np.linalg.norm(tip1 - tip0[:, None, :], axis=-1) * 1e3,
-        psi_change_deg=np.degrees(_wrap(psi1 - psi0[:, None])),
+        psi_change_deg=np.degrees(wrap_angle(psi1 - psi0[:, None])),
         theta_change_deg=np.degrees(th1 - th0[:, None]),
         axis_change_deg=np.degrees(_axis_angle(d1, d0[:, None, :])),
     )
@@ -601,29 +514,13 @@ def _shares(parts: np.ndarray) -> np.ndarray:
     return np.divide(parts, total, out=np.zeros_like(parts), where=total > 0)
 
 
-def numerical_jacobian(robot, q: ArrayLike, step: float = JACOBIAN_STEP) -> dict[str, np.ndarray]:
-    """Central-difference Jacobians of tip, entry, direction (3, n), insertion angle and depth (n,)."""
-    q = np.asarray(q, dtype=float)
-    n = q.size
-    h = np.eye(n) * step
-    entry, tip, d = needle_vectors(robot, np.concatenate([q + h, q - h]))
-    ang, _ = _angle_tilt(d)
-    depth = np.sum((tip - entry) * d, axis=1)
-
-    def diff(a: np.ndarray) -> np.ndarray:
-        return (a[:n] - a[n:]) / (2.0 * step)
-
-    return {"tip": diff(tip).T, "entry": diff(entry).T, "axis": diff(d).T,
-            "angle": _wrap(ang[:n] - ang[n:]) / (2.0 * step), "depth": diff(depth)}
-
-
 def jacobian_budget(robot, q: Optional[ArrayLike] = None, tolerances: Tolerances = None, *,
                     distribution: Distribution = "uniform", tol_deg: float = SERVO_TOL_DEG) -> JacobianBudget:
     """First-order needle error from each joint's tolerance (see the module notes for σ and shares)."""
     q0 = default_pose(robot) if q is None else np.array(q, dtype=float)
     tol = resolve_tolerances(robot, tolerances, tol_deg)
     sigma = _sigma(tol, distribution)
-    J = numerical_jacobian(robot, q0)
+    J = needle_jacobian(robot, q0)
     axis_rate = np.linalg.norm(J["axis"], axis=0)  # rad of axis turn per unit joint motion
     contrib_tip = np.abs(J["tip"]).T * tol[:, None]
     var_tip_axes = (J["tip"] * sigma) ** 2  # (3, n)
@@ -743,8 +640,8 @@ def monte_carlo_budget(robot, q: Optional[ArrayLike] = None, tolerances: Toleran
     dq = _sample_unit(rng, (int(n), q0.size), distribution) * tol
     e0, t0, d0 = needle_vectors(robot, q0[None])
     entry, tip, d = needle_vectors(robot, q0 + dq)
-    ang0, tilt0 = _angle_tilt(d0)
-    ang, tilt = _angle_tilt(d)
+    ang0, tilt0 = angle_tilt(d0)
+    ang, tilt = angle_tilt(d)
     depth0 = np.sum((t0 - e0) * d0, axis=1)
     depth = np.sum((tip - entry) * d, axis=1)
     tip_err = tip - t0
@@ -768,7 +665,7 @@ def monte_carlo_budget(robot, q: Optional[ArrayLike] = None, tolerances: Toleran
         joint_names=_names(robot), kinds=_kinds(robot), q=q0, tolerances=tol, distribution=distribution,
         n=int(n), seed=int(seed), joint_err=dq, tip_err_mm=tip_err * 1e3, entry_err_mm=(entry - e0) * 1e3,
         depth_err_mm=(depth - depth0) * 1e3, axis_err_deg=np.degrees(_axis_angle(d, d0)),
-        angle_err_deg=np.degrees(_wrap(ang - ang0)), tilt_err_deg=np.degrees(tilt - tilt0),
+        angle_err_deg=np.degrees(wrap_angle(ang - ang0)), tilt_err_deg=np.degrees(tilt - tilt0),
         share_tip=share_tip, share_axis=share_axis, additivity_tip=add_tip, additivity_axis=add_axis,
         nominal_tip_mm=t0[0] * 1e3,
     )

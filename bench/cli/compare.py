@@ -83,11 +83,11 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
 
 def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path):
 
-    from bench.compare.analysis import PlanMismatchError  # deferred: --help and completion stay fast
     from bench.compare.session import (  # deferred: --help and completion stay fast
         CompareError,
         run_comparison,
     )
+    from bench.compare.signals import PlanMismatchError  # deferred: --help and completion stay fast
     from bench.config.models import ConfigError  # deferred: --help and completion stay fast
     from bench.core.interrupts import (  # deferred: --help and completion stay fast
         SignalGuard,
@@ -122,11 +122,9 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
 
 def _from_runs(a: Path, b: Path, align: str, out: Path):
 
-    from bench.compare.analysis import (  # deferred: --help and completion stay fast
-        PlanMismatchError,
-        compare_logs,
-    )
+    from bench.compare.analysis import compare_logs
     from bench.compare.report import write_compare_report  # deferred: --help and completion stay fast
+    from bench.compare.signals import PlanMismatchError
     from bench.core.log import TrialLog  # deferred: --help and completion stay fast
 
     pa, pb = _log_path(a), _log_path(b)

@@ -18,17 +18,10 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from bench.compare.analysis import (
-    TABLE3_MEASURED,
-    TABLE3_TARGET,
-    TABLE4_CURRENT_RESEARCH_MM,
-    Comparison,
-    Side,
-    _nanmean,
-    first_motion_time,
-    table3_deviations,
-)
+from bench.compare.analysis import TABLE4_CURRENT_RESEARCH_MM, Comparison, Side
+from bench.compare.signals import first_motion_time, nanmean
 from bench.core.log import TrialLog
+from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, table3_deviations
 
 __all__ = ["REPEAT_COLOURS", "gravity_loads", "plot_needle_scatter", "plot_profiles", "plot_tracking",
            "render_markdown", "write_compare_report"]
@@ -358,7 +351,7 @@ def _profile_table(comparison: Comparison) -> list[str]:
     kinds = [r.kind for r in comparison.robot.chain.rows]
     segs = list(comparison.subject.logs[0].segment_names)
     rms, mx, cmd = (comparison.profile_mean(a) for a in ("rms", "max_abs", "cmd_rms"))
-    by_seg = {s: _nanmean(np.array([[p.rms_by_segment.get(s, np.nan) for p in pair]
+    by_seg = {s: nanmean(np.array([[p.rms_by_segment.get(s, np.nan) for p in pair]
                                     for pair in comparison.profile], dtype=float))
               if comparison.profile else np.full(len(kinds), np.nan) for s in segs}
     lines = [f"{comparison.subject.label} measured minus {comparison.reference.label} measured, both aligned "
