@@ -79,10 +79,12 @@ from typing import Callable, Literal, Mapping, Optional, Sequence, Union
 import numpy as np
 from numpy.typing import ArrayLike
 
+from bench.kinematics import para_brachy as pb
 from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, TARGET_1, ArcTrainRobot
 from bench.kinematics.batch import angle_tilt, needle_jacobian, needle_vectors, wrap_angle
 from bench.kinematics.needle import UnreachableError
 from bench.kinematics.para_brachy_robot import ParaBrachyRobot
+from bench.kinematics.registry import ROBOTS, get_robot
 
 __all__ = [
     "DISTRIBUTIONS",
@@ -134,14 +136,12 @@ _EXTRA_ROBOTS: dict[str, Callable[[], object]] = {"para-brachy": ParaBrachyRobot
 
 def robot_names() -> list[str]:
     """Every robot name :func:`robot_by_name` accepts."""
-    from bench.kinematics.registry import ROBOTS
 
     return sorted(set(ROBOTS) | set(_EXTRA_ROBOTS))
 
 
 def robot_by_name(name: str):
     """The registered robots, plus the parallel robot through its adapter."""
-    from bench.kinematics.registry import ROBOTS, get_robot
 
     if name in ROBOTS:
         return get_robot(name)
@@ -395,7 +395,6 @@ def _sweep_generic(robot, q0: np.ndarray, j: int, vals: np.ndarray, step: np.nda
 def _sweep_para_brachy(robot: ParaBrachyRobot, q0: np.ndarray, j: int, vals: np.ndarray,
                        step: np.ndarray) -> Sweep:
     """The parallel robot's own eqs 12–14 (para_brachy.perturbation_sweep), in mm and degrees."""
-    from bench.kinematics import para_brachy as pb
 
     kinds = _kinds(robot)
     linear = {float(e) for e, k in zip(step, kinds) if k == "prismatic"}

@@ -18,8 +18,10 @@ from typing import Optional
 import numpy as np
 
 from bench.accuracy import analysis as acc
+from bench.config.models import AcceptanceConfig
 from bench.kinematics.arc_train import ArcTrainRobot
 from bench.kinematics.para_brachy_robot import ParaBrachyRobot
+from bench.report.trial import markdown_to_html
 
 __all__ = ["Study", "run_study", "summary", "table3_rows", "write_report", "plot_tip_errors",
            "plot_shares", "plot_sweep"]
@@ -180,8 +182,8 @@ def _verdict(study: Study) -> list[str]:
 
 
 def _figure(size: tuple[float, float]):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # heavy: loaded only when a figure is drawn
+    from matplotlib.figure import Figure  # heavy: loaded only when a figure is drawn
 
     fig = Figure(figsize=size, constrained_layout=True)
     FigureCanvasAgg(fig)
@@ -254,7 +256,7 @@ def plot_sweep(sweep: acc.Sweep, path: Path) -> Path:
         axes[0].plot(xs, np.maximum(sweep.ratio[:, k], 1e-12), label=f"{name} ({unit})")
         axes[1].plot(xs, sweep.theta_change_deg[:, k], label=name)
         axes[2].plot(xs, sweep.psi_change_deg[:, k], label=name)
-    from matplotlib.ticker import FormatStrFormatter
+    from matplotlib.ticker import FormatStrFormatter  # heavy: loaded only when a figure is drawn
 
     positive = sweep.ratio[sweep.ratio > 0]
     if positive.size and positive.max() > 100 * positive.min():  # e.g. the paper's q2 at 5e-5 beside q3 at 20
@@ -286,7 +288,6 @@ def _f(v: Optional[float], nd: int = 3) -> str:
 
 def acceptance_limits() -> tuple[float, float]:
     """Seed 000's acceptance limits (mm per axis and depth, degrees), as trials judge them."""
-    from bench.config.models import AcceptanceConfig
 
     a = AcceptanceConfig()
     return a.position_mm, a.angle_deg
@@ -385,7 +386,6 @@ def render_markdown(study: Study, figures: dict[str, str]) -> str:
 
 def write_report(study: Study, out: Path) -> dict[str, Path]:
     """tip_errors.png, shares.png, sweep.png, report.md, report.html, budget.json, samples.npz in ``out``."""
-    from bench.report.trial import markdown_to_html
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -25,8 +25,16 @@ import socket
 import threading
 import time
 import traceback
+import uuid
 from pathlib import Path
 from typing import Any, Iterable, Protocol
+
+from bench.config.models import TrialConfig
+from bench.core.log import TrialLog
+from bench.core.truth import GroundTruth, true_outcome
+from bench.kinematics.registry import get_robot
+from bench.trial.plan import target_of
+from bench.trial.run import run_trial
 
 __all__ = ["DaskPool", "InlinePool", "LocalPool", "Pool", "THREAD_ENV", "execute_trial", "start_forkserver",
            "worker_init"]
@@ -53,12 +61,6 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
     worker = f"{socket.gethostname()}:{os.getpid()}"
     base = {"id": task["id"], "worker": worker}
     try:
-        from bench.config.models import TrialConfig
-        from bench.core.log import TrialLog
-        from bench.core.truth import GroundTruth, true_outcome
-        from bench.kinematics.registry import get_robot
-        from bench.trial.plan import target_of
-        from bench.trial.run import run_trial
 
         cfg = TrialConfig.model_validate(task["config"])
         recorder: list[GroundTruth] = []
@@ -217,7 +219,7 @@ class DaskPool:
 
     def __init__(self, address: str, timeout: float = 30.0) -> None:
         try:
-            from distributed import Client
+            from distributed import Client  # optional: only for a Dask cluster
         except ImportError:  # pragma: no cover - depends on the install
             raise RuntimeError("--scheduler needs dask.distributed: pip install 'needle-hil-bench[cluster]'") from None
         try:
@@ -228,7 +230,6 @@ class DaskPool:
         self.description = f"Dask scheduler {address} ({self.workers} worker threads)"
 
     def submit(self, task: dict[str, Any]) -> Any:
-        import uuid
 
         return self._client.submit(execute_trial, task, pure=False,
                                    key=f"{task['name']}-{uuid.uuid4().hex[:8]}")

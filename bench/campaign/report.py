@@ -12,6 +12,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from bench.campaign.store import CampaignStore
+from bench.report.trial import markdown_to_html
+from bench.trial.record import rebuild_report
 
 __all__ = ["PAPER_TABLE3", "deviation_table", "write_campaign_report"]
 
@@ -90,10 +92,10 @@ def _severity(r: dict, pos: float, ang: float) -> float:
 
 
 def _plt():
-    import matplotlib
+    import matplotlib  # heavy: loaded only when a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded only when a figure is drawn
 
     return plt
 
@@ -236,7 +238,6 @@ def worst_trials(rows: Sequence[dict], pos: float, ang: float, n: int = 10) -> l
 def write_worst_reports(campaign_dir: Path, rows: Sequence[dict], pos: float, ang: float) -> int:
     """Each worst trial's own HTML report, from its record (campaign trials are run without one);
     returns how many were written. A trial whose record cannot be read keeps its log link."""
-    from bench.trial.record import rebuild_report
 
     written = 0
     for r in worst_trials(rows, pos, ang):
@@ -329,7 +330,6 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
 
 def write_campaign_report(campaign_dir: Path | str) -> dict[str, Path]:
     """``report.md``, ``report.html`` (figures embedded) and ``figures/`` in the campaign directory."""
-    from bench.report.trial import markdown_to_html
 
     campaign_dir = Path(campaign_dir)
     with CampaignStore(campaign_dir / "campaign.db") as store:

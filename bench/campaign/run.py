@@ -27,11 +27,13 @@ import time
 import uuid
 from collections import deque
 from concurrent.futures import CancelledError
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Optional
 
 from bench.campaign.execute import DaskPool, InlinePool, LocalPool, Pool, execute_trial
+from bench.campaign.report import write_campaign_report
 from bench.campaign.spec import find_axes, load_campaign_spec, plan_trials, resolve_base
 from bench.campaign.store import METRIC_COLUMNS, CampaignStore
 
@@ -212,7 +214,6 @@ def run_campaign(campaign_dir: Path | str, workers: int | None = None, scheduler
                  progress: Optional[Callable[[CampaignProgress], None]] = None,
                  notify: Optional[Callable[[str], None]] = None, report: bool = True) -> CampaignSummary:
     """Run every missing trial (pending, left running, or errored with attempts left)."""
-    from concurrent.futures.process import BrokenProcessPool
 
     campaign_dir = Path(campaign_dir)
     t0 = time.perf_counter()
@@ -304,7 +305,6 @@ def run_campaign(campaign_dir: Path | str, workers: int | None = None, scheduler
                               counts["error"], counts["pending"] + counts["running"], interrupted,
                               time.perf_counter() - t0, ran, pool_desc, notes)
     if report and counts["done"]:
-        from bench.campaign.report import write_campaign_report
 
         write_campaign_report(campaign_dir)
     return summary

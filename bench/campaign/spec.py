@@ -20,6 +20,7 @@ they were. Errors name the field path.
 from __future__ import annotations
 
 import itertools
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +30,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from bench.config.models import REPO_ROOT, AcceptanceConfig, ConfigError, TrialConfig
+from bench.config.models import REPO_ROOT, AcceptanceConfig, ConfigError, TrialConfig, read_yaml_mapping
 from bench.faults import parse_fault
 from bench.kinematics.registry import get_robot
 
@@ -117,7 +118,6 @@ def resolve_base(spec: CampaignSpec) -> Path:
 
 def load_campaign_spec(path: Path | str) -> CampaignSpec:
     """Read and validate a spec and everything it implies (base config, faults, axes)."""
-    from bench.config.models import read_yaml_mapping
 
     path = Path(path)
     data = read_yaml_mapping(path, "campaign spec", CampaignSpecError)
@@ -296,7 +296,6 @@ def plan_trials(spec: CampaignSpec, limit: int | None = None) -> list[PlannedTri
 
 def json_config(cfg: TrialConfig) -> dict:
     """A trial config as plain JSON data (paths as strings), enough to rebuild it anywhere."""
-    import json
 
     data = json.loads(cfg.model_dump_json())
     data["urdf_dir"] = str(cfg.resolve(cfg.urdf_dir))

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import NoReturn, Optional
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -50,7 +51,11 @@ def accuracy(
     as_json: bool = typer.Option(False, "--json", help="Print the budget as one JSON line."),
 ) -> None:
     """Needle-tip error budget for servo tolerances: Monte Carlo, worst case, joint shares, eqs 12-14 sweep."""
-    from bench.accuracy.report import run_study, summary, write_report
+    from bench.accuracy.report import (  # deferred: --help and completion stay fast
+        run_study,
+        summary,
+        write_report,
+    )
 
     overrides: dict = {}
     if pose is not None:
@@ -66,7 +71,10 @@ def accuracy(
         _fail(f"--samples must be at least 2, got {samples}")
     if out is not None and out.exists() and not out.is_dir():
         _fail(f"--out {str(out)!r} exists and is not a directory")
-    from bench.accuracy.analysis import pose_from_joints, robot_by_name
+    from bench.accuracy.analysis import (  # deferred: --help and completion stay fast
+        pose_from_joints,
+        robot_by_name,
+    )
 
     try:
         model = robot_by_name(robot)
@@ -123,13 +131,12 @@ def workspace(
     as_json: bool = typer.Option(False, "--json", help="Print the summary as one JSON line."),
 ) -> None:
     """The parallel robot's workspace map: reachability, conditioning and singularity margin (.npz, .csv, .png)."""
-    import numpy as np
 
     if robot != "para-brachy":
         _fail(f"no workspace map for robot {robot!r}; the map exists for para-brachy only")
     if out.exists() and not out.is_dir():
         _fail(f"--out {str(out)!r} exists and is not a directory")
-    from bench.kinematics import para_brachy as pb
+    from bench.kinematics import para_brachy as pb  # deferred: --help and completion stay fast
 
     result = pb.workspace_map()
     npz = pb.save_workspace(result, out / "workspace.npz", csv_path=out / "workspace.csv")

@@ -8,6 +8,7 @@ line on stderr and exit code 2, before anything moves.
 from __future__ import annotations
 
 import json
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Optional
 
@@ -33,7 +34,6 @@ app.add_typer(urdf_app, name="urdf")
 
 def _version(value: bool) -> None:
     if value:
-        from importlib.metadata import PackageNotFoundError, version
 
         try:
             v = version("needle-hil-bench")
@@ -50,7 +50,7 @@ def _root(version: bool = typer.Option(False, "--version", callback=_version, is
 
 
 def _robot(name: str):
-    from bench.kinematics.registry import get_robot
+    from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
 
     try:
         return get_robot(name)
@@ -127,7 +127,10 @@ def ik(name: str = typer.Argument(..., help="arc-train"),
        render: Optional[Path] = typer.Option(None, "--render", help="Also write a PNG of the robot at the solution."),
        as_json: bool = typer.Option(False, "--json")) -> None:
     """Inverse kinematics to a needle target (entry point, depth, angle)."""
-    from bench.kinematics.arc_train import NeedleTarget, UnreachableError
+    from bench.kinematics.arc_train import (  # deferred: --help and completion stay fast
+        NeedleTarget,
+        UnreachableError,
+    )
 
     r = _robot(name)
     target = NeedleTarget(np.array([x_mm, y_mm, z_mm]) * 1e-3, depth_mm * 1e-3, np.radians(angle_deg),
@@ -139,7 +142,7 @@ def ik(name: str = typer.Argument(..., help="arc-train"),
     pose = r.needle(q)
     out = {"joints": {n: float(v) for n, v in zip(r.joint_names, q)}, **_needle_json(pose)}
     if render is not None:
-        from bench.scene.render import render_robot
+        from bench.scene.render import render_robot  # deferred: --help and completion stay fast
 
         render_robot(name, q, render)
         out["render"] = str(render)

@@ -122,9 +122,9 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
 
 def _from_runs(a: Path, b: Path, align: str, out: Path):
 
-    from bench.compare.analysis import compare_logs
+    from bench.compare.analysis import compare_logs  # deferred: --help and completion stay fast
     from bench.compare.report import write_compare_report  # deferred: --help and completion stay fast
-    from bench.compare.signals import PlanMismatchError
+    from bench.compare.signals import PlanMismatchError  # deferred: --help and completion stay fast
     from bench.core.log import TrialLog  # deferred: --help and completion stay fast
 
     pa, pb = _log_path(a), _log_path(b)

@@ -59,6 +59,7 @@ from bench.compare.signals import DEFAULT_MAX_LAG_S, nanmean
 from bench.compare.tracking import JointTracking, joint_tracking, placement, robot_of_log
 from bench.core.log import TrialLog
 from bench.core.outcome import NeedleOutcome
+from bench.core.result import status_from_log
 
 __all__ = ["Comparison", "Side", "TABLE4_CURRENT_RESEARCH_MM", "compare_logs"]
 
@@ -145,7 +146,6 @@ class Side:
 
 def _status(log: TrialLog) -> tuple[bool, str]:
     """(completed, why it stopped early), as the trial record reads them."""
-    from bench.core.result import status_from_log
 
     return status_from_log(log)
 

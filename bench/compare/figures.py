@@ -12,6 +12,7 @@ from bench.compare.analysis import Comparison, Side
 from bench.compare.signals import first_motion_time
 from bench.core.log import TrialLog
 from bench.kinematics.arc_train import table3_deviations
+from bench.report.trial import joint_display
 
 __all__ = ["REPEAT_COLOURS", "display_scale", "plot_needle_scatter", "plot_profiles", "plot_tracking", "relative_rms",
            "profiles_caption"]
@@ -38,10 +39,10 @@ def display_scale(kind: str) -> tuple[float, str]:
 
 
 def _pyplot():
-    import matplotlib
+    import matplotlib  # heavy: loaded only when a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded only when a figure is drawn
 
     return plt
 
@@ -56,7 +57,6 @@ def _aligned_time(log: TrialLog) -> np.ndarray:
 
 def plot_profiles(comparison: Comparison, path: Path) -> Path:
     """Fig. 12 for both sides: per joint, the theoretical profile (red dotted) and every repeat."""
-    from bench.report.trial import joint_display
 
     plt = _pyplot()
     robot = comparison.robot

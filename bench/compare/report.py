@@ -29,7 +29,9 @@ from bench.compare.figures import (
 )
 from bench.compare.signals import nanmean
 from bench.core.log import TrialLog
-from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, table3_deviations
+from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, table3_deviations, train_pose
+from bench.report.trial import markdown_to_html
+from bench.scene.dynamics import gravity_torques
 
 __all__ = ["gravity_loads", "render_markdown", "write_compare_report"]
 
@@ -46,7 +48,6 @@ def _num(v: float, nd: int = 3) -> str:
 def gravity_loads(comparison: Comparison) -> Optional[np.ndarray]:
     """Static gravity torque/force per joint at the commanded insertion pose (N·m or N),
     from PyBullet's inverse dynamics on the robot's URDF; None when it cannot be computed."""
-    from bench.scene.dynamics import gravity_torques
 
     meta = comparison.subject.logs[0].metadata
     try:
@@ -242,7 +243,6 @@ def _contribution_table(comparison: Comparison) -> list[str]:
 def _train_note(comparison: Comparison) -> list[str]:
     if getattr(comparison.robot, "name", "") != "arc-train":
         return []
-    from bench.kinematics.arc_train import train_pose
 
     eps = float(comparison.subject.logs[0].metadata["q_insert"][0])
     h = 1e-6
@@ -340,7 +340,6 @@ def _json_default(o: object) -> object:
 def write_compare_report(comparison: Comparison, out_dir: Path, title: str = "Sim vs real",
                          notes: Sequence[str] = (), lost: Sequence[dict] = ()) -> dict[str, Path]:
     """profiles.png, tracking.png, needle.png, report.md, report.html and summary.json in ``out_dir``."""
-    from bench.report.trial import markdown_to_html
 
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)

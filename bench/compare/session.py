@@ -35,12 +35,19 @@ from typing import Callable, Optional
 import numpy as np
 
 from bench.compare.analysis import Comparison, compare_logs
+from bench.compare.report import write_compare_report
 from bench.config.models import ConfigError, PyBulletBackendConfig, TrialConfig
 from bench.core.interrupts import NO_SIGNALS
 from bench.core.log import TrialLog
-from bench.core.runner import Interruptible
+from bench.core.result import TrialError
+from bench.core.runner import Interruptible, Runner, Segment
 from bench.kinematics.registry import get_robot
-from drivers import Actuators
+from bench.rig.backends import make_backend
+from bench.rig.emulated import EmulatorProcess
+from bench.trial.plan import prepare
+from bench.trial.run import run_trial
+from drivers import ActuatorError, Actuators, CommunicationError
+from trajectories import LSPB
 
 __all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "home_rig",
            "run_comparison", "sim_counterpart"]
@@ -123,10 +130,6 @@ def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
     in which the arm would relax). The caller closes it; on an error it is
     closed here. The homing log is saved to ``log_path``.
     """
-    from bench.core.runner import Runner, Segment
-    from bench.rig.backends import make_backend
-    from bench.trial.plan import prepare
-    from trajectories import LSPB
 
     prep = prepare(config)
     robot = prep.robot
@@ -188,7 +191,6 @@ def _hold_until_home(act: Actuators, home: np.ndarray, kinds: list[str], period:
 
 def _safe_stop(config: TrialConfig) -> None:
     """Apply the config's own safe stop to the rig (best effort: the bus may be gone)."""
-    from bench.rig.backends import make_backend
 
     try:
         act = make_backend(config, get_robot(config.robot))
@@ -218,9 +220,6 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     that lost the bus or its sensor is run again. Raises :class:`CompareError` (nothing moved)
     for a config or port that cannot be used.
     """
-    from bench.core.result import TrialError
-    from bench.trial.plan import prepare
-    from bench.trial.run import run_trial
 
     if repeats < 1:
         raise CompareError(f"--repeats must be at least 1, got {repeats}")
@@ -254,7 +253,6 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     touched = stopped = False  # touched: the rig may have moved; stopped: its safe stop was applied
     try:
         if emulate:
-            from bench.rig.emulated import EmulatorProcess
 
             progress("starting the emulated rig", 0.0)
             try:
@@ -323,7 +321,6 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     notes = head + notes
     result = SessionResult(out_dir, cmp, sim_runs, real_runs, lost, emulate, notes)
     if report:
-        from bench.compare.report import write_compare_report
 
         write_compare_report(result.comparison, out_dir, title=f"Sim vs {real_label}: {config.name}",
                              notes=notes, lost=[a.__dict__ for a in lost])
@@ -334,8 +331,6 @@ def _rig_repeat(i: int, repeats: int, base_cfg: TrialConfig, hold_cfg: TrialConf
                 home_dir: Path, retries: int, lost: list[LostAttempt], progress: ProgressFn,
                 interrupts: Interruptible = NO_SIGNALS):
     """Home, then one trial (the last with the config's safe stop); a lost bus is retried."""
-    from bench.trial.run import run_trial
-    from drivers import ActuatorError, CommunicationError
 
     cfg = base_cfg if i == repeats - 1 else hold_cfg
     attempt = 0

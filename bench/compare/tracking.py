@@ -24,6 +24,7 @@ from bench.compare.signals import (
 from bench.core.log import TrialLog
 from bench.core.outcome import SETTLED_WINDOW_S
 from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG
+from bench.kinematics.registry import get_robot
 
 MIN_HOLD_S = 0.1  #: a joint's hold must last this long to time the settling in it
 
@@ -33,7 +34,6 @@ MOTION_BANDS = 10.0  #: a joint whose command spans less than this many bands ha
 
 
 def robot_of_log(log: TrialLog):
-    from bench.kinematics.registry import get_robot
 
     name = log.metadata.get("robot")
     if not name:

@@ -23,6 +23,7 @@ from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from bench.scene.contact import GantryClearance
 from drivers import JointState
 
 __all__ = ["Trip", "Interlock", "Interlocks", "GantryClearanceInterlock", "JointLimitInterlock",
@@ -372,7 +373,6 @@ class GantryClearanceInterlock:
         if lookahead_s < 0:
             raise ValueError(f"lookahead_s must be >= 0, got {lookahead_s}")
         self.lookahead_s = float(lookahead_s)
-        from bench.scene.contact import GantryClearance
 
         self.margin = float(margin)
         self.clearance = clearance if clearance is not None else GantryClearance(model, self.margin)

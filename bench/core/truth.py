@@ -17,13 +17,13 @@ from bench.core.log import TrialLog
 from bench.core.outcome import SETTLED_WINDOW_S, NeedleOutcome, needle_outcome
 from bench.faults.base import FaultWrapper
 from drivers import Actuators, JointState
+from drivers.pybullet.backend import PyBulletActuators
 
 __all__ = ["GroundTruth", "has_ground_truth", "settled_truth", "true_outcome"]
 
 
 def has_ground_truth(actuators: Actuators) -> bool:
     """True when the backend's own reads are the physical truth (the simulator)."""
-    from drivers.pybullet.backend import PyBulletActuators
 
     backend = actuators.unwrapped if isinstance(actuators, FaultWrapper) else actuators
     return isinstance(backend, PyBulletActuators)

@@ -51,7 +51,7 @@ class CollisionShape:
 
     def local_mesh(self) -> tuple[np.ndarray, np.ndarray]:
         """(vertices, faces) in the shape's own frame, containing the true shape."""
-        import trimesh
+        import trimesh  # heavy: loaded only for meshes
 
         if self.kind == "box":
             m = trimesh.creation.box(extents=self.size)

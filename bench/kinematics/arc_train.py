@@ -356,7 +356,7 @@ class ArcTrainRobot:
             return self._verified(q[best], target)
         # Feasible sets narrower than the grid: minimise the violation near the
         # best grid points.
-        from scipy.optimize import minimize_scalar
+        from scipy.optimize import minimize_scalar  # heavy: loaded only when fitting
 
         step = grid[1] - grid[0]
         # Violations change by at most ~(R + reach) per radian of arc, so a

@@ -1091,8 +1091,8 @@ def plot_workspace(result: WorkspaceMap, path: str | pathlib.Path) -> pathlib.Pa
     Uses matplotlib's object API with the Agg canvas, so it needs no display
     and does not touch pyplot's global state.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # heavy: loaded only when a figure is drawn
+    from matplotlib.figure import Figure  # heavy: loaded only when a figure is drawn
 
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

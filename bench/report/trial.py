@@ -11,12 +11,13 @@ import numpy as np
 
 from bench.core.log import TrialLog
 from bench.core.result import PreparedTrial, TrialResult, write_result_json
+from bench.kinematics.arc_train import train_pose
+from bench.scene.render import render_robot
 
 
 def joint_display(robot, name: str, values: np.ndarray) -> tuple[np.ndarray, str, str]:
     """Values as the paper plots them: the train as d2 in mm, angles in degrees, slides in mm."""
     if name == "train" and getattr(robot, "name", "") == "arc-train":
-        from bench.kinematics.arc_train import train_pose
 
         return np.asarray(train_pose(values, robot.params).d2) * 1e3, "d2 (mm)", "train d2"
     kind = {r.name: r.kind for r in robot.chain.rows}[name]
@@ -44,10 +45,10 @@ def largest_excursion(log: TrialLog, robot) -> float:
 
 def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Path:
     """Commanded (theoretical) vs measured profile of every joint, one panel each."""
-    import matplotlib
+    import matplotlib  # heavy: loaded only when a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded only when a figure is drawn
 
     names = log.joint_names
     cols = 3
@@ -263,7 +264,6 @@ def _html_table(rows: list[list[str]]) -> str:
 
 
 def _inline(text: str) -> str:
-    import re
 
     t = html.escape(text)
     t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
@@ -284,7 +284,6 @@ def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTria
         (d / "joints.png").unlink(missing_ok=True)  # a rebuilt report drops a stale figure
     if picture and len(log):
         try:
-            from bench.scene.render import render_robot
 
             insert = log.segment_names.index("insert") if "insert" in log.segment_names else -1
             idx = np.flatnonzero(log.segment == insert)

@@ -33,9 +33,18 @@ from typing import Callable, Literal, Optional, Sequence
 import numpy as np
 
 from drivers import (
-    ActuatorsBase, CommunicationError, ConfigurationError, HardwareFault, JointLimits, JointState,
+    ActuatorsBase,
+    CommunicationError,
+    ConfigurationError,
+    HardwareFault,
+    JointLimits,
+    JointState,
 )
+from drivers.dynamixel.control_table import model_spec
+from drivers.dynamixel.cycle import SyncCycle
+from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
 from drivers.dynamixel.protocol import decode_hardware_error
+from drivers.ultrasonic import UltrasonicSensor
 
 log = logging.getLogger(__name__)
 
@@ -126,9 +135,8 @@ class DynamixelActuators(ActuatorsBase):
     capabilities = frozenset({"set_effort_limit", "servo_info"})
 
     def __init__(self, settings: DynamixelSettings) -> None:
-        import dynamixel_sdk as sdk
+        import dynamixel_sdk as sdk  # heavy: loaded only with servos
 
-        from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
 
         self.settings = s = settings
         self._sdk = sdk
@@ -181,7 +189,6 @@ class DynamixelActuators(ActuatorsBase):
             self._configure()
             self._setup_groups()
             if s.ultrasonic:
-                from drivers.ultrasonic import UltrasonicSensor
 
                 u = s.ultrasonic
                 self._sensor = UltrasonicSensor(u.port, baud=u.baud, median_window=u.median_window,
@@ -292,7 +299,6 @@ class DynamixelActuators(ActuatorsBase):
             self._warn("Return Delay Time is 250 (500 µs per status packet): it caps the loop rate")
 
     def _setup_groups(self) -> None:
-        from drivers.dynamixel.cycle import SyncCycle
 
         fw_ok = all(self.firmware.get(sid, 0) >= FAST_SYNC_READ_FIRMWARE for sid in self._ids)
         self._fast = self.settings.fast_sync_read and fw_ok
@@ -489,7 +495,6 @@ def _port_hint(port: str) -> str:
 
 def _model_name(number: int) -> str:
     try:
-        from drivers.dynamixel.control_table import model_spec
 
         return model_spec(number).name
     except Exception:
@@ -497,13 +502,11 @@ def _model_name(number: int) -> str:
 
 
 def _kt(number: int) -> float:
-    from drivers.dynamixel.control_table import model_spec
 
     return model_spec(number).motor.kt
 
 
 def _current_unit(number: int) -> float:
-    from drivers.dynamixel.control_table import model_spec
 
     unit = model_spec(number).current_unit
     return unit if unit is not None else 0.0

@@ -27,8 +27,15 @@ import serial
 from drivers import CommunicationError, ConfigurationError
 from drivers.dynamixel.models import model_name, register_layout
 from drivers.dynamixel.protocol import (
-    BROADCAST_ID, MAX_ID, Instruction, Packet, PacketParser, build_instruction,
-    decode_hardware_error, describe_status_error, reply_mismatch,
+    BROADCAST_ID,
+    MAX_ID,
+    Instruction,
+    Packet,
+    PacketParser,
+    build_instruction,
+    decode_hardware_error,
+    describe_status_error,
+    reply_mismatch,
 )
 from drivers.timing import drain_until_quiet
 

@@ -20,7 +20,13 @@ import numpy as np
 
 from drivers import CommunicationError
 from drivers.dynamixel.protocol import (
-    BROADCAST_ID, HEADER, Instruction, Packet, PacketParser, build_instruction, reply_mismatch,
+    BROADCAST_ID,
+    HEADER,
+    Instruction,
+    Packet,
+    PacketParser,
+    build_instruction,
+    reply_mismatch,
 )
 from drivers.dynamixel.protocol import crc16_bytes as _crc
 from drivers.timing import drain_until_quiet

@@ -5,7 +5,6 @@ path an emulator exposes, exactly as they would open a U2D2 or a USB-serial
 sensor, so the bench's Dynamixel backend is tested byte for byte.
 """
 
-from drivers.emulator.bus import BusFaults, BusStats, DynamixelBusEmulator
 from drivers.dynamixel.control_table import (
     BAUD_RATES,
     XC430_W150,
@@ -21,6 +20,7 @@ from drivers.dynamixel.control_table import (
     model_spec,
     supported_models,
 )
+from drivers.emulator.bus import BusFaults, BusStats, DynamixelBusEmulator
 from drivers.emulator.plant import InertiaPlant, Plant
 from drivers.emulator.servo import OperatingMode, ServoModel
 from drivers.emulator.ultrasonic import UltrasonicEmulator, standoff_distance

@@ -29,6 +29,7 @@ from typing import Sequence
 import numpy as np
 
 from drivers import ConfigurationError
+from drivers.quiet import muted_output, quiet_pybullet
 
 # Reflected rotor inertia at the output of an X-series servo (kg·m²): a coreless
 # rotor of ~1e-7 kg·m² through the ~350:1 gearbox of the XM430-W350.
@@ -43,7 +44,6 @@ class PyBulletPlant:
                  motor_damping: Sequence[float], armature: Sequence[float] | float = DEFAULT_ARMATURE,
                  physics_dt: float = 0.001, gravity: float = -9.81,
                  friction: Sequence[float] | None = None) -> None:
-        from drivers.quiet import muted_output, quiet_pybullet
 
         pb = quiet_pybullet()
         self._pb = pb

@@ -57,7 +57,6 @@ import math
 import struct
 from typing import Mapping, NoReturn
 
-from drivers.dynamixel.protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
 from drivers.dynamixel.control_table import (
     BAUD_RATES,
     XM430_W350,
@@ -67,6 +66,7 @@ from drivers.dynamixel.control_table import (
     Register,
     model_spec,
 )
+from drivers.dynamixel.protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
 
 __all__ = [
     "CENTER_TICK",

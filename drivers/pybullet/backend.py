@@ -12,15 +12,15 @@ from __future__ import annotations
 import functools
 import math
 from array import array
-from itertools import repeat
 from dataclasses import dataclass, field
+from itertools import repeat
 from pathlib import Path
 from typing import Callable, Literal, Sequence
 
 import numpy as np
 
-from drivers import (ActuatorError, ActuatorsBase, ConfigurationError, JointLimits, JointState,
-                     NotEnabledError)
+from drivers import ActuatorError, ActuatorsBase, ConfigurationError, JointLimits, JointState, NotEnabledError
+from drivers.quiet import muted_output, quiet_pybullet
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,6 @@ class PyBulletActuators(ActuatorsBase):
     capabilities = frozenset({"set_effort_limit", "joint_kinds", "link_pose", "reset_position"})
 
     def __init__(self, settings: PyBulletSettings) -> None:
-        from drivers.quiet import quiet_pybullet
 
         pb = quiet_pybullet()
         self._pb = pb
@@ -103,7 +102,6 @@ class PyBulletActuators(ActuatorsBase):
             if not Path(obj.urdf).is_file():
                 raise ConfigurationError(f"scene URDF not found: {obj.urdf}")
         self._dt = 1.0 / settings.physics_hz
-        from drivers.quiet import muted_output
 
         with muted_output():
             self._client = pb.connect(pb.GUI if settings.gui else pb.DIRECT)
