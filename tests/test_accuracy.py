@@ -21,8 +21,8 @@ from typer.testing import CliRunner
 from bench.accuracy import analysis as acc
 from bench.kinematics import para_brachy as pb
 from bench.kinematics.batch import needle_jacobian, needle_vectors
+from bench.kinematics.para_brachy import ParaBrachyRobot
 from bench.kinematics.para_brachy import SingularityCase as S
-from bench.kinematics.para_brachy_robot import ParaBrachyRobot
 
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 DEG = np.pi / 180.0
@@ -192,7 +192,7 @@ def test_generic_sweep_on_the_arc_robot(arc_train):
 
 
 def test_table3_deviations():
-    t3 = acc.table3_deviations()
+    t3 = acc.table3_summary()
     assert t3["x"]["deviations"] == [1.33, 1.34, 1.42, 1.26, 1.23]
     assert t3["y"]["max_abs"] == 0.74 and t3["z"]["max_abs"] == 1.01
     assert t3["angle"]["mean"] == pytest.approx(-0.278) and t3["insertion"]["max_abs"] == 0.33

@@ -9,8 +9,15 @@ import numpy as np
 import pytest
 
 from bench.kinematics.arc_train import (
-    DEG, TARGET_1, ArcTrainParams, NeedleTarget, UnreachableError, epsilon_for_target_y,
-    epsilon_from_d2, epsilon_from_omega, train_pose,
+    DEG,
+    TARGET_1,
+    ArcTrainParams,
+    NeedleTarget,
+    UnreachableError,
+    epsilon_for_target_y,
+    epsilon_from_d2,
+    epsilon_from_omega,
+    train_pose,
 )
 from bench.kinematics.dh import joint_split
 from bench.scene.room import URDF_DIR, generated_files

@@ -15,14 +15,21 @@ import numpy as np
 import pytest
 import yaml
 
-from bench.campaign.run import (CampaignError, create_campaign, export_csv, make_pool, rerun_trial,
-                            run_campaign)
 from bench.campaign.execute import InlinePool
-from bench.campaign.report import PAPER_TABLE3, deviation_table, paper_deviations
+from bench.campaign.report import deviation_table
+from bench.campaign.run import (
+    CampaignError,
+    create_campaign,
+    export_csv,
+    make_pool,
+    rerun_trial,
+    run_campaign,
+)
 from bench.campaign.spec import CampaignSpecError, load_campaign_spec, plan_trials
 from bench.campaign.store import METRIC_COLUMNS, CampaignStore
 from bench.config.models import AcceptanceConfig
 from bench.core.log import TrialLog
+from bench.kinematics.arc_train import TABLE3_MEASURED, table3_deviations
 
 REPO = Path(__file__).resolve().parent.parent
 FAST = REPO / "hil_configs" / "sim_target1_fast.yaml"
@@ -151,13 +158,13 @@ def test_the_shipped_campaigns_plan(tmp_path):
 
 
 def test_table3_of_seed_000_as_deviations():
-    dev = paper_deviations()
+    dev = table3_deviations()
     assert dev["x"] == pytest.approx([1.33, 1.34, 1.42, 1.26, 1.23])
     assert dev["y"] == pytest.approx([-0.70, -0.27, 0.74, -0.36, -0.40])
     assert dev["z"] == pytest.approx([-0.91, 0.71, -1.01, 0.90, -0.41])
-    assert dev["depth"] == pytest.approx([-0.22, 0.13, 0.33, -0.18, 0.06])
+    assert dev["insertion"] == pytest.approx([-0.22, 0.13, 0.33, -0.18, 0.06])
     assert dev["angle"] == pytest.approx([0.22, -0.50, -0.88, 0.13, -0.36])
-    assert all(len(v) == 5 for v in PAPER_TABLE3.values())
+    assert all(len(v) == 5 for v in TABLE3_MEASURED.values())
     fake = [{c: v for c, v in zip(METRIC_COLUMNS, row)} for row in ([1.0] * 8, [3.0] * 8, [-2.0] * 8)]
     table = {t["axis"]: t for t in deviation_table(fake)}
     assert table["entry Y"]["mean"] == pytest.approx(2 / 3) and table["entry Y"]["max_abs"] == 3.0

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
@@ -66,3 +67,48 @@ def test_bad_input_exits_2_with_one_line(args, words):
     assert out.stdout == ""
     lines = [line for line in out.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and words in lines[0]
+
+
+ROBOT_NAMES = ("arc-train", "zerobot", "para-brachy")
+
+
+def test_robot_without_a_name_lists_every_robot_and_whether_trial_runs_it():
+    out = run("robot", "--json")
+    assert out.returncode == 0, out.stderr
+    robots = json.loads(out.stdout)["robots"]
+    assert set(robots) == set(ROBOT_NAMES)
+    assert robots["arc-train"]["trial"]["runs"] is True
+    for name in ("zerobot", "para-brachy"):
+        assert robots[name]["trial"]["runs"] is False and name in robots[name]["trial"]["why"]
+
+
+@pytest.mark.parametrize("name", ROBOT_NAMES)
+def test_every_robot_answers_robot_fk_ik_and_accuracy(name):
+    """One registry: each robot's home needle, pushed 20 mm deeper, is found by IK and reached."""
+    joints = json.loads(run("robot", name, "--json").stdout)["joints"]
+    fk = run("fk", name, "--json")  # home
+    assert fk.returncode == 0, fk.stderr
+    pose = json.loads(fk.stdout)
+    depth = pose["depth_mm"] + 20.0
+    a, b = np.radians(pose["angle_deg"]), np.radians(pose["tilt_deg"])
+    direction = np.array([np.sin(b), np.cos(b) * np.sin(a), -np.cos(b) * np.cos(a)])
+    want_tip = np.array(pose["entry_mm"]) + depth * direction
+    ik = run("ik", name, "--x-mm", str(pose["entry_mm"][0]), "--y-mm", str(pose["entry_mm"][1]),
+             "--z-mm", str(pose["entry_mm"][2]), "--depth-mm", str(depth),
+             "--angle-deg", str(pose["angle_deg"]), "--tilt-deg", str(pose["tilt_deg"]), "--json")
+    assert ik.returncode == 0, ik.stderr
+    back = json.loads(ik.stdout)
+    assert list(back["joints"]) == [j["name"] for j in joints]
+    assert np.abs(np.array(back["tip_mm"]) - want_tip).max() < 1e-3  # µm
+    acc = run("accuracy", name, "--samples", "200", "--json")
+    assert acc.returncode == 0, acc.stderr
+    assert json.loads(acc.stdout)["robot"] == name
+
+
+def test_a_trial_of_a_robot_without_servos_is_refused_saying_why(tmp_path):
+    cfg = tmp_path / "zb.yaml"
+    text = (Path(__file__).resolve().parents[1] / "hil_configs" / "sim_target1.yaml").read_text()
+    cfg.write_text(text.replace("robot: arc-train", "robot: para-brachy"))
+    out = run("check", str(cfg))
+    assert out.returncode == 2
+    assert "para-brachy" in out.stdout + out.stderr and "no URDF" in out.stdout + out.stderr

@@ -9,18 +9,31 @@ import re
 import numpy as np
 import pytest
 
-from bench.scene.contact import (DEFAULT_MARGIN, Gantry, GantryClearance, GantryContact, all_pairs_contact,
-                           all_pairs_distance, default_gantry)
 from bench.contact.validation import PyBulletDistances, interesting_poses
 from bench.geometry.bvh import BoxIndex, box_gap
 from bench.geometry.mesh_ops import enclosing_radius, refine
-from bench.scene.robot_geometry import RobotGeometry
 from bench.geometry.torus import box_point_distance
-from bench.geometry.tri_distance import (TriangleSet, paper_intersects, point_triangle_distance,
-                                         prism_bound, prism_bounds, segment_distance,
-                                         triangle_distance)
+from bench.geometry.tri_distance import (
+    TriangleSet,
+    paper_intersects,
+    point_triangle_distance,
+    prism_bound,
+    prism_bounds,
+    segment_distance,
+    triangle_distance,
+)
 from bench.geometry.urdf_shapes import CollisionShape
 from bench.kinematics.registry import get_robot
+from bench.scene.contact import (
+    DEFAULT_MARGIN,
+    Gantry,
+    GantryClearance,
+    GantryContact,
+    all_pairs_contact,
+    all_pairs_distance,
+    default_gantry,
+)
+from bench.scene.robot_geometry import RobotGeometry
 from bench.scene.room import URDF_DIR
 
 MARGIN = DEFAULT_MARGIN

@@ -17,14 +17,9 @@ from dynamixel_sdk import (
 )
 from dynamixel_sdk.robotis_def import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
+from drivers.dynamixel.control_table import _sdk_layout
 from drivers.dynamixel.io import BlockingPortHandler, StuffingPacketHandler
-from drivers.dynamixel.protocol import (
-    ALERT_BIT,
-    BROADCAST_ID,
-    Instruction,
-    StatusError,
-    build_instruction,
-)
+from drivers.dynamixel.protocol import ALERT_BIT, BROADCAST_ID, Instruction, StatusError, build_instruction
 from drivers.emulator import (
     XL430_W250,
     XM430_W350,
@@ -36,7 +31,6 @@ from drivers.emulator import (
     model_spec,
     supported_models,
 )
-from drivers.dynamixel.control_table import _sdk_layout
 
 pytestmark = pytest.mark.timeout(30)
 

@@ -29,13 +29,18 @@ import dynamixel_sdk.port_handler as sdk_port
 import pytest
 
 from drivers import CommunicationError
+from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings
 from drivers.dynamixel.bus import ServoBus
 from drivers.dynamixel.cycle import STATE_ADDRESS, STATE_LENGTH, SyncCycle
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
 from drivers.dynamixel.models import register_layout
-from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings
 from drivers.dynamixel.protocol import (
-    FastStatusBlock, Instruction, Packet, PacketParser, build_fast_status, build_status,
+    FastStatusBlock,
+    Instruction,
+    Packet,
+    PacketParser,
+    build_fast_status,
+    build_status,
 )
 
 IDS = [1, 2, 3, 4, 5]

@@ -7,9 +7,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench.core.safety import (
+    GantryClearanceInterlock,
+    Interlocks,
+    JointLimitInterlock,
+    StaleDataInterlock,
+    TrackingErrorInterlock,
+    VelocityLimitInterlock,
+)
 from bench.kinematics.registry import get_robot
-from bench.core.safety import (GantryClearanceInterlock, Interlocks, JointLimitInterlock,
-                          StaleDataInterlock, TrackingErrorInterlock, VelocityLimitInterlock)
 from drivers import JointState
 
 

@@ -9,8 +9,10 @@ import json
 import numpy as np
 import pytest
 
+from bench.accuracy.workspace_figure import plot_workspace
 from bench.kinematics import para_brachy as pb
-from bench.kinematics.para_brachy import DEG, SingularityCase as S
+from bench.kinematics.para_brachy import DEG
+from bench.kinematics.para_brachy import SingularityCase as S
 
 P = pb.DEFAULT_PARAMS
 RNG_SEED = 20150605  # the paper's "received" date
@@ -379,7 +381,7 @@ def test_workspace_map_save_and_plot(tmp_path):
         rows = list(csv.DictReader(fh))
     assert len(rows) == int(np.prod(grid.shape))
     assert {r["fail_reason"] for r in rows if r["reachable"] == "0"} <= set(pb.IGM_FAILURES.values())
-    png = pb.plot_workspace(m, tmp_path / "ws.png")
+    png = plot_workspace(m, tmp_path / "ws.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(ValueError, match="must end in .npz"):
         pb.save_workspace(m, tmp_path / "ws.txt")

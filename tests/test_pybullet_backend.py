@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.scene.room import URDF_DIR
+from bench.scene.room import URDF_DIR, default_scene
 from drivers import Actuators, ConfigurationError, NotEnabledError
-from bench.scene.room import default_scene
 from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings
 
 

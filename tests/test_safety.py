@@ -6,10 +6,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench.core.safety import (
+    GantryClearanceInterlock,
+    Interlock,
+    Interlocks,
+    JointLimitInterlock,
+    StaleDataInterlock,
+    TrackingErrorInterlock,
+    Trip,
+    VelocityLimitInterlock,
+)
 from bench.kinematics.arc_train import TARGET_1
 from bench.kinematics.registry import get_robot
-from bench.core.safety import (GantryClearanceInterlock, Interlock, Interlocks, JointLimitInterlock,
-                          StaleDataInterlock, TrackingErrorInterlock, Trip, VelocityLimitInterlock)
 from drivers import JointState
 
 NAMES = ["a", "b", "c"]

@@ -74,17 +74,24 @@ reach it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Literal, Mapping, Optional, Sequence, Union
+from typing import Literal, Mapping, Optional, Sequence, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from bench.kinematics import para_brachy as pb
-from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, TARGET_1, ArcTrainRobot
+from bench.kinematics.arc_train import (
+    PINION_RADIUS,
+    SERVO_TOL_DEG,
+    TABLE3_MEASURED,
+    TABLE3_TARGET,
+    TARGET_1,
+    ArcTrainRobot,
+    table3_deviations,
+)
 from bench.kinematics.batch import angle_tilt, needle_jacobian, needle_vectors, wrap_angle
 from bench.kinematics.needle import UnreachableError
-from bench.kinematics.para_brachy_robot import ParaBrachyRobot
-from bench.kinematics.registry import ROBOTS, get_robot
+from bench.kinematics.para_brachy import ParaBrachyRobot
 
 __all__ = [
     "DISTRIBUTIONS",
@@ -108,11 +115,9 @@ __all__ = [
     "perturbation_sweep",
     "pose_from_joints",
     "resolve_tolerances",
-    "robot_by_name",
     "robot_label",
-    "robot_names",
     "servo_transmissions",
-    "table3_deviations",
+    "table3_summary",
 ]
 
 Distribution = Literal["uniform", "normal", "endpoints"]
@@ -122,33 +127,11 @@ Tolerances = Union[None, Mapping[str, float], Sequence[float], np.ndarray]
 DEG = np.pi / 180.0
 PAPER_EPS_LINEAR = 0.05e-3  #: seed 003's ε for a sliding joint (m)
 PAPER_EPS_ANGULAR = 0.05 * DEG  #: seed 003's ε for a rotating joint (rad)
-SERVO_TOL_DEG = 0.29  #: seed 000 section 6: the Dynamixel servos' position tolerance (±deg)
-PINION_RADIUS = 0.010  #: assumed rack-and-pinion radius of every servo-driven slide (m)
 
 
 # ---------------------------------------------------------------------------
 # Robots, poses and tolerances
 # ---------------------------------------------------------------------------
-
-#: Robots the accuracy study knows beyond bench.kinematics.registry (used only while bench.kinematics.registry lacks them).
-_EXTRA_ROBOTS: dict[str, Callable[[], object]] = {"para-brachy": ParaBrachyRobot}
-
-
-def robot_names() -> list[str]:
-    """Every robot name :func:`robot_by_name` accepts."""
-
-    return sorted(set(ROBOTS) | set(_EXTRA_ROBOTS))
-
-
-def robot_by_name(name: str):
-    """The registered robots, plus the parallel robot through its adapter."""
-
-    if name in ROBOTS:
-        return get_robot(name)
-    if name in _EXTRA_ROBOTS:
-        return _EXTRA_ROBOTS[name]()
-    raise KeyError(f"unknown robot {name!r}; known robots: {', '.join(robot_names())}")
-
 
 def robot_label(robot) -> str:
     return str(getattr(robot, "name", type(robot).__name__))
@@ -675,11 +658,10 @@ def monte_carlo_budget(robot, q: Optional[ArrayLike] = None, tolerances: Toleran
 # ---------------------------------------------------------------------------
 
 
-def table3_deviations() -> dict[str, dict[str, object]]:
-    """Table 3's five repeats of Target 1 minus the target: per quantity (mm; angle in degrees)."""
+def table3_summary() -> dict[str, dict[str, object]]:
+    """Table 3's deviations from Target 1 with their statistics, per quantity (mm; angle in degrees)."""
     out: dict[str, dict[str, object]] = {}
-    for k, measured in TABLE3_MEASURED.items():
-        dev = np.asarray(measured) - TABLE3_TARGET[k]
+    for k, dev in table3_deviations().items():
         out[k] = {"deviations": [round(float(v), 4) + 0.0 for v in dev],
                   "mean": round(float(dev.mean()), 4) + 0.0,
                   "std": round(float(dev.std(ddof=1)), 4) + 0.0,

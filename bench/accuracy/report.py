@@ -20,7 +20,8 @@ import numpy as np
 from bench.accuracy import analysis as acc
 from bench.config.models import AcceptanceConfig
 from bench.kinematics.arc_train import ArcTrainRobot
-from bench.kinematics.para_brachy_robot import ParaBrachyRobot
+from bench.kinematics.para_brachy import ParaBrachyRobot
+from bench.kinematics.registry import get_robot
 from bench.report.trial import markdown_to_html
 
 __all__ = ["Study", "run_study", "summary", "table3_rows", "write_report", "plot_tip_errors",
@@ -67,7 +68,7 @@ def run_study(robot, q=None, tol_deg: float = acc.SERVO_TOL_DEG, samples: int = 
     (unknown robot) or ValueError (bad tolerance or sample count; an
     unreachable configuration) with the bad value named.
     """
-    model = acc.robot_by_name(robot) if isinstance(robot, str) else robot
+    model = get_robot(robot) if isinstance(robot, str) else robot
     q0 = acc.default_pose(model)
     q = q0 if q is None else np.asarray(q, dtype=float)
     tol = acc.resolve_tolerances(model, tolerances, tol_deg)
@@ -122,7 +123,7 @@ def summary(study: Study) -> dict:
         "table3": None,
     }
     if study.has_table3:
-        t3 = acc.table3_deviations()
+        t3 = acc.table3_summary()
         out["table3"] = {k: {m: t3[k][m] for m in ("mean", "std", "mean_abs", "max_abs")} for k in t3}
     return out
 
@@ -135,7 +136,7 @@ def summary(study: Study) -> dict:
 def table3_rows(study: Study) -> list[dict[str, object]]:
     """One row per Table 3 quantity: budget (tip and entry) and the five measured deviations."""
     mc, jb = study.monte_carlo, study.jacobian
-    t3 = acc.table3_deviations() if study.has_table3 else {}
+    t3 = acc.table3_summary() if study.has_table3 else {}
     tip, entry = mc.tip_stats(), mc.entry_stats()
     rows = []
     for i, a in enumerate(_AXES):
@@ -151,7 +152,7 @@ def table3_rows(study: Study) -> list[dict[str, object]]:
 def _verdict(study: Study) -> list[str]:
     """What the numbers say about Table 3, written from the numbers themselves."""
     mc = study.monte_carlo
-    t3 = acc.table3_deviations()
+    t3 = acc.table3_summary()
     tip = mc.tip_stats()
     lines = []
     p95 = max(tip[a].p95 for a in _AXES)
@@ -193,7 +194,7 @@ def _figure(size: tuple[float, float]):
 def plot_tip_errors(study: Study, path: Path) -> Path:
     """Histograms of the Monte-Carlo tip, depth and angle errors; Table 3's five deviations on top."""
     mc = study.monte_carlo
-    t3 = acc.table3_deviations() if study.has_table3 else None
+    t3 = acc.table3_summary() if study.has_table3 else None
     norm3 = None
     if t3 is not None:
         norm3 = np.linalg.norm(np.array([t3[a]["deviations"] for a in _AXES]), axis=0)

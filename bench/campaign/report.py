@@ -12,33 +12,17 @@ from typing import Any, Sequence
 import numpy as np
 
 from bench.campaign.store import CampaignStore
+from bench.kinematics.arc_train import table3_deviations
 from bench.report.trial import markdown_to_html
 from bench.trial.record import rebuild_report
 
-__all__ = ["PAPER_TABLE3", "deviation_table", "write_campaign_report"]
-
-# Seed 000, Table 3: five repeats at Target 1 (X 0, Y 88.2 mm, Z 66 mm, insertion
-# 30.1 mm at 47°), the achieved first target point (X, Y, Z), insertion and angle.
-PAPER_TARGET = {"x": 0.0, "y": 88.2, "z": 66.0, "depth": 30.1, "angle": 47.0}
-PAPER_TABLE3 = {
-    "x": [1.33, 1.34, 1.42, 1.26, 1.23],
-    "y": [87.50, 87.93, 88.94, 87.84, 87.80],
-    "z": [65.09, 66.71, 64.99, 66.90, 65.59],
-    "depth": [29.88, 30.23, 30.43, 29.92, 30.16],
-    "angle": [47.22, 46.50, 46.12, 47.13, 46.64],
-}
-
-
-def paper_deviations() -> dict[str, np.ndarray]:
-    """Table 3's deviations from the target (mm, degrees)."""
-    return {k: np.asarray(v) - PAPER_TARGET[k] for k, v in PAPER_TABLE3.items()}
-
+__all__ = ["deviation_table", "write_campaign_report"]
 
 # (column, label, unit, paper key): the paper's X, Y, Z are the first target point (entry).
 AXES = [("entry_dx_mm", "entry X", "mm", "x"), ("entry_dy_mm", "entry Y", "mm", "y"),
         ("entry_dz_mm", "entry Z", "mm", "z"), ("tip_dx_mm", "tip X", "mm", None),
         ("tip_dy_mm", "tip Y", "mm", None), ("tip_dz_mm", "tip Z", "mm", None),
-        ("depth_dev_mm", "insertion depth", "mm", "depth"), ("angle_dev_deg", "angle", "°", "angle")]
+        ("depth_dev_mm", "insertion depth", "mm", "insertion"), ("angle_dev_deg", "angle", "°", "angle")]
 
 
 def _stats(v: np.ndarray) -> tuple[float, float, float]:
@@ -50,7 +34,7 @@ def _stats(v: np.ndarray) -> tuple[float, float, float]:
 
 def deviation_table(rows: Sequence[dict]) -> list[dict[str, Any]]:
     """Mean, std and max |deviation| per axis for the campaign's done trials and for Table 3."""
-    paper = paper_deviations()
+    paper = table3_deviations()
     out = []
     for col, label, unit, key in AXES:
         v = np.array([r[col] for r in rows if r[col] is not None], dtype=float)
@@ -103,7 +87,7 @@ def _plt():
 def plot_distributions(rows: Sequence[dict], path: Path, limits: tuple[float, float]) -> Path:
     """Histograms of the deviations per axis, Table 3's five repeats overlaid."""
     plt = _plt()
-    paper = paper_deviations()
+    paper = table3_deviations()
     fig, axes = plt.subplots(2, 4, figsize=(16, 7))
     for ax, (col, label, unit, key) in zip(axes.flat, AXES):
         v = np.array([r[col] for r in rows if r[col] is not None], dtype=float)

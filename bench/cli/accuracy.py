@@ -9,31 +9,16 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
-from typing import NoReturn, Optional
+from typing import Optional
 
 import numpy as np
 import typer
-from rich.console import Console
 from rich.table import Table
 
+from bench.cli.common import console, emit_json, fail
+
 __all__ = ["accuracy", "workspace"]
-
-_console = Console()
-_err_console = Console(stderr=True)
-
-
-def _fail(message: str, code: int = 2) -> NoReturn:
-    """One line on stderr, then leave with ``code``."""
-    _err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True, markup=True)
-    raise typer.Exit(code)
-
-
-def _emit_json(obj: object) -> None:
-    sys.stdout.write(json.dumps(obj) + "\n")
-    sys.stdout.flush()
-
 
 def _message(e: BaseException) -> str:
     text = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
@@ -41,7 +26,7 @@ def _message(e: BaseException) -> str:
 
 
 def accuracy(
-    robot: str = typer.Argument(..., help="arc-train, para-brachy, or any registered robot."),
+    robot: str = typer.Argument(..., metavar="ROBOT", help="arc-train, zerobot or para-brachy"),
     pose: Optional[str] = typer.Option(
         None, "--pose", help='JSON object {"joint": value} (rad or m); missing joints at the default pose.'),
     tol_deg: float = typer.Option(0.29, "--tol-deg", help="Servo position tolerance, ± degrees."),
@@ -62,44 +47,42 @@ def accuracy(
         try:
             overrides = json.loads(pose)
         except json.JSONDecodeError as e:
-            _fail(f"--pose is not valid JSON: {e.msg} at character {e.pos}")
+            fail(f"--pose is not valid JSON: {e.msg} at character {e.pos}")
         if not isinstance(overrides, dict):
-            _fail(f"--pose must be a JSON object of joint values, got {pose!r}")
+            fail(f"--pose must be a JSON object of joint values, got {pose!r}")
     if not (math.isfinite(tol_deg) and tol_deg >= 0.0):
-        _fail(f"--tol-deg must be a non-negative number of degrees, got {tol_deg!r}")
+        fail(f"--tol-deg must be a non-negative number of degrees, got {tol_deg!r}")
     if samples < 2:
-        _fail(f"--samples must be at least 2, got {samples}")
+        fail(f"--samples must be at least 2, got {samples}")
     if out is not None and out.exists() and not out.is_dir():
-        _fail(f"--out {str(out)!r} exists and is not a directory")
-    from bench.accuracy.analysis import (  # deferred: --help and completion stay fast
-        pose_from_joints,
-        robot_by_name,
-    )
+        fail(f"--out {str(out)!r} exists and is not a directory")
+    from bench.accuracy.analysis import pose_from_joints  # deferred: --help and completion stay fast
+    from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
 
     try:
-        model = robot_by_name(robot)
+        model = get_robot(robot)
     except KeyError as e:
-        _fail(_message(e))
+        fail(_message(e))
     try:
         q = pose_from_joints(model, overrides)
     except ValueError as e:
-        _fail(f"--pose: {_message(e)}")
+        fail(f"--pose: {_message(e)}")
     try:
         study = run_study(model, q, tol_deg=tol_deg, samples=samples, seed=seed)
     except ValueError as e:  # an unreachable configuration, a bad tolerance
-        _fail(_message(e))
+        fail(_message(e))
     result = summary(study)
     if out is not None:
         paths = write_report(study, out)
         result["report"] = str(paths["html"])
     if as_json:
-        _emit_json(result)
+        emit_json(result)
         return
     _print_human(result)
 
 
 def _print_human(s: dict) -> None:
-    _console.print(f"[bold]{s['robot']}[/] at {s['pose_note']}; ±{s['tol_deg']:g}° servos, "
+    console.print(f"[bold]{s['robot']}[/] at {s['pose_note']}; ±{s['tol_deg']:g}° servos, "
                    f"{s['distribution']} errors, {s['samples']} draws (seed {s['seed']})")
     t = Table(title="needle error budget (mm, °)")
     for col in ("quantity", "mean", "std", "p95", "max", "worst case"):
@@ -114,15 +97,15 @@ def _print_human(s: dict) -> None:
     d = s["axis_deg"]
     t.add_row("axis (3-D)", f"{d['mean']:.3f}", f"{d['std']:.3f}", f"{d['p95']:.3f}", f"{d['max']:.3f}",
               f"{s['worst_case_axis_deg']:.3f}")
-    _console.print(t)
+    console.print(t)
     shares = ", ".join(f"{n} {v:.1%}" for n, v in sorted(s["shares"]["tip"].items(), key=lambda kv: -kv[1]) if v > 0)
-    _console.print(f"tip variance shares: {shares}")
+    console.print(f"tip variance shares: {shares}")
     if s["table3"]:
         t3 = s["table3"]
-        _console.print("Table 3 (five measured repeats of Target 1), mean / max |deviation|: "
+        console.print("Table 3 (five measured repeats of Target 1), mean / max |deviation|: "
                        + ", ".join(f"{k} {v['mean_abs']:.2f}/{v['max_abs']:.2f}" for k, v in t3.items()))
     if "report" in s:
-        _console.print(f"report: {s['report']}")
+        console.print(f"report: {s['report']}")
 
 
 def workspace(
@@ -133,14 +116,15 @@ def workspace(
     """The parallel robot's workspace map: reachability, conditioning and singularity margin (.npz, .csv, .png)."""
 
     if robot != "para-brachy":
-        _fail(f"no workspace map for robot {robot!r}; the map exists for para-brachy only")
+        fail(f"no workspace map for robot {robot!r}; the map exists for para-brachy only")
     if out.exists() and not out.is_dir():
-        _fail(f"--out {str(out)!r} exists and is not a directory")
+        fail(f"--out {str(out)!r} exists and is not a directory")
+    from bench.accuracy.workspace_figure import plot_workspace  # deferred: --help and completion stay fast
     from bench.kinematics import para_brachy as pb  # deferred: --help and completion stay fast
 
     result = pb.workspace_map()
     npz = pb.save_workspace(result, out / "workspace.npz", csv_path=out / "workspace.csv")
-    png = pb.plot_workspace(result, out / "workspace.png")
+    png = plot_workspace(result, out / "workspace.png")
     reach = result.reachable
 
     def low(a: np.ndarray) -> Optional[float]:
@@ -152,9 +136,9 @@ def workspace(
          "min_inv_cond_A": low(result.inv_cond_A), "min_inv_cond_B": low(result.inv_cond_B),
          "min_singularity_margin": low(result.margin)}
     if as_json:
-        _emit_json(s)
+        emit_json(s)
         return
-    _console.print(f"{robot}: {s['poses']} poses on a {'×'.join(map(str, s['grid_shape']))} grid, "
+    console.print(f"{robot}: {s['poses']} poses on a {'×'.join(map(str, s['grid_shape']))} grid, "
                    f"{s['reachable_fraction']:.1%} reachable; min 1/cond(A) {s['min_inv_cond_A']}, "
                    f"min 1/cond(B) {s['min_inv_cond_B']}, min singularity margin {s['min_singularity_margin']}")
-    _console.print(f"wrote {npz}, {s['csv']}, {png}")
+    console.print(f"wrote {npz}, {s['csv']}, {png}")

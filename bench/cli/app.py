@@ -49,6 +49,9 @@ def _root(version: bool = typer.Option(False, "--version", callback=_version, is
     """Hardware-in-the-loop test bench for CT-guided needle-placement robots."""
 
 
+ROBOT_HELP = "arc-train, zerobot or para-brachy"
+
+
 def _robot(name: str):
     from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
 
@@ -56,6 +59,13 @@ def _robot(name: str):
         return get_robot(name)
     except KeyError as e:
         fail(str(e.args[0]))
+
+
+def _trial_support(name: str) -> dict:
+    from bench.kinematics.registry import trial_refusal  # deferred: --help and completion stay fast
+
+    why = trial_refusal(name)
+    return {"runs": why is None, "why": why or "URDF, servo table, plan and interlocks all present"}
 
 
 def _mm(v) -> list[float]:
@@ -68,14 +78,26 @@ def _mm(v) -> list[float]:
 
 
 @app.command()
-def robot(name: str = typer.Argument(..., help="arc-train"),
+def robot(name: Optional[str] = typer.Argument(None, metavar="[ROBOT]", help=ROBOT_HELP + "; none: list them"),
           as_json: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
-    """List a robot's joints: type, limits and home (SI units)."""
+    """List a robot's joints (type, limits and home, SI units) and whether `trial` can run it."""
+    if name is None:
+        from bench.kinematics.registry import robot_names  # deferred: --help and completion stay fast
+
+        listing = {n: {"joints": len(_robot(n).joint_names), "trial": _trial_support(n)} for n in robot_names()}
+        if as_json:
+            emit_json({"robots": listing})
+            return
+        for n, info in listing.items():
+            trial = "trial: yes" if info["trial"]["runs"] else f"trial: no ({info['trial']['why']})"
+            console.print(f"{n}: {info['joints']} joints; {trial}")
+        return
     r = _robot(name)
     joints = [{"name": row.name, "type": row.kind, "lower": row.lower, "upper": row.upper,
                "home": row.home} for row in r.chain.rows]
+    trial = _trial_support(name)
     if as_json:
-        emit_json({"robot": name, "joints": joints})
+        emit_json({"robot": name, "joints": joints, "trial": trial})
         return
     t = Table(title=f"{name} joints (rad or m)")
     for col in ("name", "type", "lower", "upper", "home"):
@@ -83,16 +105,18 @@ def robot(name: str = typer.Argument(..., help="arc-train"),
     for j in joints:
         t.add_row(j["name"], j["type"], f"{j['lower']:.4f}", f"{j['upper']:.4f}", f"{j['home']:.4f}")
     console.print(t)
+    console.print("trial: yes" if trial["runs"] else f"trial: no, {trial['why']}")
 
 
 def _needle_json(pose) -> dict:
     return {"entry_mm": _mm(pose.entry), "tip_mm": _mm(pose.tip),
             "angle_deg": round(float(np.degrees(pose.angle)), 9),
+            "tilt_deg": round(float(np.degrees(pose.out_of_plane)), 9),
             "depth_mm": round(pose.depth * 1e3, 9)}
 
 
 @app.command()
-def fk(name: str = typer.Argument(..., help="arc-train"),
+def fk(name: str = typer.Argument(..., metavar="ROBOT", help=ROBOT_HELP),
        joints: str = typer.Option("{}", "--joints", help='JSON object {"joint": value}; missing joints take home.'),
        as_json: bool = typer.Option(False, "--json")) -> None:
     """Forward kinematics to the needle: entry point, tip, insertion angle and depth."""
@@ -118,7 +142,7 @@ def fk(name: str = typer.Argument(..., help="arc-train"),
 
 
 @app.command()
-def ik(name: str = typer.Argument(..., help="arc-train"),
+def ik(name: str = typer.Argument(..., metavar="ROBOT", help=ROBOT_HELP),
        x_mm: float = typer.Option(..., "--x-mm"), y_mm: float = typer.Option(..., "--y-mm"),
        z_mm: float = typer.Option(..., "--z-mm"),
        depth_mm: float = typer.Option(..., "--depth-mm", help="Insertion depth beyond the entry point."),
@@ -127,12 +151,15 @@ def ik(name: str = typer.Argument(..., help="arc-train"),
        render: Optional[Path] = typer.Option(None, "--render", help="Also write a PNG of the robot at the solution."),
        as_json: bool = typer.Option(False, "--json")) -> None:
     """Inverse kinematics to a needle target (entry point, depth, angle)."""
-    from bench.kinematics.arc_train import (  # deferred: --help and completion stay fast
+    from bench.kinematics.needle import (  # deferred: --help and completion stay fast
         NeedleTarget,
         UnreachableError,
     )
+    from bench.paths import robot_urdf  # deferred: --help and completion stay fast
 
     r = _robot(name)
+    if render is not None and not robot_urdf(name).exists():
+        fail(f"--render: {name} has no URDF to draw (urdf/ has none for it); drop --render")
     target = NeedleTarget(np.array([x_mm, y_mm, z_mm]) * 1e-3, depth_mm * 1e-3, np.radians(angle_deg),
                           np.radians(tilt_deg))
     try:

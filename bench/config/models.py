@@ -15,7 +15,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 from bench.config.calibration import check_calibration
 from bench.faults import parse_faults
-from bench.kinematics.registry import get_robot
+from bench.kinematics.registry import get_robot, trial_refusal
 from bench.paths import REPO_ROOT, robot_urdf
 from drivers.dynamixel.control_table import BAUD_RATES, supported_models
 
@@ -262,7 +262,8 @@ class TrialConfig(Strict):
     """One trial: a robot, a target, a plan, the limits it is judged by and where it runs."""
 
     name: str = Field(pattern=NAME_PATTERN, description="letters, digits, . _ - (the run's folder)")
-    robot: Literal["arc-train"] = Field(default="arc-train", description="the robot driven")
+    robot: Literal["arc-train"] = Field(default="arc-train", description="the robot driven (trials run "
+                                        "arc-train; `hilbench robot` lists what zerobot and para-brachy lack)")
     urdf_dir: Path = Field(default=Path("urdf"), description="the scene's URDFs (relative: to the "
                                                              "config's folder, then the project)")
     control_hz: float = Field(default=500.0, ge=1, le=2000, description="control cycles per second")
@@ -292,6 +293,14 @@ class TrialConfig(Strict):
 
     # Where the file came from, to resolve relative paths; not part of the file.
     source: Optional[Path] = Field(default=None, exclude=True)
+
+    @field_validator("robot", mode="before")
+    @classmethod
+    def _robot_can_run_a_trial(cls, value: Any) -> Any:
+        refusal = trial_refusal(value) if isinstance(value, str) and value != "arc-train" else None
+        if refusal:
+            raise ValueError(refusal)
+        return value
 
     @model_validator(mode="after")
     def _joint_names_known(self) -> "TrialConfig":

@@ -29,15 +29,15 @@ from bench.faults.comms import DroppedStatus, EmulatorStatusFault, LateStatus, e
 from bench.faults.tolerance import Backlash, Bias, Deadband, Noise, Quantisation
 from bench.faults.torque import TorqueLimit, check_effort_limit
 from bench.faults.ultrasonic import UltrasonicDropout, UltrasonicNoise, UltrasonicStuck
+from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG
 from drivers import Actuators, ConfigurationError
 
 __all__ = ["FAULTS", "FaultDef", "FaultSpec", "Param", "apply_faults", "fault_names", "parse_faults"]
 
 _TO_SI = {"deg": math.pi / 180.0, "mm": 1e-3, "ms": 1e-3, "s": 1.0, "": 1.0}
-# The prismatic joints are rack-and-pinion on the same servos (10 mm pinion):
-# a servo angle maps to 10 mm per radian of travel.
-PINION_RADIUS_MM = 10.0
-SERVO_TOL_DEG = 0.29  # seed 000, section 6
+# The prismatic joints are rack-and-pinion on the same servos: a servo angle maps to
+# PINION_RADIUS of travel per radian.
+PINION_RADIUS_MM = PINION_RADIUS * 1e3
 TICKS_PER_REV = 4096  # Dynamixel X-series encoders
 SELECTORS = ("all", "revolute", "prismatic")
 

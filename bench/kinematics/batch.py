@@ -103,8 +103,9 @@ def angle_tilt(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.arctan2(d[..., 1], -d[..., 2]), np.arcsin(np.clip(d[..., 0], -1.0, 1.0))
 
 
-def wrap_angle(a: np.ndarray) -> np.ndarray:
-    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+def wrap_angle(a: ArrayLike) -> np.ndarray:
+    """Map angles to (−π, π] so differences compare across the atan2 cut."""
+    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
 
 
 def needle_jacobian(robot, q: ArrayLike, step: float = JACOBIAN_STEP) -> dict[str, np.ndarray]:

@@ -9,11 +9,15 @@ tilt b points along ``(sin b, cos b·sin a, −cos b·cos a)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
+from bench.kinematics.dh import JointRows
+from drivers import BenchError
 
-class UnreachableError(ValueError):
+
+class UnreachableError(BenchError, ValueError):
     """The target cannot be reached; the message says why in mm and degrees.
 
     ``equations`` names the paper's equations behind the refusal (for a report or a
@@ -69,3 +73,23 @@ def pose_from_axis(entry: np.ndarray, axis: np.ndarray, depth: float) -> NeedleP
     angle, tilt = angles_of(axis)
     return NeedlePose(entry=entry, tip=entry + depth * axis, direction=axis, angle=angle,
                       depth=depth, out_of_plane=tilt)
+
+
+@runtime_checkable
+class NeedleRobot(Protocol):
+    """What the bench asks of every robot it knows: joints, forward kinematics to the needle, IK.
+
+    ``chain.rows`` gives each joint's (name, kind, lower, upper, home) in SI units.
+    """
+
+    name: str
+    chain: JointRows
+
+    @property
+    def joint_names(self) -> list[str]: ...
+
+    def joint_vector(self, values: Mapping[str, float]) -> np.ndarray: ...
+
+    def needle(self, q: np.ndarray) -> NeedlePose: ...
+
+    def ik(self, target: NeedleTarget) -> np.ndarray: ...

@@ -1,15 +1,15 @@
 """The seed-003 parallel robot behind the bench's common robot interface.
 
-:mod:`bench.kinematics.para_brachy` speaks the paper's language (poses
+The rest of :mod:`bench.kinematics.para_brachy` speaks the paper's language (poses
 ``[X_E, Y_E, Z_E, ψ, θ]``, two assembly modes, strokes). Code that studies
 every robot alike (the accuracy budget, the CLI) wants what the serial models
 offer: ``chain.rows`` with (name, kind, lower, upper, home), ``joint_names``,
 ``needle(q) -> NeedlePose`` and ``ik(NeedleTarget) -> q``. This adapter gives
-that and nothing else; the kinematics stay in ``para_brachy``.
+that and nothing else; the kinematics stay in the package's other modules.
 
 Choices the common interface forces:
 
-* Frame: the robot base frame of ``para_brachy`` (OZ up), not the bed frame.
+* Frame: the robot base frame of the paper (OZ up), not the bed frame.
 * Home: the IGM of :data:`~bench.kinematics.para_brachy.WORKSPACE_CENTRE`.
 * Assembly mode: the DGM has two solutions; solution 0 always puts A2 on the
   left of A1'→G', so one index names one assembly mode everywhere off the
@@ -28,9 +28,17 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from bench.kinematics import para_brachy as pb
+from bench.kinematics.batch import wrap_angle
 from bench.kinematics.dh import JointKind, JointRows
 from bench.kinematics.needle import NeedlePose, NeedleTarget, UnreachableError, angles_of
+from bench.kinematics.para_brachy.geometric import dgm, igm
+from bench.kinematics.para_brachy.model import (
+    DEFAULT_PARAMS,
+    JOINT_NAMES,
+    WORKSPACE_CENTRE,
+    ParaBrachyParams,
+    insertion_direction,
+)
 
 __all__ = ["JointRow", "JointTable", "ParaBrachyRobot"]
 
@@ -58,23 +66,23 @@ class ParaBrachyRobot:
 
     name = "para-brachy"
 
-    def __init__(self, params: pb.ParaBrachyParams = pb.DEFAULT_PARAMS,
-                 home_pose: ArrayLike = pb.WORKSPACE_CENTRE) -> None:
+    def __init__(self, params: ParaBrachyParams = DEFAULT_PARAMS,
+                 home_pose: ArrayLike = WORKSPACE_CENTRE) -> None:
         self.params = params
         self.home_pose = np.asarray(home_pose, dtype=float)
-        home = pb.igm(self.home_pose, params)
-        sols = pb.dgm(home, params)
+        home = igm(self.home_pose, params)
+        sols = dgm(home, params)
         dist = np.linalg.norm(sols[:, :3] - self.home_pose[:3], axis=-1) + np.abs(
-            pb.wrap_angle(sols[:, 3] - self.home_pose[3]))
+            wrap_angle(sols[:, 3] - self.home_pose[3]))
         self.assembly = int(np.argmin(dist))
         kinds: tuple[JointKind, ...] = ("prismatic", "prismatic", "revolute", "prismatic", "prismatic")
         self.chain = JointTable(tuple(
             JointRow(n, k, float(lo), float(hi), float(h))
-            for n, k, lo, hi, h in zip(pb.JOINT_NAMES, kinds, params.q_min, params.q_max, home)))
+            for n, k, lo, hi, h in zip(JOINT_NAMES, kinds, params.q_min, params.q_max, home)))
 
     @property
     def joint_names(self) -> list[str]:
-        return list(pb.JOINT_NAMES)
+        return list(JOINT_NAMES)
 
     def joint_vector(self, values: Mapping[str, float]) -> np.ndarray:
         """Joint dict → vector, missing joints at home; unknown names refused."""
@@ -82,16 +90,12 @@ class ParaBrachyRobot:
 
     def pose(self, q: ArrayLike) -> np.ndarray:
         """The paper's pose ``[X_E, Y_E, Z_E, ψ, θ]`` (…, 5) in this robot's assembly mode."""
-        try:
-            return pb.dgm(q, self.params)[..., self.assembly, :]
-        except pb.UnreachableError as e:
-            raise UnreachableError(str(e)) from None
+        return dgm(q, self.params)[..., self.assembly, :]
 
     def needle_vectors(self, q: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Batch FK: (entry = C2, tip, direction), each (…, 3), for q of shape (…, 5)."""
         x = self.pose(q)
-        psi, th = x[..., 3], x[..., 4]
-        w = np.stack([np.sin(th) * np.cos(psi), np.sin(th) * np.sin(psi), -np.cos(th)], axis=-1)
+        w = insertion_direction(x[..., 3], x[..., 4])
         tip = x[..., :3]
         return tip - self.params.h * w, tip, w
 
@@ -112,10 +116,7 @@ class ParaBrachyRobot:
         theta = float(np.arccos(np.clip(-w[2], -1.0, 1.0)))
         psi = float(np.arctan2(w[1], w[0]))
         pose = np.array([*target.tip, psi, theta])
-        try:
-            q = pb.igm(pose, self.params)
-        except pb.UnreachableError as e:
-            raise UnreachableError(str(e)) from None
+        q = igm(pose, self.params)
         back = self.needle(q)
         if np.max(np.abs(back.tip - target.tip)) > 1e-9 or np.linalg.norm(back.direction - w) > 1e-9:
             raise UnreachableError(
