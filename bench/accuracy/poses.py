@@ -1,0 +1,146 @@
+"""The robots, poses and joint tolerances the accuracy study works on (SI; tolerances ± per joint)."""
+
+from __future__ import annotations
+
+from typing import Literal, Mapping, Optional, Sequence, Union
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG, TARGET_1, ArcTrainRobot
+from bench.kinematics.needle import UnreachableError
+from bench.kinematics.para_brachy import ParaBrachyRobot
+
+Distribution = Literal["uniform", "normal", "endpoints"]
+DISTRIBUTIONS: tuple[str, ...] = ("uniform", "normal", "endpoints")
+Tolerances = Union[None, Mapping[str, float], Sequence[float], np.ndarray]
+
+DEG = np.pi / 180.0
+PAPER_EPS_LINEAR = 0.05e-3  #: seed 003's ε for a sliding joint (m)
+PAPER_EPS_ANGULAR = 0.05 * DEG  #: seed 003's ε for a rotating joint (rad)
+
+
+# ---------------------------------------------------------------------------
+# Robots, poses and tolerances
+# ---------------------------------------------------------------------------
+
+def robot_label(robot) -> str:
+    return str(getattr(robot, "name", type(robot).__name__))
+
+
+def _rows(robot) -> tuple:
+    return tuple(robot.chain.rows)
+
+
+def _kinds(robot) -> tuple[str, ...]:
+    return tuple(r.kind for r in _rows(robot))
+
+
+def _names(robot) -> tuple[str, ...]:
+    return tuple(robot.joint_names)
+
+
+def default_pose(robot) -> np.ndarray:
+    """Where the budget is taken when no pose is given (see the module notes)."""
+    home = np.array([r.home for r in _rows(robot)], dtype=float)
+    if isinstance(robot, ParaBrachyRobot):
+        return home
+    try:
+        return np.asarray(robot.ik(TARGET_1), dtype=float)
+    except UnreachableError:
+        return home
+
+
+def pose_from_joints(robot, values: Mapping[str, float], base: Optional[ArrayLike] = None) -> np.ndarray:
+    """Joint dict (SI) → vector; missing joints from ``base`` (default pose); checked against limits."""
+    names = _names(robot)
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        raise ValueError(f"unknown joint(s) {unknown}; {robot_label(robot)} joints are {list(names)}")
+    q = default_pose(robot) if base is None else np.array(base, dtype=float)
+    for i, n in enumerate(names):
+        if n in values:
+            v = values[n]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise ValueError(f"joint {n} must be a finite number (rad or m), got {v!r}")
+            q[i] = float(v)
+    _check_limits(robot, q)
+    return q
+
+
+def _check_limits(robot, q: np.ndarray) -> None:
+    for n, v, r in zip(_names(robot), q, _rows(robot)):
+        if not r.lower - 1e-12 <= v <= r.upper + 1e-12:
+            raise ValueError(f"joint {n} = {v:.6g} is outside its limits [{r.lower:.6g}, {r.upper:.6g}]")
+
+
+def servo_transmissions(robot) -> np.ndarray:
+    """Joint motion per radian of servo error: 1 (direct drive), the pinion radius (m) or R_pinion/R_arc."""
+    ratio = np.array([PINION_RADIUS if k == "prismatic" else 1.0 for k in _kinds(robot)])
+    if isinstance(robot, ArcTrainRobot):
+        ratio[_names(robot).index("train")] = PINION_RADIUS / robot.params.arc_radius
+    return ratio
+
+
+def default_tolerances(robot, tol_deg: float = SERVO_TOL_DEG) -> np.ndarray:
+    """±tolerance per joint (rad or m) for servos holding ±``tol_deg`` through their transmissions."""
+    if not (np.isfinite(tol_deg) and tol_deg >= 0.0):
+        raise ValueError(f"servo tolerance must be a non-negative number of degrees, got {tol_deg!r}")
+    return tol_deg * DEG * servo_transmissions(robot)
+
+
+def resolve_tolerances(robot, tolerances: Tolerances = None, tol_deg: float = SERVO_TOL_DEG) -> np.ndarray:
+    """Per-joint tolerances (SI): defaults, a {joint: tol} override, or a full vector."""
+    names = _names(robot)
+    tol = default_tolerances(robot, tol_deg)
+    if tolerances is None:
+        return tol
+    if isinstance(tolerances, Mapping):
+        unknown = sorted(set(tolerances) - set(names))
+        if unknown:
+            raise ValueError(f"tolerance for unknown joint(s) {unknown}; joints are {list(names)}")
+        for i, n in enumerate(names):
+            if n in tolerances:
+                tol[i] = float(tolerances[n])
+    else:
+        arr = np.asarray(tolerances, dtype=float)
+        if arr.shape != (len(names),):
+            raise ValueError(f"expected {len(names)} tolerances ({', '.join(names)}), got shape {arr.shape}")
+        tol = arr.copy()
+    for n, t in zip(names, tol):
+        if not (np.isfinite(t) and t >= 0.0):
+            raise ValueError(f"tolerance of joint {n} must be finite and >= 0, got {float(t)!r}")
+    return tol
+
+
+def _sigma(tol: np.ndarray, distribution: str) -> np.ndarray:
+    """1σ of each joint's error under ``distribution``."""
+    if distribution not in DISTRIBUTIONS:
+        raise ValueError(f"distribution must be one of {DISTRIBUTIONS}, got {distribution!r}")
+    return tol if distribution == "endpoints" else tol / np.sqrt(3.0)
+
+
+def _joint_index(robot, joint: Union[str, int]) -> int:
+    names = _names(robot)
+    if isinstance(joint, str):
+        if joint not in names:
+            raise ValueError(f"unknown joint {joint!r}; {robot_label(robot)} joints are {list(names)}")
+        return names.index(joint)
+    if isinstance(joint, (int, np.integer)) and 0 <= joint < len(names):
+        return int(joint)
+    raise ValueError(f"joint must be a name in {list(names)} or an index 0..{len(names) - 1}, got {joint!r}")
+
+
+# ---------------------------------------------------------------------------
+# Forward kinematics in batches
+# ---------------------------------------------------------------------------
+
+
+def _psi_theta(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Seed 003's ψ (azimuth) and θ (from the downward vertical) of unit directions (…, 3)."""
+    return np.arctan2(d[..., 1], d[..., 0]), np.arctan2(np.hypot(d[..., 0], d[..., 1]), -d[..., 2])
+
+
+def _axis_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle between unit vectors, accurate for tiny angles."""
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
