@@ -35,11 +35,10 @@ import time
 
 import numpy as np
 
-from bench.scene.contact import GantryClearance, GantryContact, default_gantry
-from bench.kinematics.arc_train import TARGET_1
 from bench.geometry.tri_distance import paper_intersects, triangle_distance
+from bench.kinematics.arc_train import TARGET_1
 from bench.kinematics.registry import get_robot
-
+from bench.scene.contact import GantryClearance, GantryContact, default_gantry
 
 ALL_PAIRS_CHUNKS = (1024, 4096, 16384, 65536)  # batch sizes tried for the brute force
 

@@ -20,13 +20,13 @@ from dynamixel_sdk.robotis_def import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUC
 from drivers.dynamixel.control_table import _sdk_layout
 from drivers.dynamixel.io import BlockingPortHandler, StuffingPacketHandler
 from drivers.dynamixel.protocol import ALERT_BIT, BROADCAST_ID, Instruction, StatusError, build_instruction
+from drivers.dynamixel.units import OperatingMode
 from drivers.emulator import (
     XL430_W250,
     XM430_W350,
     XM540_W270,
     DynamixelBusEmulator,
     InertiaPlant,
-    OperatingMode,
     ServoModel,
     model_spec,
     supported_models,
@@ -629,3 +629,23 @@ def test_hilbench_emulate_idles_below_a_tenth_of_a_core():
         proc.send_signal(_signal.SIGTERM)
         proc.wait(10)
     assert share < 0.10, f"the idle emulator took {share:.0%} of a core"
+
+
+def test_every_emulated_model_keeps_the_drivers_registers_where_the_one_table_says():
+    """The host-side drivers read one X-series table (control_table.x_series_table); every
+    emulated model must hold the registers they touch at the same address and size."""
+    from drivers.dynamixel.control_table import STATE_BLOCK, state_block, x_series_table
+
+    used = ("Model Number", "Firmware Version", "Baud Rate", "Return Delay Time", "Operating Mode",
+            "Homing Offset", "Position D Gain", "Position I Gain", "Position P Gain", "Torque Enable",
+            "Hardware Error Status", "Profile Acceleration", "Profile Velocity", "Goal Position",
+            "Present Velocity", "Present Position", "Present Input Voltage", "Present Temperature")
+    table = x_series_table()
+    assert state_block() == (table[STATE_BLOCK[0]].address, 10)
+    for number in supported_models():
+        other = model_spec(number).table
+        for name in used:
+            assert (other[name].address, other[name].size) == (table[name].address, table[name].size), \
+                (number, name)
+        first = other.at(state_block()[0])  # Present Current, or Present Load without current sensing
+        assert first is not None and first.size == 2

@@ -17,7 +17,8 @@ from bench.config.calibration import check_calibration
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot, trial_refusal
 from bench.paths import REPO_ROOT, robot_urdf
-from drivers.dynamixel.control_table import BAUD_RATES, supported_models
+from drivers.dynamixel.control_table import supported_models
+from drivers.dynamixel.units import BAUD_RATES
 
 #: Longest plan a trial may run (s): longer is a typo (a tiny speed, a huge settle time).
 MAX_PLAN_S = 600.0

@@ -31,6 +31,7 @@ from bench.faults.torque import TorqueLimit, check_effort_limit
 from bench.faults.ultrasonic import UltrasonicDropout, UltrasonicNoise, UltrasonicStuck
 from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG
 from drivers import Actuators, ConfigurationError
+from drivers.dynamixel.units import TICKS_PER_REV
 
 __all__ = ["FAULTS", "FaultDef", "FaultSpec", "Param", "apply_faults", "fault_names", "parse_faults"]
 
@@ -38,7 +39,6 @@ _TO_SI = {"deg": math.pi / 180.0, "mm": 1e-3, "ms": 1e-3, "s": 1.0, "": 1.0}
 # The prismatic joints are rack-and-pinion on the same servos: a servo angle maps to
 # PINION_RADIUS of travel per radian.
 PINION_RADIUS_MM = PINION_RADIUS * 1e3
-TICKS_PER_REV = 4096  # Dynamixel X-series encoders
 SELECTORS = ("all", "revolute", "prismatic")
 
 

@@ -26,7 +26,8 @@ from bench.kinematics.arc_train import train_pose
 from bench.kinematics.registry import get_robot
 from drivers import ActuatorError
 from drivers.dynamixel.backend import latency_timer_ms
-from drivers.dynamixel.bus import BAUD_RATES, PingReply, ServoBus, ServoStatus, open_error
+from drivers.dynamixel.bus import PingReply, ServoBus, ServoStatus, open_error
+from drivers.dynamixel.units import BAUD_RATES
 from drivers.ultrasonic import UltrasonicSensor
 
 __all__ = ["Check", "run_doctor"]

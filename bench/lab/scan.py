@@ -11,8 +11,9 @@ from __future__ import annotations
 
 from typing import Callable, Iterable, Optional
 
-from drivers.dynamixel.bus import BAUD_RATES, ServoBus, ServoStatus
+from drivers.dynamixel.bus import ServoBus, ServoStatus
 from drivers.dynamixel.protocol import MAX_ID
+from drivers.dynamixel.units import BAUD_RATES
 
 __all__ = ["ALL_BAUDS", "DEFAULT_BAUDS", "check_bauds", "scan_bus", "servo_row"]
 

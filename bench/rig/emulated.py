@@ -28,8 +28,8 @@ import numpy as np
 from bench.config.models import DynamixelBackendConfig, TrialConfig, model_number
 from bench.kinematics.arc_train import train_pose
 from bench.kinematics.registry import get_robot
-from drivers.dynamixel.backend import MODES
-from drivers.dynamixel.control_table import BAUD_RATES, model_spec
+from drivers.dynamixel.control_table import model_spec
+from drivers.dynamixel.units import BAUD_RATES, OPERATING_MODES
 from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
 from drivers.emulator.pybullet_plant import PyBulletPlant
 
@@ -97,7 +97,7 @@ class EmulatedRig:
             sc = b.servos[n]
             deadband = int(round(math.radians(e.deadband_deg) / (2 * math.pi / 4096)))
             # The rig as the lab keeps it: EEPROM already set up, servos holding their pose.
-            registers = {"Baud Rate": baud_index, "Operating Mode": MODES[sc.mode],
+            registers = {"Baud Rate": baud_index, "Operating Mode": OPERATING_MODES[sc.mode],
                          "Return Delay Time": int(round(b.return_delay_us / 2))}
             if warm_start_s > 0:
                 gains = zip(("Position P Gain", "Position I Gain", "Position D Gain"),

@@ -40,35 +40,23 @@ from drivers import (
     JointLimits,
     JointState,
 )
-from drivers.dynamixel.control_table import model_spec
+from drivers.dynamixel.control_table import model_spec, x_series_table
 from drivers.dynamixel.cycle import SyncCycle
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
 from drivers.dynamixel.protocol import decode_hardware_error
+from drivers.dynamixel.units import OPERATING_MODES, RAD_PER_TICK, VELOCITY_UNIT_RAD_S
 from drivers.ultrasonic import UltrasonicSensor
 
 log = logging.getLogger(__name__)
 
-TICKS_PER_REV = 4096
-RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
-RAD_S_PER_VEL_UNIT = 0.229 * 2.0 * math.pi / 60.0  # Present Velocity unit: 0.229 rev/min
-
-# X-series control table (Protocol 2.0), identical across the supported models.
-ADDR = {
-    "Model Number": (0, 2), "Firmware Version": (6, 1), "Baud Rate": (8, 1),
-    "Return Delay Time": (9, 1), "Drive Mode": (10, 1), "Operating Mode": (11, 1),
-    "Homing Offset": (20, 4), "Current Limit": (38, 2), "Position D Gain": (80, 2),
-    "Position I Gain": (82, 2), "Position P Gain": (84, 2), "Max Position Limit": (48, 4),
-    "Min Position Limit": (52, 4), "Torque Enable": (64, 1), "Hardware Error Status": (70, 1),
-    "Goal Current": (102, 2), "Profile Acceleration": (108, 4), "Profile Velocity": (112, 4),
-    "Goal Position": (116, 4), "Present Current": (126, 2), "Present Velocity": (128, 4),
-    "Present Position": (132, 4), "Present Input Voltage": (144, 2),
-    "Present Temperature": (146, 1),
-}
-
 FAST_SYNC_READ_FIRMWARE = 45  # X-series firmware that answers Fast Sync Read
 
-MODES = {"current": 0, "velocity": 1, "position": 3, "extended_position": 4,
-         "current_based_position": 5, "pwm": 16}
+
+
+def _register(name: str) -> tuple[int, int]:
+    """(address, size) of an X-series register, from the one control table."""
+    reg = x_series_table()[name]
+    return reg.address, reg.size
 
 
 @dataclass(frozen=True)
@@ -150,7 +138,7 @@ class DynamixelActuators(ActuatorsBase):
         self._zero = np.array([sv.zero_tick for sv in s.servos], dtype=float)
         # Unit conversions per servo, precomputed for the control cycle.
         self._q_per_tick = self._ratio * RAD_PER_TICK
-        self._qd_per_unit = self._ratio * RAD_S_PER_VEL_UNIT
+        self._qd_per_unit = self._ratio * VELOCITY_UNIT_RAD_S
         self._effort_per_unit = np.array(
             [_kt(sv.model) * _current_unit(sv.model) for sv in s.servos]) / self._ratio
         # The same, as one (3, n) scale on raw position, velocity, current and the
@@ -215,9 +203,9 @@ class DynamixelActuators(ActuatorsBase):
         if len(set(ids)) != len(ids):
             raise ConfigurationError(f"duplicate servo IDs in {ids}")
         for sv in s.servos:
-            if sv.mode not in MODES:
+            if sv.mode not in OPERATING_MODES:
                 raise ConfigurationError(
-                    f"servo {sv.id} ({sv.joint}): unknown mode {sv.mode!r}; modes: {sorted(MODES)}")
+                    f"servo {sv.id} ({sv.joint}): unknown mode {sv.mode!r}; modes: {sorted(OPERATING_MODES)}")
             if sv.ratio == 0 or not math.isfinite(sv.ratio):
                 raise ConfigurationError(f"servo {sv.id} ({sv.joint}): ratio must be non-zero")
 
@@ -278,7 +266,7 @@ class DynamixelActuators(ActuatorsBase):
         s = self.settings
         rdt = int(round(s.return_delay_us / 2))
         for sv in s.servos:
-            eeprom = {"Return Delay Time": rdt, "Operating Mode": MODES[sv.mode]}
+            eeprom = {"Return Delay Time": rdt, "Operating Mode": OPERATING_MODES[sv.mode]}
             if sv.current_limit_a is not None:
                 eeprom["Current Limit"] = int(round(sv.current_limit_a / _current_unit(sv.model)))
             changes = {k: v for k, v in eeprom.items() if self._read(sv.id, k) != v}
@@ -304,18 +292,17 @@ class DynamixelActuators(ActuatorsBase):
         self._fast = self.settings.fast_sync_read and fw_ok
         if self.settings.fast_sync_read and not fw_ok:
             self._warn(f"Fast Sync Read needs firmware {FAST_SYNC_READ_FIRMWARE}+; using Sync Read")
-        self._cycle = SyncCycle(self.port.ser.fileno(), self.settings.baud, self._ids,
-                                write_address=ADDR["Goal Position"][0], fast=self._fast)
+        self._cycle = SyncCycle(self.port.ser.fileno(), self.settings.baud, self._ids, fast=self._fast)
         if self.settings.timeout_s:
             self._cycle.timeout_s = self.settings.timeout_s
 
     # -- register access with retries ----------------------------------------
     def _read(self, sid: int, name: str) -> int:
-        addr, size = ADDR[name]
+        addr, size = _register(name)
         return self._regs.read(sid, addr, size, name, signed=name == "Homing Offset")
 
     def _write(self, sid: int, name: str, value: int) -> None:
-        addr, size = ADDR[name]
+        addr, size = _register(name)
         self._regs.write(sid, addr, size, value, name)
 
     # -- the Actuators interface ----------------------------------------------
@@ -424,7 +411,7 @@ class DynamixelActuators(ActuatorsBase):
     def _torque_off_all(self) -> None:
         """Torque off on every servo that still answers (broadcast, then one by one), then
         Torque Enable read back from each: ``safe_stop_report`` says which confirmed."""
-        addr, _ = ADDR["Torque Enable"]
+        addr, _ = _register("Torque Enable")
         try:
             self.ph.write1ByteTxOnly(self.port, self._sdk.BROADCAST_ID, addr, 0)
         except Exception:  # the port may already be gone; try one by one all the same

@@ -15,7 +15,6 @@ answer, each in its own slot), so one scan per baud rate is all it takes.
 from __future__ import annotations
 
 import errno
-import math
 import os
 import select
 import time
@@ -37,21 +36,11 @@ from drivers.dynamixel.protocol import (
     describe_status_error,
     reply_mismatch,
 )
+from drivers.dynamixel.units import BAUD_RATES, CENTER_TICK, HOMING_OFFSET_LIMIT, MODE_NAMES, RAD_PER_TICK
 from drivers.timing import drain_until_quiet
 
-__all__ = ["BAUD_RATES", "MODE_NAMES", "PingReply", "ServoBus", "ServoStatus", "open_error"]
+__all__ = ["PingReply", "ServoBus", "ServoStatus", "open_error"]
 
-#: Baud Rate register value -> bit/s (X-series and MX with Protocol 2.0).
-BAUD_RATES: dict[int, int] = {0: 9_600, 1: 57_600, 2: 115_200, 3: 1_000_000, 4: 2_000_000,
-                              5: 3_000_000, 6: 4_000_000, 7: 4_500_000}
-#: Operating Mode register value -> the name configs use.
-MODE_NAMES: dict[int, str] = {0: "current", 1: "velocity", 3: "position", 4: "extended_position",
-                              5: "current_based_position", 16: "pwm"}
-
-_TICKS_PER_REV = 4096
-_RAD_PER_TICK = 2.0 * math.pi / _TICKS_PER_REV
-_CENTER_TICK = 2048
-_HOMING_LIMIT = 1_044_479  # Homing Offset range, ticks
 _LATENCY_S = 0.034  # as the SDK: 2 x 16 ms USB latency + 2 ms
 _SIGNED = {"Homing Offset", "Present Position", "Goal Position", "Present Velocity",
            "Goal Velocity", "Present Current", "Goal Current", "Present PWM", "Goal PWM",
@@ -219,11 +208,11 @@ class ServoBus:
     # -- shaft angle and zero ------------------------------------------------------------
     def shaft_angle(self, sid: int) -> float:
         """Present Position as a shaft angle (rad, 0 at tick 2048, Homing Offset included)."""
-        return (self.read(sid, "Present Position") - _CENTER_TICK) * _RAD_PER_TICK
+        return (self.read(sid, "Present Position") - CENTER_TICK) * RAD_PER_TICK
 
     def homing_offset(self, sid: int) -> float:
         """The Homing Offset register as a shaft angle (rad)."""
-        return self.read(sid, "Homing Offset") * _RAD_PER_TICK
+        return self.read(sid, "Homing Offset") * RAD_PER_TICK
 
     def shift_zero(self, sid: int, shaft_rad: float) -> float:
         """Make the servo report ``shaft_rad`` more from now on, through its Homing Offset.
@@ -232,11 +221,11 @@ class ServoBus:
         goes off for the write and back to what it was. Returns the shift
         applied, a whole number of ticks.
         """
-        ticks = int(round(shaft_rad / _RAD_PER_TICK))
+        ticks = int(round(shaft_rad / RAD_PER_TICK))
         new = self.read(sid, "Homing Offset") + ticks
-        if abs(new) > _HOMING_LIMIT:
+        if abs(new) > HOMING_OFFSET_LIMIT:
             raise ConfigurationError(
-                f"servo ID {sid}: Homing Offset {new} ticks is beyond ±{_HOMING_LIMIT}; "
+                f"servo ID {sid}: Homing Offset {new} ticks is beyond ±{HOMING_OFFSET_LIMIT}; "
                 f"the joint is too far from its reference for a register offset")
         torque = self.read(sid, "Torque Enable")
         try:
@@ -246,7 +235,7 @@ class ServoBus:
         finally:
             if torque:
                 self.write(sid, "Torque Enable", 1)
-        return ticks * _RAD_PER_TICK
+        return ticks * RAD_PER_TICK
 
     # -- transactions ---------------------------------------------------------------------
     def _model(self, sid: int) -> int:

@@ -20,15 +20,14 @@ import struct
 from dataclasses import dataclass, field
 from enum import Enum
 from functools import lru_cache
-from importlib import resources
 from typing import Callable, Iterator, Mapping
 
 from drivers import ConfigurationError
+from drivers.dynamixel.models import sdk_rows
 
 __all__ = [
     "Access",
     "Area",
-    "BAUD_RATES",
     "ControlTable",
     "ModelSpec",
     "MotorSpec",
@@ -39,7 +38,10 @@ __all__ = [
     "XM430_W350",
     "XM540_W270",
     "model_spec",
+    "STATE_BLOCK",
+    "state_block",
     "supported_models",
+    "x_series_table",
 ]
 
 XM430_W350 = 1020
@@ -47,17 +49,6 @@ XL430_W250 = 1060
 XC430_W150 = 1070
 XM540_W270 = 1120
 
-#: Baud Rate register (8) value -> bit/s, X-series.
-BAUD_RATES: dict[int, int] = {
-    0: 9_600,
-    1: 57_600,
-    2: 115_200,
-    3: 1_000_000,
-    4: 2_000_000,
-    5: 3_000_000,
-    6: 4_000_000,
-    7: 4_500_000,
-}
 
 
 class Access(Enum):
@@ -354,32 +345,13 @@ _MODELS: dict[int, dict] = {
 }
 
 
-def _sdk_layout(filename: str) -> list[tuple[int, int, str]]:
-    """(address, size, name) rows of a dynamixel-sdk ``.model`` file."""
-    try:
-        text = (resources.files("dynamixel_easy_sdk") / "control_table" / filename).read_text(
-            encoding="utf-8"
-        )
-    except (ModuleNotFoundError, FileNotFoundError) as exc:
-        raise ConfigurationError(
-            f"control-table file {filename!r} not found in dynamixel-sdk's dynamixel_easy_sdk "
-            "package; install dynamixel-sdk>=4.0"
-        ) from exc
-    rows: list[tuple[int, int, str]] = []
-    in_table = False
-    for line in text.splitlines():
-        line = line.strip()
-        if not line:
-            continue
-        if line.startswith("["):
-            in_table = line == "[control table]"
-            continue
-        parts = line.split("\t")
-        if not in_table or len(parts) < 3 or not parts[0].isdigit():
-            continue
-        rows.append((int(parts[0]), int(parts[1]), parts[2].strip()))
+def _sdk_layout(filename: str) -> tuple[tuple[int, int, str], ...]:
+    """(address, size, name) rows of a dynamixel-sdk ``.model`` file; refused when missing."""
+    rows = sdk_rows(filename)
     if not rows:
-        raise ConfigurationError(f"no [control table] rows in dynamixel-sdk file {filename!r}")
+        raise ConfigurationError(
+            f"no [control table] rows in dynamixel-sdk file {filename!r} (dynamixel_easy_sdk "
+            "package); install dynamixel-sdk>=4.0")
     return rows
 
 
@@ -421,3 +393,24 @@ def model_spec(model: int) -> ModelSpec:
 def supported_models() -> dict[int, str]:
     """Model number -> model name of every emulated model."""
     return {number: info["name"] for number, info in _MODELS.items()}
+
+
+def x_series_table() -> ControlTable:
+    """The register layout the supported X-series models share (the host-side drivers use it;
+    a test checks every emulated model agrees on each register the drivers touch)."""
+    return model_spec(XM430_W350).table
+
+
+#: The registers every control cycle reads, contiguous in this order.
+STATE_BLOCK = ("Present Current", "Present Velocity", "Present Position")
+
+
+@lru_cache(maxsize=None)
+def state_block() -> tuple[int, int]:
+    """(address, length) of :data:`STATE_BLOCK`: one Sync Read per cycle gets all three."""
+    table = x_series_table()
+    regs = [table[name] for name in STATE_BLOCK]
+    for r, nxt in zip(regs, regs[1:]):
+        if r.address + r.size != nxt.address:
+            raise ConfigurationError(f"{r.name} and {nxt.name} are not contiguous in the control table")
+    return regs[0].address, regs[-1].address + regs[-1].size - regs[0].address

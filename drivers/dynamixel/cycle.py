@@ -19,6 +19,7 @@ from typing import Sequence
 import numpy as np
 
 from drivers import CommunicationError
+from drivers.dynamixel.control_table import state_block, x_series_table
 from drivers.dynamixel.protocol import (
     BROADCAST_ID,
     HEADER,
@@ -38,8 +39,10 @@ _LOW_7_BITS = bytes(b & 0x7F for b in range(256))
 
 
 #: The state block every cycle reads: Present Current (int16), Present Velocity (int32)
-#: and Present Position (int32), 10 bytes from address 126 on X-series servos.
-STATE_ADDRESS, STATE_LENGTH = 126, 10
+#: and Present Position (int32), contiguous in the control table (10 bytes).
+STATE_ADDRESS, STATE_LENGTH = state_block()
+#: Where the cycle writes the goals (Goal Position, int32).
+GOAL_ADDRESS = x_series_table()["Goal Position"].address
 #: One servo's block of a Fast Sync Read status (after the 8-byte packet head).
 _FAST_BLOCK = np.dtype({"names": ["err", "id", "cur", "vel", "pos", "crc"],
                         "formats": ["u1", "u1", "<i2", "<i4", "<i4", "<u2"],
@@ -53,12 +56,12 @@ _SYNC_STATUS = np.dtype({"names": ["head", "err", "cur", "vel", "pos", "crc"],
 class SyncCycle:
     """Goal-position writes and state reads for a fixed set of servo IDs on one port."""
 
-    def __init__(self, fd: int, baud: int, ids: Sequence[int], *, write_address: int = 116,
+    def __init__(self, fd: int, baud: int, ids: Sequence[int], *,
                  fast: bool = True, latency_s: float = 0.002) -> None:
         self.fd = fd
         self.ids = list(ids)
         self.n = n = len(self.ids)
-        self.write_address = write_address
+        self.write_address = GOAL_ADDRESS
         self.fast = fast
         params = struct.pack("<HH", STATE_ADDRESS, STATE_LENGTH) + bytes(self.ids)
         instr = Instruction.FAST_SYNC_READ if fast else Instruction.SYNC_READ
@@ -66,7 +69,7 @@ class SyncCycle:
         # Sync Write: the parameters are (ID, goal) pairs after the address and length;
         # the IDs sit in a list whose odd slots take the goals of each cycle.
         self._goals = struct.Struct("<HH" + "Bi" * n)
-        self._goal_args: list[int] = [write_address, 4] + [v for sid in self.ids for v in (sid, 0)]
+        self._goal_args: list[int] = [GOAL_ADDRESS, 4] + [v for sid in self.ids for v in (sid, 0)]
         length = 1 + self._goals.size + 2  # LEN of an unstuffed Sync Write
         self._write_prefix = HEADER + bytes(
             (BROADCAST_ID, length & 0xFF, length >> 8, Instruction.SYNC_WRITE))

@@ -12,7 +12,7 @@ from __future__ import annotations
 from functools import lru_cache
 from importlib import resources
 
-__all__ = ["model_name", "model_names", "register_layout"]
+__all__ = ["model_name", "model_names", "register_layout", "sdk_rows"]
 
 
 def _read(filename: str) -> str:
@@ -50,12 +50,9 @@ def model_name(number: int) -> str:
 
 
 @lru_cache(maxsize=None)
-def register_layout(number: int) -> dict[str, tuple[int, int]]:
-    """Register name -> (address, size) for a model; empty when the SDK does not know it."""
-    filename = _files().get(number)
-    if filename is None:
-        return {}
-    layout: dict[str, tuple[int, int]] = {}
+def sdk_rows(filename: str) -> tuple[tuple[int, int, str], ...]:
+    """(address, size, name) rows of a ``.model`` file's ``[control table]``; empty when absent."""
+    rows: list[tuple[int, int, str]] = []
     in_table = False
     for line in _read(filename).splitlines():
         line = line.strip()
@@ -64,5 +61,15 @@ def register_layout(number: int) -> dict[str, tuple[int, int]]:
             continue
         parts = line.split("\t")
         if in_table and len(parts) >= 3 and parts[0].isdigit() and parts[1].isdigit():
-            layout.setdefault(parts[2].strip(), (int(parts[0]), int(parts[1])))
+            rows.append((int(parts[0]), int(parts[1]), parts[2].strip()))
+    return tuple(rows)
+
+
+@lru_cache(maxsize=None)
+def register_layout(number: int) -> dict[str, tuple[int, int]]:
+    """Register name -> (address, size) for a model; empty when the SDK does not know it."""
+    filename = _files().get(number)
+    layout: dict[str, tuple[int, int]] = {}
+    for address, size, name in sdk_rows(filename) if filename else ():
+        layout.setdefault(name, (address, size))
     return layout

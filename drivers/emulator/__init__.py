@@ -6,7 +6,6 @@ sensor, so the bench's Dynamixel backend is tested byte for byte.
 """
 
 from drivers.dynamixel.control_table import (
-    BAUD_RATES,
     XC430_W150,
     XL430_W250,
     XM430_W350,
@@ -22,13 +21,12 @@ from drivers.dynamixel.control_table import (
 )
 from drivers.emulator.bus import BusFaults, BusStats, DynamixelBusEmulator
 from drivers.emulator.plant import InertiaPlant, Plant
-from drivers.emulator.servo import OperatingMode, ServoModel
+from drivers.emulator.servo import ServoModel
 from drivers.emulator.ultrasonic import UltrasonicEmulator, standoff_distance
 
 __all__ = [
     "Access",
     "Area",
-    "BAUD_RATES",
     "BusFaults",
     "BusStats",
     "ControlTable",
@@ -36,7 +34,6 @@ __all__ = [
     "InertiaPlant",
     "ModelSpec",
     "MotorSpec",
-    "OperatingMode",
     "Plant",
     "Register",
     "ServoModel",

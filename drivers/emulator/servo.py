@@ -57,52 +57,26 @@ import math
 import struct
 from typing import Mapping, NoReturn
 
-from drivers.dynamixel.control_table import (
-    BAUD_RATES,
-    XM430_W350,
-    Access,
-    Area,
-    ModelSpec,
-    Register,
-    model_spec,
-)
+from drivers.dynamixel.control_table import XM430_W350, Access, Area, ModelSpec, Register, model_spec
 from drivers.dynamixel.protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
+from drivers.dynamixel.units import (
+    ACCEL_UNIT_RAD_S2,
+    BAUD_RATES,
+    CENTER_TICK,
+    POSITION_MODES,
+    PWM_FULL_SCALE,
+    RAD_PER_TICK,
+    TICKS_PER_REV,
+    VELOCITY_UNIT_RAD_S,
+    OperatingMode,
+)
 
-__all__ = [
-    "CENTER_TICK",
-    "CONTROL_PERIOD_S",
-    "OperatingMode",
-    "RAD_PER_TICK",
-    "ServoModel",
-    "VELOCITY_UNIT_RAD_S",
-]
+__all__ = ["CONTROL_PERIOD_S", "ServoModel"]
 
-TICKS_PER_REV = 4096
-RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
-CENTER_TICK = 2048
-VELOCITY_UNIT_RAD_S = 0.229 * 2.0 * math.pi / 60.0
-ACCEL_UNIT_RAD_S2 = 214.577 * 2.0 * math.pi / 3600.0
-PWM_FULL_SCALE = 885
 CONTROL_PERIOD_S = 0.001
 _CLEAR_MAGIC = bytes((0x01, 0x44, 0x58, 0x4C, 0x22))
 
 
-class OperatingMode:
-    """Operating Mode (11) values."""
-
-    CURRENT = 0
-    VELOCITY = 1
-    POSITION = 3
-    EXTENDED_POSITION = 4
-    CURRENT_BASED_POSITION = 5
-    PWM = 16
-
-
-_POSITION_MODES = (
-    OperatingMode.POSITION,
-    OperatingMode.EXTENDED_POSITION,
-    OperatingMode.CURRENT_BASED_POSITION,
-)
 _HW_BIT = {name: bit for bit, name in HARDWARE_ERROR_BITS.items()}
 #: Items whose accepted values depend on other registers (see ``_check_limits``).
 _INT32 = struct.Struct("<i")
@@ -418,7 +392,7 @@ class ServoModel:
             self._track_present(present)
             current = 0.0
         else:
-            if mode in _POSITION_MODES:
+            if mode in POSITION_MODES:
                 u = self._position_control(dt, present)
                 if mode == OperatingMode.CURRENT_BASED_POSITION:
                     current_cmd = _clamp(u, abs(self.get("Goal Current"))) * self._amps_per_unit
@@ -547,7 +521,7 @@ class ServoModel:
         self._profile_vmax = math.inf
         self._profile_amax = math.inf
         self._profile_ongoing = False
-        if goal_to_present and self.get("Operating Mode") in _POSITION_MODES:
+        if goal_to_present and self.get("Operating Mode") in POSITION_MODES:
             self.set("Goal Position", int(present))
         self.set("Position Trajectory", int(present))
         self.set("Velocity Trajectory", 0)
@@ -669,7 +643,7 @@ class ServoModel:
         moving = abs(velocity) > values["Moving Threshold"] or self._profile_ongoing
         self._report("Moving", 1 if moving else 0)
         status = 0
-        if values["Torque Enable"] == 1 and values["Operating Mode"] in _POSITION_MODES:
+        if values["Torque Enable"] == 1 and values["Operating Mode"] in POSITION_MODES:
             if abs(values["Goal Position"] - values["Present Position"]) <= max(2, self.deadband_ticks):
                 status |= 0x01  # in position
             if self._profile_ongoing:
