@@ -39,6 +39,11 @@ instant has run, so the answer is at most one step old, as a real servo's
 the answer goes first, as without wire timing); between instructions the
 physics otherwise waits until it is two steps behind.
 
+The bus is cut at its seams: this module is the transport (the pty, the serving
+thread, framing and dispatch); :mod:`.instructions` executes each instruction,
+:mod:`.wire` times and sends the status packets, :mod:`.clock` keeps the physics
+in step with the wire.
+
 Fault hooks (:class:`BusFaults`, seeded by ``seed``): drop a fraction of status
 packets, corrupt their CRC, delay them, silence some IDs or all, or pass each
 packet through a callable; :meth:`DynamixelBusEmulator.unplug` makes the
@@ -63,20 +68,13 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from drivers.dynamixel.protocol import (
-    BROADCAST_ID,
-    CrcError,
-    FastStatusBlock,
-    Instruction,
-    Packet,
-    PacketParser,
-    StatusError,
-    build_fast_status,
-    build_status,
-)
+from drivers.dynamixel.protocol import BROADCAST_ID, CrcError, Packet, PacketParser, StatusError
+from drivers.emulator.clock import PhysicsClock
+from drivers.emulator.instructions import STATE_READS, WAKING, InstructionSet
 from drivers.emulator.plant import InertiaPlant, Plant
 from drivers.emulator.servo import ServoModel
-from drivers.timing import sleep_until, tighten_timer_slack
+from drivers.emulator.wire import StatusWire
+from drivers.timing import tighten_timer_slack
 
 __all__ = ["BusFaults", "BusStats", "DynamixelBusEmulator"]
 
@@ -85,25 +83,7 @@ _TCGETS2 = 0x802C542A  # Linux asm-generic: _IOR('T', 0x2A, struct termios2)
 #: timer slack a sleep may overshoot by that much, with 1 ns slack by a few µs.
 _SPIN_LOOSE_S = 0.0015
 _SPIN_TIGHT_S = 0.0001
-_READ_INSTRUCTIONS = {
-    Instruction.PING,
-    Instruction.READ,
-    Instruction.SYNC_READ,
-    Instruction.FAST_SYNC_READ,
-    Instruction.BULK_READ,
-    Instruction.FAST_BULK_READ,
-}
-#: Instructions answering control-table state, which must be current when they are answered.
-_STATE_READS = frozenset(_READ_INSTRUCTIONS - {Instruction.PING})
-#: Due physics steps a state read waits for; a longer backlog means the physics is not
-#: keeping real time, and it is then caught up after the answer, as without wire timing.
-_READ_WAITS_FOR_STEPS = 3
 _BY_ID = itemgetter(0)
-#: Instructions that can set something moving: they end a rest.
-_WAKING = frozenset(Instruction) - _READ_INSTRUCTIONS - {Instruction.STATUS}
-#: Present Position range (ticks) within which a servo counts as still: the hunt of a
-#: holding servo is ±1 tick.
-_STILL_TICKS = 3
 _REST_POLL_S = 0.05
 
 
@@ -145,7 +125,7 @@ def _baud_constants() -> dict[int, int]:
 _BAUD_BY_CONSTANT = _baud_constants()
 
 
-class DynamixelBusEmulator:
+class DynamixelBusEmulator(InstructionSet, StatusWire, PhysicsClock):
     """Servos on a pty: ``with DynamixelBusEmulator({1: ServoModel()}) as bus: PortHandler(bus.port)``.
 
     ``servos`` maps each servo's starting ID to its model (the ID register is
@@ -409,110 +389,11 @@ class DynamixelBusEmulator:
         """
         baud = self._host_baud or 1_000_000
         start = max(now, self._wire_free) + len(packet.raw) * 10.0 / baud
-        if self.realtime and packet.instruction in _STATE_READS:
+        if self.realtime and packet.instruction in STATE_READS:
             self._catch_up_for_read(max(start, time.perf_counter()))
         self._handle(packet)
         self._flush(start)
         self._wire_free = max(time.perf_counter(), start)
-
-    def _due_steps(self, now: float) -> int:
-        """Physics steps due by ``now``; beyond ``max_catchup_s`` the backlog is skipped."""
-        if self._resting:
-            self._sim_wall = max(self._sim_wall, now)  # nothing moves: no steps fall due
-            return 0
-        steps = int((now - self._sim_wall) / self.physics_dt)
-        if steps <= 0:
-            return 0
-        limit = max(1, int(self.max_catchup_s / self.physics_dt))
-        if steps > limit:
-            self.stats.physics_skipped_s += (steps - limit) * self.physics_dt
-            self._sim_wall += (steps - limit) * self.physics_dt
-            steps = limit
-        return steps
-
-    def _catch_up(self, now: float) -> None:
-        steps = self._due_steps(now)
-        if steps <= 0:
-            return
-        if self.max_batch_s is not None:  # the rest is due at the next pass
-            steps = min(steps, max(1, int(self.max_batch_s / self.physics_dt)))
-        self._run_physics(steps)
-
-    def _catch_up_for_read(self, instant: float) -> None:
-        """Run the steps due by a state read's ``instant``, so its answer is at most one step old."""
-        steps = self._due_steps(instant)
-        if 0 < steps <= _READ_WAITS_FOR_STEPS:
-            self._run_physics(steps)
-
-    def _catch_up_before(self, deadline: float) -> None:
-        """Run the steps falling due by ``deadline``, one at a time, while each ends before it.
-
-        No instruction can take effect before ``deadline`` (the wire is modelled
-        busy, or a delayed status is still to go out), so a step may run ahead
-        of its time: nothing it would have seen can change meanwhile.
-        """
-        while self._due_steps(deadline) and time.perf_counter() + self._step_cost <= deadline:
-            self._run_physics(1)
-
-    def _catch_up_between_instructions(self) -> None:
-        """After a pass under the wire-time model: step in the wire's busy stretch only.
-
-        The host's next instruction may come at any moment once the wire is idle,
-        and a step then would delay its answer; so steps wait for a stretch where
-        the wire is modelled busy, unless the physics would fall two steps behind.
-        """
-        self._catch_up_before(self._wire_free)
-        now = time.perf_counter()
-        if now - self._sim_wall >= 2 * self.physics_dt:
-            self._catch_up(now)
-
-    def _run_physics(self, steps: int) -> None:
-        """Advance the physics by ``steps`` and update the estimate of one step's wall time."""
-        t0 = time.perf_counter()
-        self._physics(steps)
-        self._sim_wall += steps * self.physics_dt
-        self._step_costs.append((time.perf_counter() - t0) / steps)
-        self._step_cost = 1.25 * sorted(self._step_costs)[len(self._step_costs) // 2]
-        if self.rest_after_s is not None:
-            self._watch_for_rest()
-
-    def _watch_for_rest(self) -> None:
-        """Pause the physics once every servo has stayed still for ``rest_after_s``."""
-        ticks = np.fromiter((servo.get("Present Position") for servo, _ in self._servos),
-                            float, len(self._servos))
-        if self._still_lo is None or self._still_hi is None:
-            self._still_lo, self._still_hi, self._still_since = ticks, ticks.copy(), self._sim_wall
-            return
-        np.minimum(self._still_lo, ticks, out=self._still_lo)
-        np.maximum(self._still_hi, ticks, out=self._still_hi)
-        if float(np.max(self._still_hi - self._still_lo)) > _STILL_TICKS:
-            self._still_lo, self._still_hi, self._still_since = ticks, ticks.copy(), self._sim_wall
-        elif self._sim_wall - self._still_since >= self.rest_after_s:
-            self._resting, self._rest_since = True, time.perf_counter()
-
-    def _wake(self) -> None:
-        """A write instruction arrived: the physics resumes from now (the rest skipped no motion)."""
-        self._still_lo = self._still_hi = None
-        if self._resting:
-            now = time.perf_counter()
-            self._resting = False
-            self.stats.rest_s += now - self._rest_since
-            self._sim_wall = now
-
-    def _physics(self, steps: int) -> None:
-        dt = self.physics_dt
-        plant = self.plant
-        torque = np.zeros(plant.joint_count)
-        for _ in range(steps):
-            q, v = plant.position(), plant.velocity()
-            torque[:] = 0.0
-            for servo, joint in self._servos:
-                torque[joint] += servo.step(dt, float(q[joint]), float(v[joint]))
-            plant.step(dt, torque)
-        q, v = plant.position(), plant.velocity()
-        for servo, joint in self._servos:
-            servo.observe(float(q[joint]), float(v[joint]))
-        self.stats.physics_steps += steps
 
     # -- instruction handling -------------------------------------------------------
     def _listening(self) -> dict[int, ServoModel]:
@@ -543,7 +424,7 @@ class DynamixelBusEmulator:
         if event.is_status:
             return  # another device's answer
         self.stats.packets += 1
-        if self.rest_after_s is not None and event.instruction in _WAKING:
+        if self.rest_after_s is not None and event.instruction in WAKING:
             self._wake()
         listening = self._listening()
         broadcast = event.id == BROADCAST_ID
@@ -559,251 +440,3 @@ class DynamixelBusEmulator:
                 self._reply(listening[event.id], StatusError.INSTRUCTION, instruction=event.instruction)
             return
         handler(self, event, listening)
-
-    def _reply(
-        self, servo: ServoModel, error: int, params: bytes = b"", *, instruction: int
-    ) -> None:
-        level = self._levels.get(id(servo))
-        if level is None:
-            level = servo.status_return_level
-        if instruction != Instruction.PING and (
-            level == 0 or (level == 1 and instruction not in _READ_INSTRUCTIONS)
-        ):
-            return
-        servo_id = self._ids.get(id(servo))
-        if servo_id is None:
-            servo_id = servo.id
-        packet = build_status(servo_id, servo.status_error(error), params)
-        self._queue(servo_id, packet, servo)
-
-    def _mute(self, servo_id: int) -> bool:
-        return self.faults.silent or servo_id in self.faults.silent_ids
-
-    def _queue(self, source_id: int, packet: bytes | None, servo: ServoModel) -> None:
-        """Put a status packet in the outbox, through the faults; ``servo`` sets its timing."""
-        faults = self.faults
-        if self.wire_timing:
-            return_delay_s, baud = servo.return_delay_s, servo.baud_rate
-        if self._mute(source_id):
-            packet = None
-        elif faults.drop_prob and self.rng.random() < faults.drop_prob:
-            packet = None
-        if packet is not None and faults.corrupt_crc_prob and self.rng.random() < faults.corrupt_crc_prob:
-            packet = packet[:-1] + bytes((packet[-1] ^ 0xFF,))
-        if packet is not None and faults.hook is not None:
-            packet = faults.hook(source_id, packet)
-        if packet is None:
-            self.stats.status_dropped += 1
-            return
-        delay = faults.delay_s
-        if self.wire_timing:
-            delay += return_delay_s + len(packet) * 10.0 / baud
-        self._outbox.append((delay, source_id, packet))
-
-    def _flush(self, start: float) -> None:
-        """Send queued status packets, delays counted from ``start`` (when the instruction arrived)."""
-        if not self._outbox:
-            return
-        elapsed = 0.0
-        for delay, _, packet in self._outbox:
-            if delay > 0:
-                elapsed += delay
-                self._wait_until(start + elapsed)
-            self._write(packet)
-        self._outbox.clear()
-
-    def _wait_until(self, deadline: float) -> None:
-        """Wait for a status packet's time; due physics steps that fit run meanwhile."""
-        if self.realtime:
-            self._catch_up_before(deadline)
-        sleep_until(deadline, self._spin_s)
-
-    def _write(self, packet: bytes) -> None:
-        view = memoryview(packet)
-        while view:
-            try:
-                written = os.write(self._master, view)
-            except BlockingIOError:
-                self.stats.status_dropped += 1  # host not reading: the pty buffer is full
-                return
-            except OSError:
-                return
-            view = view[written:]
-        self.stats.status_sent += 1
-
-    # One method per instruction: (packet, listening servos by ID).
-    def _ping(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        targets = listening.values() if pkt.id == BROADCAST_ID else [listening[pkt.id]]
-        for servo in targets:
-            model = servo.model_number
-            params = bytes((model & 0xFF, model >> 8, servo.firmware_version))
-            self._reply(servo, 0, params, instruction=Instruction.PING)
-
-    def _read(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        if pkt.id == BROADCAST_ID:
-            return
-        servo = listening[pkt.id]
-        if len(pkt.params) != 4:
-            self._reply(servo, StatusError.DATA_LENGTH, instruction=pkt.instruction)
-            return
-        address, length = _u16(pkt.params, 0), _u16(pkt.params, 2)
-        error, data = servo.read(address, length)
-        self._reply(servo, error, data, instruction=pkt.instruction)
-
-    def _write_like(self, pkt: Packet, listening: dict[int, ServoModel], register: bool) -> None:
-        targets = list(listening.values()) if pkt.id == BROADCAST_ID else [listening[pkt.id]]
-        for servo in targets:
-            if len(pkt.params) < 3:
-                error = StatusError.DATA_LENGTH
-            else:
-                address, data = _u16(pkt.params, 0), pkt.params[2:]
-                error = (servo.register_write if register else servo.write)(address, data)
-            if pkt.id != BROADCAST_ID:
-                self._reply(servo, error, instruction=pkt.instruction)
-
-    def _write_instr(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        self._write_like(pkt, listening, register=False)
-
-    def _reg_write(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        self._write_like(pkt, listening, register=True)
-
-    def _action(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        if pkt.id == BROADCAST_ID:
-            for servo in listening.values():
-                if servo.has_registered_instruction:
-                    servo.action()
-            return
-        servo = listening[pkt.id]
-        self._reply(servo, servo.action(), instruction=pkt.instruction)
-
-    def _factory_reset(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        option = pkt.params[0] if len(pkt.params) == 1 else None
-        if pkt.id == BROADCAST_ID:
-            if option in (0x01, 0x02):  # broadcast "reset all" is refused by X firmware >= 42
-                for servo in listening.values():
-                    servo.factory_reset(option)
-            return
-        servo = listening[pkt.id]
-        if option is None:
-            self._reply(servo, StatusError.DATA_LENGTH, instruction=pkt.instruction)
-            return
-        if option not in (0xFF, 0x01, 0x02):
-            self._reply(servo, StatusError.DATA_RANGE, instruction=pkt.instruction)
-            return
-        self._reply(servo, 0, instruction=pkt.instruction)  # answered before resetting
-        servo.factory_reset(option)
-
-    def _reboot(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        targets = list(listening.values()) if pkt.id == BROADCAST_ID else [listening[pkt.id]]
-        for servo in targets:
-            if pkt.id != BROADCAST_ID:
-                self._reply(servo, 0, instruction=pkt.instruction)
-            servo.reboot()
-            if self.boot_time_s > 0:
-                self._deaf_until[id(servo)] = time.perf_counter() + self.boot_time_s
-
-    def _clear(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        targets = list(listening.values()) if pkt.id == BROADCAST_ID else [listening[pkt.id]]
-        for servo in targets:
-            error = servo.clear(pkt.params)
-            if pkt.id != BROADCAST_ID:
-                self._reply(servo, error, instruction=pkt.instruction)
-
-    def _not_broadcast(self, pkt: Packet, listening: dict[int, ServoModel]) -> bool:
-        """Sync/bulk instructions must be broadcast; a unicast one is an instruction error."""
-        if pkt.id == BROADCAST_ID:
-            return False
-        self._reply(listening[pkt.id], StatusError.INSTRUCTION, instruction=pkt.instruction)
-        return True
-
-    def _sync_read(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        if self._not_broadcast(pkt, listening) or len(pkt.params) < 5:
-            return
-        address, length = _u16(pkt.params, 0), _u16(pkt.params, 2)
-        requests = [(i, address, length) for i in pkt.params[4:]]
-        self._reads(pkt, listening, requests)
-
-    def _bulk_read(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        if self._not_broadcast(pkt, listening) or not pkt.params or len(pkt.params) % 5:
-            return
-        p = pkt.params
-        requests = [(p[i], _u16(p, i + 1), _u16(p, i + 3)) for i in range(0, len(p), 5)]
-        self._reads(pkt, listening, requests)
-
-    def _reads(
-        self,
-        pkt: Packet,
-        listening: dict[int, ServoModel],
-        requests: list[tuple[int, int, int]],
-    ) -> None:
-        fast = pkt.instruction in (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
-        if not fast:
-            for servo_id, address, length in requests:
-                servo = listening.get(servo_id)
-                if servo is not None:
-                    error, data = servo.read(address, length)
-                    self._reply(servo, error, data, instruction=pkt.instruction)
-            return
-        blocks = []
-        first: ServoModel | None = None
-        for servo_id, address, length in requests:
-            servo = listening.get(servo_id)
-            if servo is None or self._levels.get(id(servo)) == 0 or self._mute(servo_id):
-                continue  # its block is missing: the packet comes out short
-            error, data = servo.read(address, length)
-            blocks.append(FastStatusBlock(servo.id, servo.status_error(error), data or bytes(length)))
-            first = first or servo
-        if first is None:
-            return
-        packet = build_fast_status(blocks, [length for _, _, length in requests])
-        self._queue(BROADCAST_ID, packet, first)
-
-    def _sync_write(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        if self._not_broadcast(pkt, listening) or len(pkt.params) < 4:
-            return
-        address, length = _u16(pkt.params, 0), _u16(pkt.params, 2)
-        chunk = length + 1
-        body = pkt.params[4:]
-        if length == 0 or len(body) % chunk:
-            self.stats.malformed += 1
-            return
-        for i in range(0, len(body), chunk):
-            servo = listening.get(body[i])
-            if servo is not None:
-                servo.write(address, body[i + 1 : i + chunk])
-
-    def _bulk_write(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
-        if self._not_broadcast(pkt, listening):
-            return
-        p, i = pkt.params, 0
-        while i + 5 <= len(p):
-            servo_id, address, length = p[i], _u16(p, i + 1), _u16(p, i + 3)
-            data = p[i + 5 : i + 5 + length]
-            if len(data) != length:
-                self.stats.malformed += 1
-                return
-            servo = listening.get(servo_id)
-            if servo is not None:
-                servo.write(address, data)
-            i += 5 + length
-
-    _HANDLERS: dict[int, Callable[["DynamixelBusEmulator", Packet, dict[int, ServoModel]], None]] = {
-        Instruction.PING: _ping,
-        Instruction.READ: _read,
-        Instruction.WRITE: _write_instr,
-        Instruction.REG_WRITE: _reg_write,
-        Instruction.ACTION: _action,
-        Instruction.FACTORY_RESET: _factory_reset,
-        Instruction.REBOOT: _reboot,
-        Instruction.CLEAR: _clear,
-        Instruction.SYNC_READ: _sync_read,
-        Instruction.FAST_SYNC_READ: _sync_read,
-        Instruction.SYNC_WRITE: _sync_write,
-        Instruction.BULK_READ: _bulk_read,
-        Instruction.FAST_BULK_READ: _bulk_read,
-        Instruction.BULK_WRITE: _bulk_write,
-    }
-
-
-def _u16(data: bytes, offset: int) -> int:
-    return data[offset] | (data[offset + 1] << 8)

@@ -1,0 +1,120 @@
+"""The emulated rig's physics in step with the wire: due steps run while bytes are on the wire,
+a state read waits for the steps due by its instant, and a still rig rests."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+__all__ = ["PhysicsClock"]
+
+#: Due physics steps a state read waits for; a longer backlog means the physics is not
+#: keeping real time, and it is then caught up after the answer, as without wire timing.
+_READ_WAITS_FOR_STEPS = 3
+#: Present Position range (ticks) within which a servo counts as still: the hunt of a
+#: holding servo is ±1 tick.
+_STILL_TICKS = 3
+
+
+class PhysicsClock:
+    """Part of :class:`~drivers.emulator.bus.DynamixelBusEmulator` (a mixin: it uses the bus's state)."""
+
+    def _due_steps(self, now: float) -> int:
+        """Physics steps due by ``now``; beyond ``max_catchup_s`` the backlog is skipped."""
+        if self._resting:
+            self._sim_wall = max(self._sim_wall, now)  # nothing moves: no steps fall due
+            return 0
+        steps = int((now - self._sim_wall) / self.physics_dt)
+        if steps <= 0:
+            return 0
+        limit = max(1, int(self.max_catchup_s / self.physics_dt))
+        if steps > limit:
+            self.stats.physics_skipped_s += (steps - limit) * self.physics_dt
+            self._sim_wall += (steps - limit) * self.physics_dt
+            steps = limit
+        return steps
+
+    def _catch_up(self, now: float) -> None:
+        steps = self._due_steps(now)
+        if steps <= 0:
+            return
+        if self.max_batch_s is not None:  # the rest is due at the next pass
+            steps = min(steps, max(1, int(self.max_batch_s / self.physics_dt)))
+        self._run_physics(steps)
+
+    def _catch_up_for_read(self, instant: float) -> None:
+        """Run the steps due by a state read's ``instant``, so its answer is at most one step old."""
+        steps = self._due_steps(instant)
+        if 0 < steps <= _READ_WAITS_FOR_STEPS:
+            self._run_physics(steps)
+
+    def _catch_up_before(self, deadline: float) -> None:
+        """Run the steps falling due by ``deadline``, one at a time, while each ends before it.
+
+        No instruction can take effect before ``deadline`` (the wire is modelled
+        busy, or a delayed status is still to go out), so a step may run ahead
+        of its time: nothing it would have seen can change meanwhile.
+        """
+        while self._due_steps(deadline) and time.perf_counter() + self._step_cost <= deadline:
+            self._run_physics(1)
+
+    def _catch_up_between_instructions(self) -> None:
+        """After a pass under the wire-time model: step in the wire's busy stretch only.
+
+        The host's next instruction may come at any moment once the wire is idle,
+        and a step then would delay its answer; so steps wait for a stretch where
+        the wire is modelled busy, unless the physics would fall two steps behind.
+        """
+        self._catch_up_before(self._wire_free)
+        now = time.perf_counter()
+        if now - self._sim_wall >= 2 * self.physics_dt:
+            self._catch_up(now)
+
+    def _run_physics(self, steps: int) -> None:
+        """Advance the physics by ``steps`` and update the estimate of one step's wall time."""
+        t0 = time.perf_counter()
+        self._physics(steps)
+        self._sim_wall += steps * self.physics_dt
+        self._step_costs.append((time.perf_counter() - t0) / steps)
+        self._step_cost = 1.25 * sorted(self._step_costs)[len(self._step_costs) // 2]
+        if self.rest_after_s is not None:
+            self._watch_for_rest()
+
+    def _watch_for_rest(self) -> None:
+        """Pause the physics once every servo has stayed still for ``rest_after_s``."""
+        ticks = np.fromiter((servo.get("Present Position") for servo, _ in self._servos),
+                            float, len(self._servos))
+        if self._still_lo is None or self._still_hi is None:
+            self._still_lo, self._still_hi, self._still_since = ticks, ticks.copy(), self._sim_wall
+            return
+        np.minimum(self._still_lo, ticks, out=self._still_lo)
+        np.maximum(self._still_hi, ticks, out=self._still_hi)
+        if float(np.max(self._still_hi - self._still_lo)) > _STILL_TICKS:
+            self._still_lo, self._still_hi, self._still_since = ticks, ticks.copy(), self._sim_wall
+        elif self._sim_wall - self._still_since >= self.rest_after_s:
+            self._resting, self._rest_since = True, time.perf_counter()
+
+    def _wake(self) -> None:
+        """A write instruction arrived: the physics resumes from now (the rest skipped no motion)."""
+        self._still_lo = self._still_hi = None
+        if self._resting:
+            now = time.perf_counter()
+            self._resting = False
+            self.stats.rest_s += now - self._rest_since
+            self._sim_wall = now
+
+    def _physics(self, steps: int) -> None:
+        dt = self.physics_dt
+        plant = self.plant
+        torque = np.zeros(plant.joint_count)
+        for _ in range(steps):
+            q, v = plant.position(), plant.velocity()
+            torque[:] = 0.0
+            for servo, joint in self._servos:
+                torque[joint] += servo.step(dt, float(q[joint]), float(v[joint]))
+            plant.step(dt, torque)
+        q, v = plant.position(), plant.velocity()
+        for servo, joint in self._servos:
+            servo.observe(float(q[joint]), float(v[joint]))
+        self.stats.physics_steps += steps
