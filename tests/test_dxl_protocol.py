@@ -12,15 +12,12 @@ from dynamixel_sdk import Protocol2PacketHandler
 from dynamixel_sdk.robotis_def import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
 from drivers.dynamixel.io import BlockingPortHandler, StuffingPacketHandler
+from drivers.dynamixel.parser import CrcError, MalformedPacket, Packet, PacketParser, parse_fast_status
 from drivers.dynamixel.protocol import (
     ALERT_BIT,
     CRC_TABLE,
-    CrcError,
     FastStatusBlock,
     Instruction,
-    MalformedPacket,
-    Packet,
-    PacketParser,
     StatusError,
     StuffingError,
     build_fast_status,
@@ -29,7 +26,6 @@ from drivers.dynamixel.protocol import (
     crc16,
     decode_hardware_error,
     describe_status_error,
-    parse_fast_status,
     stuff,
     unstuff,
 )

@@ -34,14 +34,8 @@ from drivers.dynamixel.bus import ServoBus
 from drivers.dynamixel.cycle import STATE_ADDRESS, STATE_LENGTH, SyncCycle
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
 from drivers.dynamixel.models import register_layout
-from drivers.dynamixel.protocol import (
-    FastStatusBlock,
-    Instruction,
-    Packet,
-    PacketParser,
-    build_fast_status,
-    build_status,
-)
+from drivers.dynamixel.parser import Packet, PacketParser
+from drivers.dynamixel.protocol import FastStatusBlock, Instruction, build_fast_status, build_status
 
 IDS = [1, 2, 3, 4, 5]
 MODEL, FIRMWARE = 1020, 52  # XM430-W350, a firmware with Fast Sync Read

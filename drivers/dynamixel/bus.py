@@ -25,16 +25,14 @@ import serial
 
 from drivers import CommunicationError, ConfigurationError
 from drivers.dynamixel.models import model_name, register_layout
+from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch
 from drivers.dynamixel.protocol import (
     BROADCAST_ID,
     MAX_ID,
     Instruction,
-    Packet,
-    PacketParser,
     build_instruction,
     decode_hardware_error,
     describe_status_error,
-    reply_mismatch,
 )
 from drivers.dynamixel.units import BAUD_RATES, CENTER_TICK, HOMING_OFFSET_LIMIT, MODE_NAMES, RAD_PER_TICK
 from drivers.timing import drain_until_quiet

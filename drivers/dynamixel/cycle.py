@@ -20,15 +20,8 @@ import numpy as np
 
 from drivers import CommunicationError
 from drivers.dynamixel.control_table import state_block, x_series_table
-from drivers.dynamixel.protocol import (
-    BROADCAST_ID,
-    HEADER,
-    Instruction,
-    Packet,
-    PacketParser,
-    build_instruction,
-    reply_mismatch,
-)
+from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch
+from drivers.dynamixel.protocol import BROADCAST_ID, HEADER, Instruction, build_instruction
 from drivers.dynamixel.protocol import crc16_bytes as _crc
 from drivers.timing import drain_until_quiet
 

@@ -52,15 +52,8 @@ from dynamixel_sdk.robotis_def import (
 )
 
 from drivers import CommunicationError, ConfigurationError
-from drivers.dynamixel.protocol import (
-    HEADER,
-    Instruction,
-    Packet,
-    PacketParser,
-    build_instruction,
-    reply_mismatch,
-    reply_params_expected,
-)
+from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch, reply_params_expected
+from drivers.dynamixel.protocol import HEADER, Instruction, build_instruction
 from drivers.timing import drain_until_quiet
 
 __all__ = ["BlockingPortHandler", "RegisterAccess", "StuffingPacketHandler"]

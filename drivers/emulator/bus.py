@@ -68,7 +68,8 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from drivers.dynamixel.protocol import BROADCAST_ID, CrcError, Packet, PacketParser, StatusError
+from drivers.dynamixel.parser import CrcError, Packet, PacketParser
+from drivers.dynamixel.protocol import BROADCAST_ID, StatusError
 from drivers.emulator.clock import PhysicsClock
 from drivers.emulator.instructions import STATE_READS, WAKING, InstructionSet
 from drivers.emulator.plant import InertiaPlant, Plant

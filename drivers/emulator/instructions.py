@@ -6,11 +6,11 @@ from __future__ import annotations
 import time
 from typing import Callable
 
+from drivers.dynamixel.parser import Packet
 from drivers.dynamixel.protocol import (
     BROADCAST_ID,
     FastStatusBlock,
     Instruction,
-    Packet,
     StatusError,
     build_fast_status,
 )
