@@ -18,16 +18,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Protocol, Sequence, runtime_checkable
+from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
 __all__ = [
+    "validate_command",
     "Actuators",
     "ActuatorsBase",
     "ActuatorError",
     "BenchError",
-    "require_capability",
     "CommandError",
     "CommunicationError",
     "ConfigurationError",
@@ -142,13 +142,28 @@ class Actuators(Protocol):
     def unwrapped(self) -> "Actuators":
         """The backend itself, under any wrappers (Gymnasium's ``Env.unwrapped``)."""
 
-    @property
-    def capabilities(self) -> frozenset[str]:
-        """The extras beyond this contract the backend offers, by method name (declared, not probed)."""
-
     def __enter__(self) -> "Actuators": ...
 
     def __exit__(self, *exc: object) -> None: ...
+
+
+def validate_command(position: np.ndarray, velocity: np.ndarray | None, n: int,
+                     probe: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """The command as float arrays of ``n`` joints, or :class:`CommandError` before it goes anywhere.
+
+    One rule for backends and wrappers alike; ``probe`` (ones, length ``n``) makes the finite
+    check one dot product, since the sum is NaN or inf iff an entry is.
+    """
+    position = np.asarray(position, dtype=float)
+    if position.shape != (n,):
+        raise CommandError(f"command position has shape {position.shape}, expected ({n},)")
+    if not math.isfinite(position.dot(np.ones(n) if probe is None else probe)):
+        raise CommandError(f"command position is not finite: {position}")
+    if velocity is not None:
+        velocity = np.asarray(velocity, dtype=float)
+        if velocity.shape != (n,):
+            raise CommandError(f"command velocity has shape {velocity.shape}, expected ({n},)")
+    return position, velocity
 
 
 class ActuatorsBase:
@@ -158,14 +173,6 @@ class ActuatorsBase:
     this class enforces the order (``OrderEnforcing`` in Gymnasium's terms) and
     the shape of commands, so every backend refuses bad calls the same way.
     """
-
-    #: Extras beyond the contract, by method name: ``set_effort_limit`` (torque
-    #: limits), ``joint_kinds``, ``servo_info``, ``link_pose``... Declared, as
-    #: ros2_control declares its interfaces, so callers ask instead of probing.
-    capabilities: frozenset[str] = frozenset()
-    #: Where bus-level faults are set (``drop_prob``, ``delay_s``, ``corrupt_crc_prob``,
-    #: ``silent``) when the bus is an emulator; None on real hardware and in simulation.
-    fault_hooks: Any = None
 
     @property
     def unwrapped(self) -> "ActuatorsBase":
@@ -211,16 +218,7 @@ class ActuatorsBase:
             raise NotEnabledError(
                 f"{type(self).__name__}.command() before enable(): call enable() first"
             )
-        position = np.asarray(position, dtype=float)
-        n = self._n_joints
-        if position.shape != (n,):
-            raise CommandError(f"command position has shape {position.shape}, expected ({n},)")
-        if not math.isfinite(position.dot(self._finite_probe)):  # NaN or inf iff an entry is
-            raise CommandError(f"command position is not finite: {position}")
-        if velocity is not None:
-            velocity = np.asarray(velocity, dtype=float)
-            if velocity.shape != (n,):
-                raise CommandError(f"command velocity has shape {velocity.shape}, expected ({n},)")
+        position, velocity = validate_command(position, velocity, self._n_joints, self._finite_probe)
         self._command(position, velocity)
 
     def close(self) -> None:
@@ -250,11 +248,3 @@ class ActuatorsBase:
 
     def _close(self) -> None:
         raise NotImplementedError
-
-
-def require_capability(actuators: Actuators, name: str, what: str) -> Actuators:
-    """The backend under ``actuators`` if it declares ``name``; else one line naming it and ``what`` needs it."""
-    backend = actuators.unwrapped
-    if name not in backend.capabilities:
-        raise ConfigurationError(f"{what} needs a backend with {name}(); {type(backend).__name__} has none")
-    return backend

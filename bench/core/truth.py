@@ -25,8 +25,7 @@ __all__ = ["GroundTruth", "has_ground_truth", "settled_truth", "true_outcome"]
 def has_ground_truth(actuators: Actuators) -> bool:
     """True when the backend's own reads are the physical truth (the simulator)."""
 
-    backend = actuators.unwrapped if isinstance(actuators, FaultWrapper) else actuators
-    return isinstance(backend, PyBulletActuators)
+    return isinstance(actuators.unwrapped, PyBulletActuators)
 
 
 class GroundTruth(FaultWrapper):

@@ -5,7 +5,7 @@ contract to the actuators it wraps, so a fault only overrides the call it
 changes (``read`` for a sensor fault, ``command`` for a servo fault), faults
 stack in any order, and the same fault runs on the simulator and on the real
 bus. ``unwrapped`` reaches the backend under the stack, for the extras it
-declares in ``capabilities`` (``set_effort_limit``...) and its ``fault_hooks``;
+implements (the Protocols of :mod:`drivers.capabilities`: EffortLimited, EmulatorHooks...);
 nothing else is forwarded implicitly (Gymnasium dropped ``__getattr__``
 forwarding for the same reason: a typo must not reach the hardware).
 """
@@ -18,7 +18,8 @@ from typing import Sequence
 import numpy as np
 
 from bench.kinematics.registry import ROBOTS
-from drivers import Actuators, ConfigurationError, JointLimits, JointState
+from drivers import Actuators, ConfigurationError, JointLimits, JointState, validate_command
+from drivers.capabilities import JointKinds, find_capability
 
 __all__ = ["FaultWrapper", "joint_kinds", "kinds_for_names"]
 
@@ -52,6 +53,12 @@ class FaultWrapper:
         return self.actuators.read()
 
     def command(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
+        """Refuse a bad command as a backend would (CommandError), then hand it to :meth:`_command`."""
+        position, velocity = validate_command(position, velocity, len(self.joint_names))
+        self._command(position, velocity)
+
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
+        """What this fault does to a valid command; the default passes it on."""
         self.actuators.command(position, velocity)
 
     def now(self) -> float:
@@ -74,10 +81,6 @@ class FaultWrapper:
     def unwrapped(self) -> Actuators:
         """The backend under every wrapper: where its declared extras are called."""
         return self.actuators.unwrapped
-
-    @property
-    def capabilities(self) -> frozenset[str]:
-        return self.actuators.capabilities
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__}{self.actuators!r}>"
@@ -104,8 +107,8 @@ def kinds_for_names(joint_names: tuple[str, ...]) -> tuple[str, ...] | None:
 
 def joint_kinds(actuators: Actuators) -> list[str]:
     """Kinds of the actuators' joints: from the backend if it says, else from the robot model."""
-    backend = actuators.unwrapped
-    kinds = backend.joint_kinds if "joint_kinds" in backend.capabilities else None
+    backend = find_capability(actuators, JointKinds)
+    kinds = backend.joint_kinds if backend is not None else None
     if kinds is None:
         kinds = kinds_for_names(tuple(actuators.joint_names))
     if kinds is None:

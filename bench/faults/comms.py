@@ -19,13 +19,15 @@ import numpy as np
 
 from bench.faults.base import FaultWrapper
 from drivers import Actuators, ConfigurationError, JointState
+from drivers.capabilities import EmulatorHooks, find_capability
 
 __all__ = ["DroppedStatus", "EmulatorStatusFault", "LateStatus", "emulator_fault_target"]
 
 
 def emulator_fault_target(actuators: Actuators, field: str) -> Any | None:
     """The backend's ``fault_hooks`` if they have ``field`` (e.g. ``BusFaults.drop_prob``), else None."""
-    hooks = actuators.unwrapped.fault_hooks
+    layer = find_capability(actuators, EmulatorHooks)
+    hooks = layer.fault_hooks if layer is not None else None
     return hooks if hooks is not None and hasattr(hooks, field) else None
 
 

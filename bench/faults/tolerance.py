@@ -53,7 +53,7 @@ class Deadband(FaultWrapper):
         """The settling offsets drawn for the present holds (rad or m), zero while moving."""
         return self._goal_offset.copy()
 
-    def command(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
         position = np.asarray(position, dtype=float)
         last = position if self._last is None else self._last
         t = self._targets
@@ -84,7 +84,7 @@ class Bias(FaultWrapper):
         st = self.actuators.read()
         return _replace_position(st, st.position + self.bias)
 
-    def command(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
         self.actuators.command(np.asarray(position, dtype=float) - self.bias, velocity)
 
 
@@ -121,7 +121,7 @@ class Backlash(FaultWrapper):
             self._start(st.position)
         return _replace_position(st, st.position - self._gap)
 
-    def command(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
         motor = np.asarray(position, dtype=float)
         if self._output is None:
             self._start(self.actuators.read().position)
@@ -150,7 +150,7 @@ class Quantisation(FaultWrapper):
         st = self.actuators.read()
         return _replace_position(st, self._round(st.position))
 
-    def command(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
         self.actuators.command(self._round(np.asarray(position, dtype=float)), velocity)
 
 

@@ -14,17 +14,14 @@ import numpy as np
 
 from bench.faults.base import FaultWrapper
 from drivers import Actuators, ConfigurationError
+from drivers.capabilities import EffortLimited, require_capability
 
 __all__ = ["TorqueLimit", "check_effort_limit"]
 
 
 def check_effort_limit(actuators: Actuators) -> None:
     """Refuse, naming the backend, when it cannot limit a joint's effort."""
-    backend = actuators.unwrapped
-    if "set_effort_limit" not in backend.capabilities:
-        raise ConfigurationError(
-            f"torque_limit needs a backend with set_effort_limit(joint_index, effort); "
-            f"{type(backend).__name__} has none")
+    require_capability(actuators, EffortLimited, "torque_limit")
 
 
 class TorqueLimit(FaultWrapper):
@@ -36,8 +33,8 @@ class TorqueLimit(FaultWrapper):
         if not 0 < scale <= 1:
             raise ConfigurationError(f"torque_limit scale must be in (0, 1], got {scale}")
         self.scale = float(scale)
-        backend = self.unwrapped
-        effort = np.asarray(backend.limits.effort, dtype=float)
+        backend = require_capability(actuators, EffortLimited, "torque_limit")
+        effort = np.asarray(self.unwrapped.limits.effort, dtype=float)
         self.joints = list(joints)
         self.effort = {}
         for j in self._index(joints):

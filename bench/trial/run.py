@@ -25,6 +25,7 @@ from bench.rig.backends import make_backend
 from bench.trial.plan import interlocks_for, plan, prepare
 from bench.trial.record import finish_record, trial_metadata
 from drivers import ActuatorError, Actuators
+from drivers.capabilities import ServoInfo, find_capability
 
 __all__ = ["run_trial"]
 
@@ -79,8 +80,9 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
     try:
         try:
             interrupts.check()
-            if "servo_info" in backend.capabilities:
-                log.metadata["servos"] = backend.servo_info()
+            servos = find_capability(act, ServoInfo)
+            if servos is not None:
+                log.metadata["servos"] = servos.servo_info()
             if getattr(getattr(backend, "settings", None), "warnings", None):
                 log.metadata["warnings"] = list(backend.settings.warnings)
             tell("planning")

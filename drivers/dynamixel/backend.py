@@ -120,7 +120,6 @@ def latency_timer_ms(port: str) -> Optional[int]:
 class DynamixelActuators(ActuatorsBase):
     """Servos on one bus (and optionally the ultrasonic train sensor)."""
 
-    capabilities = frozenset({"set_effort_limit", "servo_info"})
 
     def __init__(self, settings: DynamixelSettings) -> None:
         import dynamixel_sdk as sdk  # heavy: loaded only with servos

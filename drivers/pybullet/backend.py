@@ -87,7 +87,6 @@ def steps_per_period(physics_hz: float, control_period: float) -> int:
 class PyBulletActuators(ActuatorsBase):
     """The robot's joints in a private PyBullet world."""
 
-    capabilities = frozenset({"set_effort_limit", "joint_kinds", "link_pose", "reset_position"})
 
     def __init__(self, settings: PyBulletSettings) -> None:
 

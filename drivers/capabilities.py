@@ -1,0 +1,100 @@
+"""What a backend offers beyond the :class:`~drivers.Actuators` contract, as runtime-checkable
+Protocols, declared by having the method (as ros2_control declares its interfaces).
+
+Callers look a capability up through the wrapper stack explicitly, outermost layer first
+(Gymnasium's ``get_wrapper_attr``): fault wrappers forward nothing implicitly, so a capability
+is found exactly where it is implemented, and a missing one is refused in one line naming it.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Iterator, Protocol, TypeVar, runtime_checkable
+
+import numpy as np
+
+from drivers import Actuators, ConfigurationError
+
+__all__ = ["EffortLimited", "EmulatorHooks", "JointKinds", "LinkPoses", "PositionReset", "ServoInfo",
+           "find_capability", "layers", "members", "require_capability"]
+
+C = TypeVar("C")
+
+
+@runtime_checkable
+class EffortLimited(Protocol):
+    """Per-joint effort (torque or force) limits that can be lowered at run time (N·m or N)."""
+
+    def set_effort_limit(self, joint: int, effort: float) -> None: ...
+
+
+@runtime_checkable
+class ServoInfo(Protocol):
+    """The servos behind the joints: IDs, models, firmware, modes (recorded with every trial)."""
+
+    def servo_info(self) -> list[dict]: ...
+
+
+@runtime_checkable
+class JointKinds(Protocol):
+    """Which joints are revolute and which prismatic, from the backend's own model."""
+
+    @property
+    def joint_kinds(self) -> list[str]: ...
+
+
+@runtime_checkable
+class LinkPoses(Protocol):
+    """World pose of a named link (the simulator knows where everything is)."""
+
+    def link_pose(self, link_name: str) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+@runtime_checkable
+class PositionReset(Protocol):
+    """Teleport the joints to a configuration (simulation only)."""
+
+    def reset_position(self, q: np.ndarray) -> None: ...
+
+
+@runtime_checkable
+class EmulatorHooks(Protocol):
+    """The emulated bus's fault settings (drop, delay, corrupt, silence), set on the backend of an
+    emulated rig only; real hardware and the simulator have none."""
+
+    fault_hooks: Any
+
+
+def layers(actuators: Actuators) -> Iterator[Actuators]:
+    """The stack from the outermost wrapper down to the backend (wrappers keep theirs in ``.actuators``)."""
+    layer: Any = actuators
+    while layer is not None:
+        yield layer
+        layer = getattr(layer, "actuators", None)
+
+
+def find_capability(actuators: Actuators, capability: type[C]) -> C | None:
+    """The outermost layer of the stack implementing ``capability``, or None."""
+    for layer in layers(actuators):
+        if isinstance(layer, capability):
+            return layer
+    return None
+
+
+def require_capability(actuators: Actuators, capability: type[C], what: str) -> C:
+    """The layer implementing ``capability``; else one line saying ``what`` needs it and which backend lacks it."""
+    found = find_capability(actuators, capability)
+    if found is None:
+        raise ConfigurationError(f"{what} needs a backend with {members(capability)} ({capability.__name__}: "
+                                 f"{_summary(capability)}); {type(actuators.unwrapped).__name__} has none")
+    return found
+
+
+def members(capability: type) -> str:
+    """The names a capability asks for, as a message shows them."""
+    names = [k for k in vars(capability) if not k.startswith("_")]
+    names += [k for k in vars(capability).get("__annotations__", {}) if k not in names]
+    return ", ".join(names) or capability.__name__
+
+
+def _summary(capability: type) -> str:
+    return (capability.__doc__ or "").strip().split("\n")[0].rstrip(".").lower()
