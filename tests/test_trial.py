@@ -148,3 +148,24 @@ def test_report_refuses_a_modified_log(tmp_path):
                          timeout=120)
     assert out.returncode == 2
     assert "checksum" in out.stderr
+
+
+def test_a_bad_command_mid_trial_is_an_abort_event_and_a_kept_record(tmp_path):
+    """A NaN that reaches the actuators (here from a broken wrapper) is an ActuatorError: the
+    runner stops safely, logs it as the abort reason and keeps the record."""
+    from bench.faults.base import FaultWrapper
+    from drivers import CommandError
+
+    class NaNAfterASecond(FaultWrapper):
+        def command(self, position, velocity=None):  # skips the wrapper's own check on purpose
+            if self.actuators.now() > 1.0:
+                position = np.full_like(np.asarray(position, dtype=float), np.nan)
+            self.actuators.command(position, velocity)
+
+    res = run_trial(load_trial_config(SIM), tmp_path, wrap=NaNAfterASecond, report=False)
+    assert not res.completed and not res.passed
+    assert CommandError.__name__ in res.reason and "not finite" in res.reason
+    log = TrialLog.load(res.log_path)
+    aborts = [e for e in log.events if e.kind == "abort"]
+    assert len(aborts) == 1 and 1.0 < aborts[0].time < 1.1
+    assert json.loads((res.run_dir / "result.json").read_text())["completed"] is False

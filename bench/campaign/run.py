@@ -36,6 +36,7 @@ from bench.campaign.execute import DaskPool, InlinePool, LocalPool, Pool, execut
 from bench.campaign.report import write_campaign_report
 from bench.campaign.spec import find_axes, load_campaign_spec, plan_trials, resolve_base
 from bench.campaign.store import METRIC_COLUMNS, CampaignStore
+from drivers import BenchError
 
 __all__ = ["CampaignError", "CampaignProgress", "CampaignSummary", "DB_NAME", "create_campaign",
            "export_csv", "rerun_trial", "run_campaign", "summarize"]
@@ -45,7 +46,7 @@ TRIALS_DIR = "trials"
 STAGING = ".staging"
 
 
-class CampaignError(RuntimeError):
+class CampaignError(BenchError, RuntimeError):
     """A campaign that cannot be created, found or run; the message says what to do."""
 
 

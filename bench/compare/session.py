@@ -46,7 +46,7 @@ from bench.rig.backends import make_backend
 from bench.rig.emulated import EmulatorProcess
 from bench.trial.plan import prepare
 from bench.trial.run import run_trial
-from drivers import ActuatorError, Actuators, CommunicationError
+from drivers import ActuatorError, Actuators, BenchError, CommunicationError
 from trajectories import LSPB
 
 __all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "home_rig",
@@ -64,7 +64,7 @@ HOME_TIMEOUT_S = 5.0  #: ... or at most this long after the homing move (s)
 ProgressFn = Callable[[str, float], None]  # (what is running, fraction of the whole session)
 
 
-class CompareError(RuntimeError):
+class CompareError(BenchError, RuntimeError):
     """The comparison could not run; nothing moved (or the rig was stopped safely)."""
 
 

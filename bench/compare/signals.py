@@ -11,9 +11,10 @@ import warnings
 import numpy as np
 
 from bench.core.log import TrialLog
+from drivers import BenchError
 
 
-class PlanMismatchError(ValueError):
+class PlanMismatchError(BenchError, ValueError):
     """Two logs that are not of the same robot and plan; the message names what differs."""
 
 

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Callable, Iterable, Sequence
 
+from drivers import BenchError
+
 __all__ = [
     "ALERT_BIT",
     "BROADCAST_ID",
@@ -163,7 +165,7 @@ crc16_bytes: Callable[[bytes, int], int] = _native_crc16 if _native_crc16 is not
 # -- stuffing -----------------------------------------------------------------
 
 
-class StuffingError(ValueError):
+class StuffingError(BenchError, ValueError):
     """A stuffed region holds ``FF FF FD`` not followed by the stuffing ``FD``."""
 
 
