@@ -89,28 +89,34 @@ def default_tolerances(robot, tol_deg: float = SERVO_TOL_DEG) -> np.ndarray:
     return tol_deg * DEG * servo_transmissions(robot)
 
 
+def per_joint(names: Sequence[str], defaults: np.ndarray, given, what: str, *, positive: bool = False) -> np.ndarray:
+    """Per-joint values (SI): ``defaults``, overridden by a {joint: value} mapping or replaced by a
+    full vector; ValueError naming ``what`` and the joint when a value is unknown or out of range."""
+    out = np.array(defaults, dtype=float)
+    if given is None:
+        return out
+    if isinstance(given, Mapping):
+        unknown = sorted(set(given) - set(names))
+        if unknown:
+            raise ValueError(f"{what} for unknown joint(s) {unknown}; joints are {list(names)}")
+        for i, n in enumerate(names):
+            if n in given:
+                out[i] = float(given[n])
+    else:
+        arr = np.asarray(given, dtype=float)
+        if arr.shape != (len(names),):
+            raise ValueError(f"expected {len(names)} {what} values ({', '.join(names)}), got shape {arr.shape}")
+        out = arr.copy()
+    for n, v in zip(names, out):
+        if not (np.isfinite(v) and (v > 0.0 if positive else v >= 0.0)):
+            raise ValueError(f"{what} of joint {n} must be {'positive' if positive else 'finite and >= 0'}, "
+                             f"got {float(v)!r}")
+    return out
+
+
 def resolve_tolerances(robot, tolerances: Tolerances = None, tol_deg: float = SERVO_TOL_DEG) -> np.ndarray:
     """Per-joint tolerances (SI): defaults, a {joint: tol} override, or a full vector."""
-    names = _names(robot)
-    tol = default_tolerances(robot, tol_deg)
-    if tolerances is None:
-        return tol
-    if isinstance(tolerances, Mapping):
-        unknown = sorted(set(tolerances) - set(names))
-        if unknown:
-            raise ValueError(f"tolerance for unknown joint(s) {unknown}; joints are {list(names)}")
-        for i, n in enumerate(names):
-            if n in tolerances:
-                tol[i] = float(tolerances[n])
-    else:
-        arr = np.asarray(tolerances, dtype=float)
-        if arr.shape != (len(names),):
-            raise ValueError(f"expected {len(names)} tolerances ({', '.join(names)}), got shape {arr.shape}")
-        tol = arr.copy()
-    for n, t in zip(names, tol):
-        if not (np.isfinite(t) and t >= 0.0):
-            raise ValueError(f"tolerance of joint {n} must be finite and >= 0, got {float(t)!r}")
-    return tol
+    return per_joint(_names(robot), default_tolerances(robot, tol_deg), tolerances, "tolerance")
 
 
 def _sigma(tol: np.ndarray, distribution: str) -> np.ndarray:

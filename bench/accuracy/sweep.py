@@ -18,6 +18,7 @@ from bench.accuracy.poses import (
     _psi_theta,
     _rows,
     default_pose,
+    per_joint,
     robot_label,
 )
 from bench.kinematics import para_brachy as pb
@@ -72,26 +73,9 @@ class Sweep:
 
 
 def _resolve_eps(robot, eps) -> np.ndarray:
-    names, kinds = _names(robot), _kinds(robot)
-    out = np.array([PAPER_EPS_LINEAR if k == "prismatic" else PAPER_EPS_ANGULAR for k in kinds])
-    if eps is None:
-        return out
-    if isinstance(eps, Mapping):
-        unknown = sorted(set(eps) - set(names))
-        if unknown:
-            raise ValueError(f"eps for unknown joint(s) {unknown}; joints are {list(names)}")
-        for i, n in enumerate(names):
-            if n in eps:
-                out[i] = float(eps[n])
-    else:
-        arr = np.asarray(eps, dtype=float)
-        if arr.shape != (len(names),):
-            raise ValueError(f"expected {len(names)} eps values ({', '.join(names)}), got shape {arr.shape}")
-        out = arr.copy()
-    for n, e in zip(names, out):
-        if not (np.isfinite(e) and e > 0.0):
-            raise ValueError(f"eps of joint {n} must be positive, got {float(e)!r}")
-    return out
+    """The paper's ε per joint (0.05 mm sliding, 0.05° rotating) unless given (SI)."""
+    defaults = [PAPER_EPS_LINEAR if k == "prismatic" else PAPER_EPS_ANGULAR for k in _kinds(robot)]
+    return per_joint(_names(robot), np.array(defaults), eps, "eps", positive=True)
 
 
 def perturbation_sweep(robot, q_ref: Optional[ArrayLike], joint: Union[str, int], values: ArrayLike,

@@ -5,7 +5,6 @@ Kept in its own module; ``bench/cli/app.py`` registers :func:`compare`.
 
 from __future__ import annotations
 
-import datetime as dt
 from pathlib import Path
 from typing import Optional
 
@@ -143,13 +142,14 @@ def _from_runs(a: Path, b: Path, align: str, out: Path):
                               align=align)  # type: ignore[arg-type]
     except (PlanMismatchError, ValueError, KeyError) as e:
         fail(str(e).replace("\n", " "))
-    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    from bench.core.record import new_run_dir  # deferred: --help and completion stay fast
+    from drivers import BenchError  # deferred: --help and completion stay fast
+
     name = (la.metadata.get("config") or {}).get("name", "runs")
-    out_dir = Path(out) / f"{stamp}-compare-{name}"
-    i = 1
-    while out_dir.exists():
-        i += 1
-        out_dir = out_dir.with_name(f"{stamp}-compare-{name}-{i}")
+    try:
+        out_dir = new_run_dir(Path(out), f"compare-{name}")
+    except BenchError as e:
+        fail(str(e))
     write_compare_report(result, out_dir, title=f"{labels[1]} vs {labels[0]}: {name}",
                          notes=[f"{labels[0]}: {a}", f"{labels[1]}: {b}"])
     return result, out_dir

@@ -25,7 +25,6 @@ hardware (``retries`` 0 by default) a repeat that stops ends the session.
 
 from __future__ import annotations
 
-import datetime as dt
 import json
 import os
 from dataclasses import dataclass, field
@@ -39,6 +38,7 @@ from bench.compare.report import write_compare_report
 from bench.config.models import ConfigError, PyBulletBackendConfig, TrialConfig
 from bench.core.interrupts import NO_SIGNALS
 from bench.core.log import TrialLog
+from bench.core.record import new_run_dir
 from bench.core.result import TrialError
 from bench.core.runner import Interruptible, Runner, Segment
 from bench.kinematics.registry import get_robot
@@ -199,17 +199,6 @@ def _safe_stop(config: TrialConfig) -> None:
         pass
 
 
-def _new_out_dir(out: Path, name: str) -> Path:
-    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = Path(out) / f"{stamp}-compare-{name}"
-    d, i = base, 1
-    while d.exists():
-        i += 1
-        d = base.with_name(f"{base.name}-{i}")
-    d.mkdir(parents=True)
-    return d
-
-
 def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bool = False,
                    retries: Optional[int] = None, align: str = "motion",
                    progress: Optional[ProgressFn] = None, report: bool = True,
@@ -264,7 +253,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
             # before it answers again. Ride that out per transaction as the lab tools do.
             base_cfg = base_cfg.model_copy(update={"backend": base_cfg.backend.model_copy(
                 update={"retries": max(base_cfg.backend.retries, EMULATED_RETRIES)})})
-        out_dir = _new_out_dir(out, config.name)
+        out_dir = new_run_dir(out, f"compare-{config.name}")
         real_dir, sim_dir, home_dir = out_dir / "real", out_dir / "sim", out_dir / "homing"
         hold_cfg = _with_safe_stop(base_cfg, "hold")
         touched = True
