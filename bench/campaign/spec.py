@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from bench.config.base import describe_validation_error
 from bench.config.models import REPO_ROOT, AcceptanceConfig, ConfigError, TrialConfig, read_yaml_mapping
 from bench.faults import parse_fault
 from bench.kinematics.registry import get_robot
@@ -98,14 +99,6 @@ class PlannedTrial:
 # ---------------------------------------------------------------------------
 
 
-def _format(path: Path, err: ValidationError) -> str:
-    first = err.errors()[0]
-    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
-    msg = "unknown field" if first["type"] == "extra_forbidden" else first["msg"]
-    extra = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
-    return f"{path}: {where}: {msg}{extra}"
-
-
 def resolve_base(spec: CampaignSpec) -> Path:
     """The base config: beside the spec file if it exists there, else under the repository."""
     base = Path(spec.base)
@@ -124,7 +117,7 @@ def load_campaign_spec(path: Path | str) -> CampaignSpec:
     try:
         spec = CampaignSpec.model_validate({**data, "source": path})
     except ValidationError as e:
-        raise CampaignSpecError(_format(path, e)) from None
+        raise CampaignSpecError(describe_validation_error(e, CampaignSpec, path)) from None
     try:
         plan_trials(spec, limit=1)  # axes, faults and the base config, checked once
         _check_grid_values(spec)
@@ -282,11 +275,8 @@ def plan_trials(spec: CampaignSpec, limit: int | None = None) -> list[PlannedTri
                 try:
                     cfg = TrialConfig.model_validate({**data, "source": base_path})
                 except ValidationError as e:
-                    first = e.errors()[0]
-                    where = ".".join(str(p) for p in first["loc"])
-                    msg = first["msg"].removeprefix("Value error, ")
-                    raise CampaignSpecError(f"base {base_path.name}: {where + ': ' if where else ''}"
-                                            f"{msg}") from None
+                    raise CampaignSpecError(describe_validation_error(
+                        e, TrialConfig, f"base {base_path.name}")) from None
                 trials.append(PlannedTrial(tid, name, g, s, r, seed, values, faults,
                                            json_config(cfg)))
                 if limit is not None and len(trials) >= limit:

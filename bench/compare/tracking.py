@@ -22,7 +22,7 @@ from bench.compare.signals import (
     velocity_lag,
 )
 from bench.core.log import TrialLog
-from bench.core.outcome import SETTLED_WINDOW_S
+from bench.core.outcome import SETTLED_WINDOW_S, settle_rows
 from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG
 from bench.kinematics.registry import get_robot
 
@@ -69,29 +69,13 @@ class JointTracking:
                 for k, v in self.__dict__.items()}
 
 
-def _segment_rows(seg: np.ndarray, segment_names: Sequence[str], name: str) -> np.ndarray:
-    try:
-        si = list(segment_names).index(name)
-    except ValueError:
-        raise KeyError(f"no segment {name!r} in the log; it has {list(segment_names)}") from None
-    return np.flatnonzero(seg == si)
-
-
 def placement(log: TrialLog, segment: str = "insert",
               window: float = SETTLED_WINDOW_S) -> tuple[np.ndarray, np.ndarray]:
     """(measured, commanded) joint positions at the placement: medians over the last
     ``window`` s of ``segment`` (as :func:`bench.core.outcome.settled_position`, NaN-tolerant)."""
     t, seg, q_cmd, q, _ = log_samples(log)
-    keep = _placement_rows(t, seg, log.segment_names, segment, window)
+    keep = settle_rows(t, seg, log.segment_names, segment, window)
     return nanmedian(q[keep]), nanmedian(q_cmd[keep])
-
-
-def _placement_rows(t: np.ndarray, seg: np.ndarray, segment_names: Sequence[str], segment: str,
-                    window: float = SETTLED_WINDOW_S) -> np.ndarray:
-    idx = _segment_rows(seg, segment_names, segment)
-    if idx.size == 0:
-        raise ValueError(f"segment {segment!r} has no samples (the trial stopped before it)")
-    return idx[t[idx] >= t[idx[-1]] - window]
 
 
 def _last_hold(t: np.ndarray, c: np.ndarray) -> Optional[tuple[int, int]]:
@@ -159,7 +143,7 @@ def joint_tracking(log: TrialLog, robot=None, band: Optional[Sequence[float]] = 
     v_cmd = smoothed_velocity(resample(t, q_cmd, grid, math.inf), dt, LAG_SMOOTH_S)
     v_meas = smoothed_velocity(resample(t, q, grid, math.inf), dt, LAG_SMOOTH_S)
     try:
-        rows = _placement_rows(t, seg, log.segment_names, placement_segment)
+        rows = settle_rows(t, seg, log.segment_names, placement_segment)
         place_err = nanmedian(q[rows]) - nanmedian(q_cmd[rows])
         effort = nanmedian(np.abs(eff[rows]))
     except (KeyError, ValueError):

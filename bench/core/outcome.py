@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -44,18 +45,27 @@ class NeedleOutcome:
         return f"{', '.join(over) or 'none'} (limits {lim_mm:g} mm, {lim_deg:g}°)"
 
 
-def settled_position(log: TrialLog, segment: str, window: float = SETTLED_WINDOW_S) -> np.ndarray:
-    """Median measured joint position over the last ``window`` s of ``segment``."""
+def segment_rows(seg: np.ndarray, segment_names: Sequence[str], segment: str) -> np.ndarray:
+    """Indices of the samples of ``segment``; KeyError listing the log's segments if it has none such."""
     try:
-        si = log.segment_names.index(segment)
+        si = list(segment_names).index(segment)
     except ValueError:
-        raise KeyError(f"no segment {segment!r} in the log; it has {log.segment_names}") from None
-    idx = np.flatnonzero(log.segment == si)
+        raise KeyError(f"no segment {segment!r} in the log; it has {list(segment_names)}") from None
+    return np.flatnonzero(seg == si)
+
+
+def settle_rows(t: np.ndarray, seg: np.ndarray, segment_names: Sequence[str], segment: str,
+                window: float = SETTLED_WINDOW_S) -> np.ndarray:
+    """Indices of the last ``window`` s of ``segment``: where a placement is read (the settle)."""
+    idx = segment_rows(seg, segment_names, segment)
     if idx.size == 0:
         raise ValueError(f"segment {segment!r} has no samples (the trial stopped before it)")
-    t_end = log.time[idx[-1]]
-    keep = idx[log.time[idx] >= t_end - window]
-    return np.median(log.q[keep], axis=0)
+    return idx[t[idx] >= t[idx[-1]] - window]
+
+
+def settled_position(log: TrialLog, segment: str, window: float = SETTLED_WINDOW_S) -> np.ndarray:
+    """Median measured joint position over the last ``window`` s of ``segment``."""
+    return np.median(log.q[settle_rows(log.time, log.segment, log.segment_names, segment, window)], axis=0)
 
 
 def needle_outcome(robot, q: np.ndarray, target: NeedleTarget, position_limit_mm: float = 5.0,

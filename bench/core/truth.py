@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.core.log import TrialLog
-from bench.core.outcome import SETTLED_WINDOW_S, NeedleOutcome, needle_outcome
+from bench.core.outcome import SETTLED_WINDOW_S, NeedleOutcome, needle_outcome, segment_rows
 from bench.faults.base import FaultWrapper
 from drivers import Actuators, JointState
 from drivers.pybullet.backend import PyBulletActuators
@@ -57,11 +57,7 @@ class GroundTruth(FaultWrapper):
 def settled_truth(log: TrialLog, truth: GroundTruth, segment: str = "insert",
                   window: float = SETTLED_WINDOW_S) -> np.ndarray:
     """Median true joint position over the last ``window`` s of ``segment`` (the log's window)."""
-    try:
-        si = log.segment_names.index(segment)
-    except ValueError:
-        raise KeyError(f"no segment {segment!r} in the log; it has {log.segment_names}") from None
-    idx = np.flatnonzero(log.segment == si)
+    idx = segment_rows(log.segment, log.segment_names, segment)
     if idx.size == 0 or not truth.available or not len(truth.times):
         raise ValueError(f"no true samples for segment {segment!r}")
     t_end = log.time[idx[-1]]
