@@ -73,6 +73,7 @@ from drivers.dynamixel.protocol import BROADCAST_ID, StatusError
 from drivers.emulator.clock import PhysicsClock
 from drivers.emulator.instructions import STATE_READS, WAKING, InstructionSet
 from drivers.emulator.plant import InertiaPlant, Plant
+from drivers.emulator.service import PtyService
 from drivers.emulator.servo import ServoModel
 from drivers.emulator.wire import StatusWire
 from drivers.timing import tighten_timer_slack
@@ -126,7 +127,7 @@ def _baud_constants() -> dict[int, int]:
 _BAUD_BY_CONSTANT = _baud_constants()
 
 
-class DynamixelBusEmulator(InstructionSet, StatusWire, PhysicsClock):
+class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock):
     """Servos on a pty: ``with DynamixelBusEmulator({1: ServoModel()}) as bus: PortHandler(bus.port)``.
 
     ``servos`` maps each servo's starting ID to its model (the ID register is
@@ -199,9 +200,7 @@ class DynamixelBusEmulator(InstructionSet, StatusWire, PhysicsClock):
         self._parser = PacketParser(stuffed=True, resync_on_header=True)
         self._unplugged = False
         self._deaf_until: dict[int, float] = {}
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._closed = False
+        self._init_service()
         self._sim_wall = 0.0
         self._last_rx = 0.0
         self._outbox: list[tuple[float, int, bytes]] = []
@@ -248,40 +247,19 @@ class DynamixelBusEmulator(InstructionSet, StatusWire, PhysicsClock):
                 return servo
         raise KeyError(f"no servo with ID {servo_id} on the bus (IDs: {sorted(self.servos)})")
 
-    def start(self) -> "DynamixelBusEmulator":
-        if self._closed:
-            raise RuntimeError("this bus emulator was stopped; create a new one")
-        if self._thread is None:
-            self._sim_wall = time.perf_counter()
-            self._thread = threading.Thread(target=self._run, name="dxl-bus-emulator", daemon=True)
-            self._thread.start()
-        return self
+    thread_name = "dxl-bus-emulator"
 
-    def stop(self) -> None:
-        """Stop serving and close the pty (the port disappears); idempotent."""
-        if self._closed:
-            return
-        self._stop.set()
+    def _before_start(self) -> None:
+        self._sim_wall = time.perf_counter()
+
+    def _interrupt_wait(self) -> None:
         try:
             os.write(self._wake_w, b"x")
         except OSError:
             pass
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        self._closed = True
-        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
 
-    close = stop
-
-    def __enter__(self) -> "DynamixelBusEmulator":
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+    def _fds(self) -> tuple[int, ...]:
+        return (self._master, self._slave, self._wake_r, self._wake_w)
 
     def unplug(self) -> None:
         """Cable out: the servos neither hear nor answer anything."""

@@ -25,6 +25,7 @@ from typing import Callable
 
 import numpy as np
 
+from drivers.emulator.service import PtyService
 from drivers.ultrasonic import DEFAULT_STANDOFF_M
 
 __all__ = ["DEFAULT_STANDOFF_M", "UltrasonicEmulator", "standoff_distance"]
@@ -52,7 +53,7 @@ def format_reading(distance_m: float) -> bytes:
     return b"R%04d\r" % millimetres
 
 
-class UltrasonicEmulator:
+class UltrasonicEmulator(PtyService):
     """Streams ``R####\\r`` lines at ``rate_hz`` on its own pty (:attr:`port`)."""
 
     def __init__(
@@ -82,10 +83,8 @@ class UltrasonicEmulator:
         self.lines_sent = 0
         self.lines_dropped = 0
         self._paused = threading.Event()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._init_service()
         self._lock = threading.Lock()
-        self._closed = False
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
@@ -95,29 +94,7 @@ class UltrasonicEmulator:
     def port(self) -> str:
         return self._port
 
-    def start(self) -> "UltrasonicEmulator":
-        if self._closed:
-            raise RuntimeError("this ultrasonic emulator was stopped; create a new one")
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="ultrasonic-emulator", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop streaming and close the pty; idempotent."""
-        if self._closed:
-            return
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        self._closed = True
-        for fd in (self._master, self._slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-
-    close = stop
+    thread_name = "ultrasonic-emulator"
 
     def pause(self) -> None:
         """Stop sending lines but keep the port open (a sensor that went quiet)."""
@@ -130,12 +107,6 @@ class UltrasonicEmulator:
         """Put arbitrary bytes on the line (line noise, a garbled reading)."""
         with self._lock:
             self._write(data)
-
-    def __enter__(self) -> "UltrasonicEmulator":
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def measure(self) -> bytes:
         """One reading as the sensor would send it now."""
