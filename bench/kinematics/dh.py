@@ -47,13 +47,16 @@ class DHRow:
                              "use 'standard' or 'modified'")
 
 
-def dh_transform(theta: np.ndarray, d: np.ndarray, a: float, alpha: float) -> np.ndarray:
-    """``Rz(theta) Tz(d) Tx(a) Rx(alpha)`` for arrays of theta and d (shape (...,) -> (..., 4, 4))."""
+def _trig(theta: np.ndarray, d: np.ndarray, alpha: float):
+    """d broadcast to theta, the sines and cosines of theta and alpha, and a zero (..., 4, 4)."""
     theta = np.asarray(theta, dtype=float)
     d = np.broadcast_to(np.asarray(d, dtype=float), theta.shape)
-    ct, st = np.cos(theta), np.sin(theta)
-    ca, sa = np.cos(alpha), np.sin(alpha)
-    T = np.zeros(theta.shape + (4, 4))
+    return (d, np.cos(theta), np.sin(theta), np.cos(alpha), np.sin(alpha), np.zeros(theta.shape + (4, 4)))
+
+
+def dh_transform(theta: np.ndarray, d: np.ndarray, a: float, alpha: float) -> np.ndarray:
+    """``Rz(theta) Tz(d) Tx(a) Rx(alpha)`` for arrays of theta and d (shape (...,) -> (..., 4, 4))."""
+    d, ct, st, ca, sa, T = _trig(theta, d, alpha)
     T[..., 0, 0] = ct
     T[..., 0, 1] = -st * ca
     T[..., 0, 2] = st * sa
@@ -71,11 +74,7 @@ def dh_transform(theta: np.ndarray, d: np.ndarray, a: float, alpha: float) -> np
 
 def mdh_transform(theta: np.ndarray, d: np.ndarray, a: float, alpha: float) -> np.ndarray:
     """Modified (Craig) DH ``Rx(alpha) Tx(a) Rz(theta) Tz(d)`` (seed 001 eq 1), shape (..., 4, 4)."""
-    theta = np.asarray(theta, dtype=float)
-    d = np.broadcast_to(np.asarray(d, dtype=float), theta.shape)
-    ct, st = np.cos(theta), np.sin(theta)
-    ca, sa = np.cos(alpha), np.sin(alpha)
-    T = np.zeros(theta.shape + (4, 4))
+    d, ct, st, ca, sa, T = _trig(theta, d, alpha)
     T[..., 0, 0] = ct
     T[..., 0, 1] = -st
     T[..., 0, 3] = a
