@@ -75,3 +75,60 @@ def test_friction_has_a_stribeck_peak_above_coulomb_and_grows_viscously():
     assert 0.05 < mid - 0.3 * 0.3 < 0.12  # decaying towards Coulomb
     assert fast == pytest.approx(0.05 + 0.3 * 3.0, rel=1e-6)
     assert friction_torque(p, np.array([-3.0]))[0] == pytest.approx(-fast)
+
+
+# ---------------------------------------------------------------------------
+# The emulated rig's hidden physics
+# ---------------------------------------------------------------------------
+
+from pathlib import Path  # noqa: E402
+
+from bench.config.models import ConfigError, load_trial_config  # noqa: E402
+from bench.rig.emulated import EmulatedRig, hidden_servo_params  # noqa: E402
+
+LAB = Path(__file__).resolve().parents[1] / "hil_configs" / "lab_real.yaml"
+
+
+def _lab_with(tmp_path, physics: dict):
+    import yaml
+
+    data = yaml.safe_load(LAB.read_text())
+    data.setdefault("emulator", {})["servo_physics"] = physics
+    path = tmp_path / "lab.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return load_trial_config(path)
+
+
+def _rest_pose(cfg) -> np.ndarray:
+    with EmulatedRig(cfg, realtime=False) as rig:
+        rig.bus.advance(2.0)
+        return rig.plant.joint_position() - rig.robot.chain.home
+
+
+def test_hidden_physics_set_per_joint_or_for_all_reach_the_servos_and_the_plant(tmp_path):
+    cfg = _lab_with(tmp_path, {"all": {"coulomb_nm": 0.02, "kt_scale": 0.8},
+                               "theta5": {"coulomb_nm": 0.1, "armature_kgm2": 0.02}})
+    names = list(cfg.backend.servos)
+    p = hidden_servo_params(cfg.emulator, names, [1020] * len(names))
+    base = ServoParams.datasheet([1020] * len(names))
+    j = names.index("theta5")
+    assert p.coulomb[j] == 0.1 and p.armature[j] == 0.02 and p.coulomb[0] == 0.02
+    assert p.kt == pytest.approx(0.8 * base.kt) and p.ke == pytest.approx(0.8 * base.ke)
+    assert p.viscous == pytest.approx(base.viscous)  # unset keys keep today's values
+
+
+def test_a_weaker_motor_sags_more_under_gravity(tmp_path):
+    """θ5 carries the wrist: at Kt × 0.5 the firmware's P term needs twice the error for the same torque."""
+    names = list(load_trial_config(LAB).backend.servos)
+    j = names.index("theta5")
+    default = _rest_pose(load_trial_config(LAB))[j]
+    weak = _rest_pose(_lab_with(tmp_path, {"all": {"kt_scale": 0.5}}))[j]
+    assert abs(default) > np.radians(1.0)  # it does sag (seed 000's robot: θ5 about 7°)
+    assert abs(weak) > 1.8 * abs(default)
+
+
+def test_hidden_physics_for_an_unknown_joint_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"servo_physics.*thetta5"):
+        _lab_with(tmp_path, {"thetta5": {"coulomb_nm": 0.1}})
+    with pytest.raises(ConfigError, match=r"kt_scale"):
+        _lab_with(tmp_path, {"all": {"kt_scale": 0}})

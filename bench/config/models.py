@@ -187,6 +187,22 @@ class DynamixelBackendConfig(Strict):
         return self
 
 
+class ServoPhysics(Strict):
+    """Hidden physics of an emulated servo (unset: today's values), at its output shaft."""
+
+    coulomb_nm: Optional[float] = Field(default=None, ge=0, le=10, description="Coulomb friction (N·m)")
+    viscous_nms: Optional[float] = Field(default=None, ge=0, le=100,
+                                         description="viscous friction (N·m·s/rad)")
+    stribeck_nm: Optional[float] = Field(default=None, ge=0, le=10,
+                                         description="breakaway friction at rest, the Stribeck peak (N·m)")
+    stribeck_velocity_rads: Optional[float] = Field(default=None, gt=0, le=100,
+                                                    description="speed where the Stribeck peak fades (rad/s)")
+    armature_kgm2: Optional[float] = Field(default=None, gt=0, le=10,
+                                           description="reflected rotor inertia (kg·m²)")
+    kt_scale: Optional[float] = Field(default=None, gt=0, le=10,
+                                      description="factor on the motor constant (Kt and Ke)")
+
+
 class EmulatorConfig(Strict):
     """The emulated rig used by `--emulate` and `hilbench emulate` (ignored on real hardware)."""
 
@@ -207,7 +223,18 @@ class EmulatorConfig(Strict):
     joint_friction: dict[str, Annotated[float, Field(ge=0, le=100)]] = Field(
         default_factory=dict, max_length=32,
         description="extra Coulomb friction per joint (N·m or N), keyed by joint name")
+    servo_physics: dict[str, ServoPhysics] = Field(
+        default_factory=dict, max_length=32,
+        description="hidden servo physics by joint name or `all` (a joint's own entry wins)")
     seed: int = Field(default=0, ge=0, le=SEED_MAX, description="seed of the emulator's noise")
+
+    def physics_of(self, joint: str) -> dict[str, float]:
+        """The hidden physics set for ``joint``: its own entry over ``all``, unset keys left out."""
+        out: dict[str, float] = {}
+        for key in ("all", joint):
+            if key in self.servo_physics:
+                out.update(self.servo_physics[key].model_dump(exclude_none=True))
+        return out
 
 
 class PlanConfig(Strict):
@@ -309,6 +336,12 @@ class TrialConfig(Strict):
         unknown = sorted(set(getattr(self.backend, "joints", {})) - set(names))
         if unknown:
             raise ValueError(f"backend.joints: unknown joint(s) {unknown}; {self.robot} has {names}")
+        for key, where in ((self.emulator.servo_physics, "emulator.servo_physics"),
+                           (self.emulator.joint_friction, "emulator.joint_friction")):
+            unknown = sorted(set(key) - set(names) - ({"all"} if where.endswith("physics") else set()))
+            if unknown:
+                raise ValueError(f"{where}: unknown joint(s) {unknown}; {self.robot} has {names}"
+                                 + (" (or all)" if where.endswith("physics") else ""))
         if self.backend.kind == "dynamixel":
             servos = set(self.backend.servos)
             if servos != set(names):

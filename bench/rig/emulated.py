@@ -21,17 +21,17 @@ import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Optional
+from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
-from bench.config.models import DynamixelBackendConfig, TrialConfig, model_number
+from bench.config.models import DynamixelBackendConfig, EmulatorConfig, TrialConfig, model_number
 from bench.kinematics.arc_train import train_pose
 from bench.kinematics.registry import get_robot
-from drivers.dynamixel.control_table import model_spec
 from drivers.dynamixel.units import BAUD_RATES, OPERATING_MODES
 from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
-from drivers.emulator.pybullet_plant import PyBulletPlant
+from drivers.servo import ServoParams
+from drivers.servo.plant import PyBulletPlant
 
 
 @dataclass
@@ -56,6 +56,20 @@ class Planted:
     zero_errors: Mapping[str, float] = field(default_factory=dict)
     ultrasonic_offset_m: float = 0.0
     ultrasonic_scale: float = 1.0
+
+
+#: EmulatorConfig.servo_physics keys -> ServoParams fields.
+_PHYSICS_FIELDS = {"coulomb_nm": "coulomb", "viscous_nms": "viscous", "stribeck_nm": "stribeck",
+                   "stribeck_velocity_rads": "stribeck_velocity", "armature_kgm2": "armature"}
+
+
+def hidden_servo_params(emulator: EmulatorConfig, names: Sequence[str], models: Sequence[int]) -> ServoParams:
+    """The emulated servos' physics: the datasheet's, with what ``emulator.servo_physics`` sets."""
+    params = ServoParams.datasheet(models)
+    per_joint = [emulator.physics_of(n) for n in names]
+    changes = {field: [p.get(key, getattr(params, field)[j]) for j, p in enumerate(per_joint)]
+               for key, field in _PHYSICS_FIELDS.items()}
+    return params.with_(**changes).with_motor_scale([p.get("kt_scale", 1.0) for p in per_joint])
 
 
 class EmulatedRig:
@@ -85,10 +99,9 @@ class EmulatedRig:
         friction = [e.joint_friction.get(n, 0.0) for n in names]
 
         models = {n: model_number(planted.servo_models.get(n, b.servos[n].model)) for n in names}
-        motors = [model_spec(models[n]).motor for n in names]
-        self.plant = PyBulletPlant(config.robot_urdf, names, ratio, offset, q0,
-                                   motor_damping=[m.kt * m.ke / m.resistance for m in motors],
-                                   physics_dt=1.0 / e.physics_hz, friction=friction)
+        self.servo_params = hidden_servo_params(e, names, [models[n] for n in names])
+        self.plant = PyBulletPlant(config.robot_urdf, names, ratio, offset, q0, self.servo_params,
+                                   physics_dt=1.0 / e.physics_hz, joint_friction=friction)
 
         baud_index = _baud_index(b.baud)
         servos = {}
@@ -104,8 +117,8 @@ class EmulatedRig:
                             (sc.position_p, sc.position_i, sc.position_d))
                 registers.update({k: v for k, v in gains if v is not None})
             registers.update(planted.servo_registers.get(n, {}))
-            servos[sc.id] = ServoModel(models[n], id=sc.id, registers=registers,
-                                       deadband_ticks=deadband)
+            servos[sc.id] = ServoModel(models[n], id=sc.id, registers=registers, deadband_ticks=deadband,
+                                       kt_scale=e.physics_of(n).get("kt_scale", 1.0))
             joints[sc.id] = j
         self.bus = DynamixelBusEmulator(servos, self.plant, joints=joints,
                                         physics_dt=1.0 / e.physics_hz,

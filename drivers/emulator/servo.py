@@ -95,12 +95,16 @@ class ServoModel(ServoFirmware):
         overload_fraction: float = 0.95,
         input_voltage: float = 12.0,
         temperature_c: float = 30.0,
+        kt_scale: float = 1.0,
     ) -> None:
         self.spec = model if isinstance(model, ModelSpec) else model_spec(model)
         self.table = self.spec.table
         # Motor constants the 1 ms loop uses every step (the spec is frozen).
         motor = self.spec.motor
-        self._kt, self._ke, self._resistance = motor.kt, motor.ke, motor.resistance
+        if not kt_scale > 0:
+            raise ValueError(f"kt_scale must be > 0, got {kt_scale}")
+        # kt_scale: a motor stronger or weaker than its datasheet (Kt and Ke are one constant in SI)
+        self._kt, self._ke, self._resistance = motor.kt * kt_scale, motor.ke * kt_scale, motor.resistance
         self._amps_per_unit = self.spec.current_unit or (motor.stall_current / 1000.0)
         self._has_current_limit = "Current Limit" in self.table
         # The cycle's Goal Position writes take a short path when the item is the usual

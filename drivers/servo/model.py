@@ -107,6 +107,11 @@ class ServoParams:
         """A copy with some fields replaced (scalars broadcast to every joint)."""
         return replace(self, **{k: _arr(v, self.n) for k, v in changes.items()})
 
+    def with_motor_scale(self, kt_scale) -> "ServoParams":
+        """The same servos with Kt and Ke (one constant in SI) scaled per joint: a stronger or
+        weaker motor than the datasheet's."""
+        return replace(self, kt=self.kt * _arr(kt_scale, self.n), ke=self.ke * _arr(kt_scale, self.n))
+
     @property
     def back_emf_damping(self) -> np.ndarray:
         """Kt·Ke/R (N·m·s/rad): the damping the motor's back-EMF gives at a fixed PWM."""

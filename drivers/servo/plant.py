@@ -1,4 +1,5 @@
-"""The robot's rigid-body dynamics (from PyBullet) as the mechanical plant of the servo-bus emulator.
+"""The robot's rigid-body dynamics (from PyBullet) under servo torques: the plant of the emulated rig
+and of the simulator when it runs a servo model.
 
 The emulated servos return shaft torques; this plant applies them to the
 robot's joints through each servo's transmission, with gravity and the link
@@ -12,6 +13,10 @@ wrist, and PyBullet has no armature and integrates damping explicitly, which
 goes unstable at 1 kHz. Here the joint-space equation
 
     (M(q) + J_a + dt·B) Δq̇ = dt · (τ_drive − B q̇ − h(q, q̇) − friction)
+
+with B the back-EMF damping plus the gearbox's viscous friction and ``friction`` its
+Coulomb and Stribeck parts (:func:`~drivers.servo.model.friction_torque`), all from
+the joints' :class:`~drivers.servo.model.ServoParams`.
 
 is integrated semi-implicitly, with M and h = C q̇ + g from PyBullet's
 ``calculateMassMatrix`` and ``calculateInverseDynamics``. Stable for any
@@ -30,20 +35,16 @@ import numpy as np
 
 from drivers import ConfigurationError
 from drivers.quiet import muted_output, quiet_pybullet
-
-# Reflected rotor inertia at the output of an X-series servo (kg·m²): a coreless
-# rotor of ~1e-7 kg·m² through the ~350:1 gearbox of the XM430-W350.
-DEFAULT_ARMATURE = 0.012
+from drivers.servo.model import FRICTION_SMOOTHING_RAD_S, ServoParams, friction_torque
 
 
 class PyBulletPlant:
-    """``Plant`` for :class:`~drivers.emulator.bus.DynamixelBusEmulator`."""
+    """``Plant`` for :class:`~drivers.emulator.bus.DynamixelBusEmulator` and the servo simulator."""
 
     def __init__(self, urdf: Path, joint_names: Sequence[str], ratio: Sequence[float],
-                 offset: Sequence[float], initial_position: Sequence[float],
-                 motor_damping: Sequence[float], armature: Sequence[float] | float = DEFAULT_ARMATURE,
+                 offset: Sequence[float], initial_position: Sequence[float], servos: ServoParams,
                  physics_dt: float = 0.001, gravity: float = -9.81,
-                 friction: Sequence[float] | None = None) -> None:
+                 joint_friction: Sequence[float] | None = None) -> None:
 
         pb = quiet_pybullet()
         self._pb = pb
@@ -70,9 +71,12 @@ class PyBulletPlant:
         self._ratio = np.asarray(ratio, dtype=float)
         self._offset = np.asarray(offset, dtype=float)
         r2 = self._ratio ** 2
-        self._B = np.asarray(motor_damping, dtype=float) / r2
-        self._Ja = np.broadcast_to(np.asarray(armature, dtype=float), (n,)) / r2
-        self._friction = np.zeros(n) if friction is None else np.asarray(friction, dtype=float)
+        self.servos = servos
+        self._B_emf = servos.back_emf_damping / r2
+        self._B = self._B_emf + servos.viscous / r2
+        self._Ja = servos.armature / r2
+        self._coulomb_only = servos.with_(viscous=0.0)
+        self._joint_friction = np.zeros(n) if joint_friction is None else np.asarray(joint_friction, dtype=float)
         self._dt = physics_dt
         self._q = np.clip(np.asarray(initial_position, dtype=float), self._lower, self._upper)
         self._qd = np.zeros(n)
@@ -100,14 +104,16 @@ class PyBulletPlant:
             raise ValueError(f"plant steps {self._dt} s, asked for {dt} s")
         pb, c = self._pb, self._c
         q, qd = self._q, self._qd
-        # The servo's torque already holds -B·qd (explicit); take the drive part
-        # and apply the damping implicitly.
-        drive = np.asarray(torque, dtype=float) / self._ratio + self._B * qd
+        # The servo's torque already holds the back-EMF's -B·qd (explicit); take the drive
+        # part and apply the damping (back-EMF and viscous) implicitly.
+        drive = np.asarray(torque, dtype=float) / self._ratio + self._B_emf * qd
         ql = q.tolist()
         M = np.array(pb.calculateMassMatrix(self.body, ql, physicsClientId=c))
         h = np.array(pb.calculateInverseDynamics(self.body, ql, qd.tolist(), self._zeros,
                                                  physicsClientId=c))
-        rhs = drive - self._B * qd - h - self._friction * np.tanh(qd / 1e-3)
+        friction = (friction_torque(self._coulomb_only, qd / self._ratio) / self._ratio
+                    + self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S))
+        rhs = drive - self._B * qd - h - friction
         A = M + np.diag(self._Ja + dt * self._B)
         qd_new = qd + dt * np.linalg.solve(A, rhs)
         q_new = q + dt * qd_new
