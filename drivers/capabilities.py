@@ -14,7 +14,7 @@ import numpy as np
 
 from drivers import Actuators, ConfigurationError
 
-__all__ = ["EffortLimited", "EmulatorHooks", "JointKinds", "LinkPoses", "PositionReset", "ServoInfo",
+__all__ = ["EffortLimited", "EmulatorHooks", "JointKinds", "LinkPoses", "PositionReset", "ServoInfo", "TruePosition",
            "find_capability", "layers", "members", "require_capability"]
 
 C = TypeVar("C")
@@ -54,6 +54,13 @@ class PositionReset(Protocol):
     """Teleport the joints to a configuration (simulation only)."""
 
     def reset_position(self, q: np.ndarray) -> None: ...
+
+
+@runtime_checkable
+class TruePosition(Protocol):
+    """Where the joints really are, beyond what a sensor reports (a simulator's ground truth)."""
+
+    def true_position(self) -> np.ndarray: ...
 
 
 @runtime_checkable

@@ -29,13 +29,14 @@ from drivers.capabilities import (
     LinkPoses,
     PositionReset,
     ServoInfo,
+    TruePosition,
     find_capability,
     layers,
 )
 
 __all__ = ["ContractViolation", "check_actuators"]
 
-CAPABILITIES = (EffortLimited, EmulatorHooks, JointKinds, LinkPoses, PositionReset, ServoInfo)
+CAPABILITIES = (EffortLimited, EmulatorHooks, JointKinds, LinkPoses, PositionReset, ServoInfo, TruePosition)
 
 
 class ContractViolation(BenchError, AssertionError):

@@ -95,10 +95,10 @@ from bench.accuracy.poses import (
     pose_from_joints,
     resolve_tolerances,
     robot_label,
-    servo_transmissions,
 )
 from bench.accuracy.sweep import Sweep, default_sweep, perturbation_sweep
 from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG, TABLE3_MEASURED, TABLE3_TARGET
+from bench.kinematics.transmission import servo_transmissions
 
 __all__ = [
     "DISTRIBUTIONS",

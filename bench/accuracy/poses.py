@@ -7,9 +7,10 @@ from typing import Literal, Mapping, Optional, Sequence, Union
 import numpy as np
 from numpy.typing import ArrayLike
 
-from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG, TARGET_1, ArcTrainRobot
+from bench.kinematics.arc_train import SERVO_TOL_DEG, TARGET_1
 from bench.kinematics.needle import UnreachableError
 from bench.kinematics.para_brachy import ParaBrachyRobot
+from bench.kinematics.transmission import servo_transmissions
 
 Distribution = Literal["uniform", "normal", "endpoints"]
 DISTRIBUTIONS: tuple[str, ...] = ("uniform", "normal", "endpoints")
@@ -72,14 +73,6 @@ def _check_limits(robot, q: np.ndarray) -> None:
     for n, v, r in zip(_names(robot), q, _rows(robot)):
         if not r.lower - 1e-12 <= v <= r.upper + 1e-12:
             raise ValueError(f"joint {n} = {v:.6g} is outside its limits [{r.lower:.6g}, {r.upper:.6g}]")
-
-
-def servo_transmissions(robot) -> np.ndarray:
-    """Joint motion per radian of servo error: 1 (direct drive), the pinion radius (m) or R_pinion/R_arc."""
-    ratio = np.array([PINION_RADIUS if k == "prismatic" else 1.0 for k in _kinds(robot)])
-    if isinstance(robot, ArcTrainRobot):
-        ratio[_names(robot).index("train")] = PINION_RADIUS / robot.params.arc_radius
-    return ratio
 
 
 def default_tolerances(robot, tol_deg: float = SERVO_TOL_DEG) -> np.ndarray:

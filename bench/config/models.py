@@ -55,30 +55,6 @@ SAFE_STOP_MEANING = ("on every exit: torque_off (motors free) or hold (hold the 
                      "torque on)")
 
 
-class PyBulletBackendConfig(Strict):
-    """The simulated robot: PyBullet joints in the CT room (no hardware)."""
-
-    kind: Literal["pybullet"] = Field(default="pybullet", description="the simulator backend")
-    physics_hz: float = Field(default=1000.0, ge=100, le=10_000,
-                              description="physics steps per second (control_hz must divide it)")
-    position_gain: float = Field(default=1.0, gt=0, le=1.0,
-                                 description="PyBullet position motor gain (kp, 0..1]")
-    velocity_gain: float = Field(default=1.0, ge=0, le=2.0,
-                                 description="PyBullet position motor velocity gain (kd)")
-    solver_iterations: int = Field(default=10, ge=1, le=200,
-                                   description="constraint solver iterations per step")
-    gantry_in_physics: bool = Field(default=False, description="load the CT gantry as a colliding "
-                                                               "body (the interlock sees it anyway)")
-    safe_stop: SafeStop = Field(default="hold", description=SAFE_STOP_MEANING)
-    joints: dict[str, JointOverride] = Field(default_factory=dict,
-                                             description="per-joint limits that replace the model's")
-
-    @field_validator("safe_stop", mode="before")
-    @classmethod
-    def _old_off(cls, v: Any) -> Any:
-        return "torque_off" if v == "off" else v  # the older spelling of the same stop
-
-
 class ServoConfig(Strict):
     """One servo on the bus and its transmission: joint = offset + ratio · shaft angle."""
 
@@ -114,6 +90,40 @@ def model_number(name: str) -> int:
     """Dynamixel model number for a model name such as 'XM430-W350'."""
     by_name = {v: k for k, v in supported_models().items()}
     return by_name[name]
+
+
+class PyBulletBackendConfig(Strict):
+    """The simulated robot: PyBullet joints in the CT room (no hardware)."""
+
+    kind: Literal["pybullet"] = Field(default="pybullet", description="the simulator backend")
+    physics_hz: float = Field(default=1000.0, ge=100, le=10_000,
+                              description="physics steps per second (control_hz must divide it)")
+    position_gain: float = Field(default=1.0, gt=0, le=1.0,
+                                 description="PyBullet position motor gain (kp, 0..1]")
+    velocity_gain: float = Field(default=1.0, ge=0, le=2.0,
+                                 description="PyBullet position motor velocity gain (kd)")
+    solver_iterations: int = Field(default=10, ge=1, le=200,
+                                   description="constraint solver iterations per step")
+    gantry_in_physics: bool = Field(default=False, description="load the CT gantry as a colliding "
+                                                               "body (the interlock sees it anyway)")
+    safe_stop: SafeStop = Field(default="hold", description=SAFE_STOP_MEANING)
+    joints: dict[str, JointOverride] = Field(default_factory=dict,
+                                             description="per-joint limits that replace the model's")
+    servo_model: Literal["ideal", "datasheet"] = Field(
+        default="ideal", description="ideal: PyBullet's position motors; datasheet: the joints driven "
+                                     "through the servo model (firmware PID, motor, gearbox) with the "
+                                     "servo table's models and gains")
+    servos: dict[str, ServoConfig] = Field(
+        default_factory=dict, max_length=32,
+        description="the servo table the servo model runs (as a dynamixel backend's; default: one "
+                    "XM430-W350 per joint through the robot's transmissions, zero at home)")
+    transport_delay_ms: float = Field(default=0.0, ge=0, le=100,
+                                      description="how long a goal takes to reach the servos (servo model)")
+
+    @field_validator("safe_stop", mode="before")
+    @classmethod
+    def _old_off(cls, v: Any) -> Any:
+        return "torque_off" if v == "off" else v  # the older spelling of the same stop
 
 
 class UltrasonicConfig(Strict):
@@ -350,6 +360,11 @@ class TrialConfig(Strict):
             u = self.backend.ultrasonic
             if u is not None and u.joint not in names:
                 raise ValueError(f"backend.ultrasonic.joint: unknown joint {u.joint!r}")
+        if self.backend.kind == "pybullet" and self.backend.servos:
+            servos = set(self.backend.servos)
+            if servos != set(names):
+                raise ValueError(f"backend.servos: missing {sorted(set(names) - servos)}, "
+                                 f"unknown {sorted(servos - set(names))}; {self.robot} has {names}")
         if self.backend.kind == "pybullet":
             steps = self.backend.physics_hz / self.control_hz
             if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:

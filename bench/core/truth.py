@@ -17,15 +17,14 @@ from bench.core.log import TrialLog
 from bench.core.outcome import SETTLED_WINDOW_S, NeedleOutcome, needle_outcome, segment_rows
 from bench.faults.base import FaultWrapper
 from drivers import Actuators, JointState
-from drivers.pybullet.backend import PyBulletActuators
+from drivers.capabilities import TruePosition, find_capability
 
 __all__ = ["GroundTruth", "has_ground_truth", "settled_truth", "true_outcome"]
 
 
 def has_ground_truth(actuators: Actuators) -> bool:
-    """True when the backend's own reads are the physical truth (the simulator)."""
-
-    return isinstance(actuators.unwrapped, PyBulletActuators)
+    """True when the backend knows where the joints really are (a simulator)."""
+    return find_capability(actuators.unwrapped, TruePosition) is not None
 
 
 class GroundTruth(FaultWrapper):
@@ -40,9 +39,9 @@ class GroundTruth(FaultWrapper):
     def read(self) -> JointState:
         st = self.actuators.read()
         if self.available:
-            truth = self.unwrapped.read()
-            self._t.append(truth.time)
-            self._q.append(truth.position)
+            backend = self.unwrapped
+            self._t.append(backend.now())
+            self._q.append(backend.true_position())
         return st
 
     @property

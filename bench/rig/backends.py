@@ -9,13 +9,17 @@ from __future__ import annotations
 import numpy as np
 
 from bench.config.calibration import calibration_of
-from bench.config.models import ConfigError, TrialConfig, model_number
+from bench.config.models import ConfigError, ServoConfig, TrialConfig, model_number
 from bench.kinematics.arc_train import epsilon_from_d2
+from bench.kinematics.transmission import servo_transmissions
 from drivers import Actuators, JointLimits
 from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings, UltrasonicSettings
 from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, SceneObject
+from drivers.pybullet.servo_sim import ServoSimActuators, ServoSimSettings
+from drivers.servo import ServoParams
 
-__all__ = ["backend_limits", "limits_of", "make_backend", "make_dynamixel_backend"]
+__all__ = ["backend_limits", "limits_of", "make_backend", "make_dynamixel_backend", "make_servo_sim",
+           "servo_params", "servo_table"]
 
 
 def limits_of(rows, overrides=None) -> JointLimits:
@@ -37,9 +41,53 @@ def backend_limits(config: TrialConfig, robot) -> JointLimits:
     return limits_of(robot.chain.rows, getattr(config.backend, "joints", None))
 
 
+def servo_table(config: TrialConfig, robot) -> dict[str, ServoConfig]:
+    """The servos behind the joints: the config's table, or for a simulator without one, an
+    XM430-W350 per joint through the robot's transmissions with its zero at home."""
+    table = getattr(config.backend, "servos", None)
+    if table:
+        return {n: table[n] for n in robot.joint_names}
+    ratios = servo_transmissions(robot)
+    return {row.name: ServoConfig(id=i + 1, model="XM430-W350", ratio=float(r), offset=float(row.home),
+                                  mode="position" if r == 1.0 else "extended_position")
+            for i, (row, r) in enumerate(zip(robot.chain.rows, ratios))}
+
+
+def servo_params(table: dict[str, ServoConfig], names) -> ServoParams:
+    """The servo model's datasheet parameters for a servo table: models, gains, current limits."""
+    models = [model_number(table[n].model) for n in names]
+    defaults = ServoParams.datasheet(models)
+    gains = [tuple(int(v) if v is not None else int(d) for v, d in zip(
+                (table[n].position_p, table[n].position_i, table[n].position_d),
+                (defaults.position_p[j], defaults.position_i[j], defaults.position_d[j])))
+             for j, n in enumerate(names)]
+    return ServoParams.datasheet(models, gains=gains,
+                                 current_limit_a=[table[n].current_limit_a for n in names])
+
+
+def make_servo_sim(config: TrialConfig, robot) -> Actuators:
+    """The simulator driving the joints through the servo model (``backend.servo_model``)."""
+    b = config.backend
+    names = robot.joint_names
+    table = servo_table(config, robot)
+    limits = backend_limits(config, robot)
+    settings = ServoSimSettings(
+        robot_urdf=config.robot_urdf, joint_names=names, servos=servo_params(table, names),
+        ratio=[table[n].ratio for n in names], offset=[table[n].offset for n in names],
+        max_velocity=limits.velocity, max_effort=limits.effort, physics_hz=b.physics_hz,
+        control_period=config.control_period, initial_position=robot.chain.home,
+        transport_delay_s=b.transport_delay_ms * 1e-3, safe_stop=b.safe_stop)
+    return ServoSimActuators(settings)
+
+
 def make_backend(config: TrialConfig, robot, gui: bool = False) -> Actuators:
     """The configured backend, inactive (reading allowed, commands refused)."""
     cfg = config
+    if cfg.backend.kind == "pybullet" and cfg.backend.servo_model != "ideal":
+        if gui:
+            raise ConfigError("--gui shows PyBullet's ideal motors only; drop --gui or set "
+                              "backend.servo_model: ideal")
+        return make_servo_sim(cfg, robot)
     if cfg.backend.kind == "pybullet":
 
         b = cfg.backend

@@ -359,6 +359,10 @@ class PyBulletActuators(ActuatorsBase):
                                    computeForwardKinematics=True, physicsClientId=self._client)
         return np.array(st[4]), np.array(self._pb.getMatrixFromQuaternion(st[5])).reshape(3, 3)
 
+    def true_position(self) -> np.ndarray:
+        """The joints' positions: the simulator reads them exactly."""
+        return self.read().position
+
     def reset_position(self, q: np.ndarray) -> None:
         """Teleport the joints (only while inactive; for set-up and pictures)."""
         if self.enabled:

@@ -68,6 +68,7 @@ class PyBulletPlant:
         self.joint_names = names
         self._lower = np.array([i[8] for i in movable])
         self._upper = np.array([i[9] for i in movable])
+        self.kinds = tuple("prismatic" if i[2] == pb.JOINT_PRISMATIC else "revolute" for i in movable)
         self._ratio = np.asarray(ratio, dtype=float)
         self._offset = np.asarray(offset, dtype=float)
         r2 = self._ratio ** 2
@@ -81,6 +82,11 @@ class PyBulletPlant:
         self._q = np.clip(np.asarray(initial_position, dtype=float), self._lower, self._upper)
         self._qd = np.zeros(n)
         self._zeros = [0.0] * n
+
+    @property
+    def limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) joint limits of the URDF: where the hard stops are."""
+        return self._lower.copy(), self._upper.copy()
 
     @property
     def joint_count(self) -> int:

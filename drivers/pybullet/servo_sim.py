@@ -1,0 +1,158 @@
+"""The robot in simulation as the rig runs it: servo firmware, motors and gearboxes in the loop.
+
+PyBullet's ideal position motors (:class:`~drivers.pybullet.backend.PyBulletActuators`) track
+almost perfectly; the rig's servos do not (firmware PID, back-EMF, current limits, friction,
+gravity sag). This backend drives the same URDF through the shared servo model
+(:class:`~drivers.servo.model.ServoArray`) and the rig's plant
+(:class:`~drivers.servo.plant.PyBulletPlant`): every physics step the firmware turns the goals
+it has received into motor torques, and the plant integrates the joints under gravity.
+
+What the bench sees is what the rig's driver sees: positions quantised to encoder ticks and
+velocities to 0.229 rev/min through each joint's transmission (joint = offset + ratio · shaft),
+goals that reach the servos ``transport_delay_s`` after they are commanded, and efforts from
+the motor current.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, Sequence
+
+import numpy as np
+
+from drivers import ActuatorsBase, ConfigurationError, JointLimits, JointState
+from drivers.dynamixel.units import RAD_PER_TICK, VELOCITY_UNIT_RAD_S
+from drivers.pybullet.backend import steps_per_period
+from drivers.servo import ServoArray, ServoParams
+from drivers.servo.plant import PyBulletPlant
+
+__all__ = ["ServoSimActuators", "ServoSimSettings"]
+
+
+@dataclass
+class ServoSimSettings:
+    """What the servo simulator needs; the bench builds it from a trial config's servo table."""
+
+    robot_urdf: Path
+    joint_names: Sequence[str]
+    servos: ServoParams
+    ratio: Sequence[float]  # joint units per shaft radian
+    offset: Sequence[float]  # joint value at shaft angle 0
+    max_velocity: Sequence[float]  # rad/s or m/s per joint (the bench's limits)
+    max_effort: Sequence[float]  # N·m or N per joint
+    physics_hz: float = 1000.0
+    control_period: float = 0.002
+    initial_position: Sequence[float] | None = None
+    transport_delay_s: float = 0.0
+    safe_stop: Literal["hold", "torque_off"] = "hold"
+    gravity: float = -9.81
+
+
+class ServoSimActuators(ActuatorsBase):
+    """PyBullet joints moved by simulated X-series servos (torque control through the servo model)."""
+
+    def __init__(self, settings: ServoSimSettings) -> None:
+        s = settings
+        self.settings = s
+        steps_per_period(s.physics_hz, s.control_period)  # refuses a period that is not whole steps
+        if s.transport_delay_s < 0:
+            raise ConfigurationError(f"transport delay must be >= 0 s, got {s.transport_delay_s}")
+        n = len(s.joint_names)
+        if s.servos.n != n:
+            raise ConfigurationError(f"{s.servos.n} servos for {n} joints")
+        self._dt = 1.0 / s.physics_hz
+        self._ratio = np.asarray(s.ratio, dtype=float)
+        self._offset = np.asarray(s.offset, dtype=float)
+        q0 = np.zeros(n) if s.initial_position is None else np.asarray(s.initial_position, dtype=float)
+        self.plant = PyBulletPlant(Path(s.robot_urdf), s.joint_names, self._ratio, self._offset, q0,
+                                   s.servos, physics_dt=self._dt, gravity=s.gravity)
+        self.servos = ServoArray(s.servos)
+        lower, upper = self.plant.limits
+        self._limits = JointLimits(lower, upper, np.asarray(s.max_velocity, dtype=float),
+                                   np.asarray(s.max_effort, dtype=float))
+        self._kinds = list(self.plant.kinds)
+        self._torque_on = False
+        self._pending: deque[tuple[int, np.ndarray]] = deque()
+        self._delay_steps = int(round(s.transport_delay_s / self._dt))
+        self._step_count = 0
+        self.safe_stop_report: str | None = None
+
+    # -- the Actuators interface ---------------------------------------------
+    @property
+    def joint_names(self) -> Sequence[str]:
+        return list(self.settings.joint_names)
+
+    @property
+    def joint_kinds(self) -> list[str]:
+        return list(self._kinds)
+
+    @property
+    def limits(self) -> JointLimits:
+        return self._limits
+
+    def now(self) -> float:
+        return self._step_count * self._dt
+
+    def read(self) -> JointState:
+        """What the rig's driver reads: ticks and velocity units through the transmissions."""
+        shaft = self.plant.position()
+        ticks = np.floor(shaft / RAD_PER_TICK + 0.5)
+        velocity = np.round(self.plant.velocity() / VELOCITY_UNIT_RAD_S) * VELOCITY_UNIT_RAD_S
+        effort = (self.servos.params.kt * self.servos.current / self._ratio if self._torque_on
+                  else np.zeros_like(shaft))
+        return JointState(self.now(), self._offset + self._ratio * ticks * RAD_PER_TICK,
+                          self._ratio * velocity, effort)
+
+    def true_position(self) -> np.ndarray:
+        """The joints where they really are (not quantised): the simulator's ground truth."""
+        return self.plant.joint_position()
+
+    def wait_until(self, t: float) -> None:
+        target = int(math.floor(t / self._dt + 1e-6))
+        plant, servos, dt, pending = self.plant, self.servos, self._dt, self._pending
+        zero = np.zeros(len(self._ratio))
+        while self._step_count < target:
+            while pending and pending[0][0] <= self._step_count:
+                servos.set_goal(pending.popleft()[1])
+            if self._torque_on:
+                torque = servos.step(dt, plant.position(), plant.velocity())
+            else:
+                torque = zero
+            plant.step(dt, torque)
+            self._step_count += 1
+
+    def _enable(self) -> None:
+        self.servos.reset(self.plant.position())
+        self._pending.clear()
+        self._torque_on = True
+
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
+        lim = self._limits
+        goal = (np.minimum(np.maximum(position, lim.lower), lim.upper) - self._offset) / self._ratio
+        self._pending.append((self._step_count + self._delay_steps, goal))
+
+    def _disable(self) -> None:
+        self._pending.clear()
+        if self.settings.safe_stop == "hold":
+            self.servos.set_goal(self.plant.position())
+            self.safe_stop_report = "holding the measured position"
+        else:
+            self._torque_on = False
+            self.safe_stop_report = "torque off (motors free)"
+
+    def _close(self) -> None:
+        self.plant.close()
+
+    # -- extras ----------------------------------------------------------------
+    def set_effort_limit(self, joint: int, effort: float) -> None:
+        """Lower a joint's available torque/force: its servo's current limit, through the transmission."""
+        p = self.servos.params
+        limit = p.current_limit.copy()
+        limit[joint] = effort * abs(self._ratio[joint]) / p.kt[joint]
+        self.servos.params = p.with_(current_limit=limit)
+        eff = self._limits.effort.copy()
+        eff[joint] = effort
+        self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)
