@@ -47,6 +47,10 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
             align: str = typer.Option("motion", "--align", help="Align logs at the first commanded motion "
                                                                 "('motion') or by cross-correlation ('xcorr')."),
             out: Path = typer.Option(Path("runs"), "--out", help="Directory for the comparison directory."),
+            sim_model: Optional[str] = typer.Option(
+                None, "--sim-model", metavar="MODEL",
+                help="Also run the sim through the servo model ('datasheet': the servo table's models and "
+                     "gains) and report how well it predicts the rig."),
             as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Compare sim and real tracking: run a config's plan on both backends N times, or compare two runs."""
     if align not in ("motion", "xcorr"):
@@ -54,15 +58,21 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
     if _is_config(first):
         if second is not None:
             fail(f"{second}: a second argument only goes with a run as the first (got a config, {first})")
-        result, out_dir = _from_config(first, repeats, emulate, retries, align, out)
+        if sim_model is not None and sim_model != "datasheet":
+            fail(f"--sim-model {sim_model!r}: the servo model is 'datasheet' (the servo table's models "
+                 f"and gains)")
+        result, out_dir, predicted = _from_config(first, repeats, emulate, retries, align, out, sim_model)
     else:
         if second is None:
             fail(f"{first}: give two runs to compare (RUN_A RUN_B), or a trial config (.yaml)")
-        if emulate or repeats != 5 or retries is not None:
-            fail("--repeats, --emulate and --retries go with a config, not with two saved runs")
+        if emulate or repeats != 5 or retries is not None or sim_model is not None:
+            fail("--repeats, --emulate, --retries and --sim-model go with a config, not with two saved runs")
         result, out_dir = _from_runs(first, second, align, out)
+        predicted = None
     summary = result.summary()
     summary["report"] = str(out_dir / "report.html")
+    if predicted is not None:
+        summary["prediction"] = predicted.as_dict()
     if as_json:
         emit_json(summary)
     else:
@@ -73,6 +83,11 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
         console.print(f"tip deviation (mm): mean {summary['tip_deviation_mm']['mean']}, "
                        f"max {summary['tip_deviation_mm']['max']}")
         console.print(f"worst joint: {summary['worst_joint']}")
+        if predicted is not None:
+            pr = summary["prediction"]
+            console.print(f"prediction: tip {pr['tip_error_mm']['mean']} mm mean, "
+                          f"{pr['tip_error_mm']['max']} mm max; tracking gap {pr['tracking_gap_ratio']} "
+                          f"of the ideal sim's")
         console.print(f"report: {out_dir / 'report.html'}")
     if not result.passed:
         err_console.print(f"[bold red]compare failed:[/] {summary['reason']}", highlight=False,
@@ -80,7 +95,8 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
     raise typer.Exit(0 if result.passed else 1)
 
 
-def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path):
+def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path,
+                 sim_model: Optional[str] = None):
 
     from bench.compare.session import (  # deferred: --help and completion stay fast
         CompareError,
@@ -107,7 +123,7 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
         with SignalGuard() as guard:
             try:
                 res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
-                                     align=align, progress=progress, interrupts=guard)
+                                     align=align, progress=progress, interrupts=guard, sim_model=sim_model)
             except (CompareError, ConfigError, TrialError, PlanMismatchError, ActuatorError) as e:
                 fail(str(e))
             except TrialInterrupted as e:
@@ -116,7 +132,7 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
                            f"the rig got its safe stop ({cfg.backend.safe_stop}); the runs so far "
                            f"are under {out}", highlight=False, soft_wrap=True)
                 raise typer.Exit(e.exit_code)
-    return res.comparison, res.out_dir
+    return res.comparison, res.out_dir, res.prediction
 
 
 def _from_runs(a: Path, b: Path, align: str, out: Path):

@@ -34,6 +34,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from bench.compare.analysis import Comparison, compare_logs
+from bench.compare.prediction import Prediction, prediction
 from bench.compare.report import write_compare_report
 from bench.config.models import ConfigError, PyBulletBackendConfig, TrialConfig
 from bench.core.interrupts import NO_SIGNALS
@@ -86,12 +87,19 @@ class SessionResult:
     lost: list[LostAttempt] = field(default_factory=list)
     emulated: bool = False
     notes: list[str] = field(default_factory=list)
+    #: With a servo model: the ideal sim against the rig, and how much better the model predicts it.
+    ideal: Optional[Comparison] = None
+    prediction: Optional[Prediction] = None
 
 
-def sim_counterpart(config: TrialConfig) -> TrialConfig:
-    """The same trial on the PyBullet backend with its default settings (validated)."""
+def sim_counterpart(config: TrialConfig, servo_model: str = "ideal") -> TrialConfig:
+    """The same trial on the PyBullet backend with its default settings (validated); with a
+    ``servo_model``, the sim runs the rig's servo table (models, gains, transmissions) through it."""
     data = json.loads(config.model_dump_json())
     data["backend"] = json.loads(PyBulletBackendConfig().model_dump_json())
+    if servo_model != "ideal":
+        data["backend"].update(servo_model=servo_model, servos=json.loads(config.model_dump_json())
+                               ["backend"].get("servos", {}))
     try:
         return TrialConfig.model_validate({**data, "source": config.source})
     except Exception as e:  # pydantic's message, one line
@@ -202,7 +210,7 @@ def _safe_stop(config: TrialConfig) -> None:
 def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bool = False,
                    retries: Optional[int] = None, align: str = "motion",
                    progress: Optional[ProgressFn] = None, report: bool = True,
-                   interrupts: Interruptible = NO_SIGNALS) -> SessionResult:
+                   interrupts: Interruptible = NO_SIGNALS, sim_model: Optional[str] = None) -> SessionResult:
     """Run the plan ``repeats`` times on the rig (or its emulator) and on the sim, compare, report.
 
     ``retries`` (default 3 when emulating, 0 on hardware): how often a rig repeat
@@ -220,9 +228,12 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     if retries < 0:
         raise CompareError(f"--retries must be 0 or more, got {retries}")
     sim_cfg = sim_counterpart(config)
+    model_cfg = sim_counterpart(config, sim_model) if sim_model else None
     try:
         prepare(config)
         prepare(sim_cfg)
+        if model_cfg is not None:
+            prepare(model_cfg)
     except TrialError as e:
         raise CompareError(str(e)) from None
     if not emulate:
@@ -276,22 +287,34 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
         if rig is not None:
             rig.close()
 
-    sim_runs: list[Path] = []
     n_sim = len(real_runs)
-    for i in range(n_sim):
-        what = f"sim repeat {i + 1}/{n_sim}"
-        res_s = run_trial(sim_cfg, sim_dir, report=False, note=f"compare repeat {i + 1}",
-                          progress=lambda f, i=i, what=what: progress(what, 0.88 + w_sim * (i + f)),
-                          interrupts=interrupts)
-        sim_runs.append(res_s.run_dir)
+    sides = [("sim", sim_cfg, sim_dir)] + ([("model sim", model_cfg, out_dir / "model")] if model_cfg else [])
+    runs: dict[str, list[Path]] = {}
+    for k, (label, cfg, where) in enumerate(sides):
+        runs[label] = []
+        share = w_sim / len(sides)
+        for i in range(n_sim):
+            what = f"{label} repeat {i + 1}/{n_sim}"
+            res_s = run_trial(cfg, where, report=False, note=f"compare repeat {i + 1}",
+                              progress=lambda f, i=i, k=k, what=what: progress(
+                                  what, 0.88 + 0.12 * k / len(sides) + share * (i + f)),
+                              interrupts=interrupts)
+            runs[label].append(res_s.run_dir)
     progress("comparing", 1.0)
-    sim_logs = [TrialLog.load(p / "trial.npz") for p in sim_runs]
     real_logs = [TrialLog.load(p / "trial.npz") for p in real_runs]
     real_label = "emulated rig" if emulate else "real rig"
-    cmp = compare_logs(sim_logs, real_logs, labels=("sim", real_label),
-                       sources=([str(p.relative_to(out_dir)) for p in sim_runs],
-                                [str(p.relative_to(out_dir)) for p in real_runs]),
-                       align=align)  # type: ignore[arg-type]
+
+    def against_rig(label: str) -> Comparison:
+        logs = [TrialLog.load(p / "trial.npz") for p in runs[label]]
+        return compare_logs(logs, real_logs, labels=(label, real_label),
+                            sources=([str(p.relative_to(out_dir)) for p in runs[label]],
+                                     [str(p.relative_to(out_dir)) for p in real_runs]),
+                            align=align)  # type: ignore[arg-type]
+
+    ideal_cmp = against_rig("sim")
+    cmp = against_rig("model sim") if model_cfg is not None else ideal_cmp
+    predicted = prediction(cmp, ideal_cmp) if model_cfg is not None else None
+    sim_runs = runs["model sim" if model_cfg is not None else "sim"]
     reached = [TrialLog.load(p).metadata.get("home_reached_s") for p in sorted(home_dir.glob("*.npz"))]
     late = sum(1 for r in reached if r is None or not np.isfinite(r))
     head = ["The sim side is the same config with its backend replaced by the PyBullet defaults (same "
@@ -308,7 +331,12 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
                 + "; the servos hold between repeats and the config's safe stop "
                 f"({config.backend.safe_stop}) is applied after the last one.")
     notes = head + notes
-    result = SessionResult(out_dir, cmp, sim_runs, real_runs, lost, emulate, notes)
+    if model_cfg is not None:
+        notes.insert(1, f"The model sim runs the rig's servo table through the servo model "
+                        f"({sim_model}); the ideal sim (PyBullet's position motors) is run beside it for "
+                        f"the prediction figures.")
+    result = SessionResult(out_dir, cmp, sim_runs, real_runs, lost, emulate, notes,
+                           ideal=ideal_cmp if model_cfg is not None else None, prediction=predicted)
     if report:
 
         write_compare_report(result.comparison, out_dir, title=f"Sim vs {real_label}: {config.name}",

@@ -76,7 +76,7 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
         ratio=[table[n].ratio for n in names], offset=[table[n].offset for n in names],
         max_velocity=limits.velocity, max_effort=limits.effort, physics_hz=b.physics_hz,
         control_period=config.control_period, initial_position=robot.chain.home,
-        transport_delay_s=b.transport_delay_ms * 1e-3, safe_stop=b.safe_stop)
+        transport_delay_s=b.transport_delay_ms * 1e-3, safe_stop=b.safe_stop, start_holding=True)
     return ServoSimActuators(settings)
 
 

@@ -49,6 +49,9 @@ class ServoSimSettings:
     transport_delay_s: float = 0.0
     safe_stop: Literal["hold", "torque_off"] = "hold"
     gravity: float = -9.81
+    #: Start as the lab keeps the rig: servos holding the initial pose with torque on, their
+    #: integrators charged against gravity (False: torque off until enable()).
+    start_holding: bool = False
 
 
 class ServoSimActuators(ActuatorsBase):
@@ -79,6 +82,9 @@ class ServoSimActuators(ActuatorsBase):
         self._delay_steps = int(round(s.transport_delay_s / self._dt))
         self._step_count = 0
         self.safe_stop_report: str | None = None
+        if s.start_holding:
+            self._torque_on = True
+            self.servos.hold(self.plant.position(), self.plant.holding_torque())
 
     # -- the Actuators interface ---------------------------------------------
     @property
@@ -125,9 +131,14 @@ class ServoSimActuators(ActuatorsBase):
             self._step_count += 1
 
     def _enable(self) -> None:
-        self.servos.reset(self.plant.position())
+        """As the rig's driver: goals = present positions, then torque on (a servo already holding
+        keeps its integrator)."""
         self._pending.clear()
-        self._torque_on = True
+        if self._torque_on:
+            self.servos.set_goal(self.plant.position())
+        else:
+            self.servos.reset(self.plant.position())
+            self._torque_on = True
 
     def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
         lim = self._limits

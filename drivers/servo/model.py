@@ -167,6 +167,14 @@ class ServoArray:
         self._vmax[:] = np.inf
         self._amax[:] = np.inf
 
+    def hold(self, position: np.ndarray, torque: np.ndarray) -> None:
+        """Torque on at ``position``, settled: the integrators already give the motor ``torque``
+        (N·m at the shaft, e.g. against gravity), as in a servo that has held its pose a while."""
+        self.reset(position)
+        p = self.params
+        pwm = np.asarray(torque, dtype=float) / p.kt * p.resistance / np.maximum(p.supply_voltage, 1e-6)
+        self._integral = np.clip(pwm * PWM_FULL_SCALE, -p.pwm_limit, p.pwm_limit)
+
     def set_goal(self, goal: np.ndarray) -> None:
         """New goal positions (rad): ticks as the bus writes them, with the profile planned."""
         goal_ticks = np.round(np.asarray(goal, dtype=float) / RAD_PER_TICK)

@@ -105,6 +105,13 @@ class PyBulletPlant:
     def velocity(self) -> np.ndarray:
         return self._qd / self._ratio
 
+    def holding_torque(self) -> np.ndarray:
+        """Shaft torques (N·m) that hold the joints still where they are, against gravity."""
+        pb, c = self._pb, self._c
+        g = np.array(pb.calculateInverseDynamics(self.body, self._q.tolist(), self._zeros, self._zeros,
+                                                 physicsClientId=c))
+        return g * self._ratio
+
     def step(self, dt: float, torque: np.ndarray) -> None:
         if abs(dt - self._dt) > 1e-12:
             raise ValueError(f"plant steps {self._dt} s, asked for {dt} s")

@@ -1,0 +1,68 @@
+"""How well a simulator with a servo model predicts the rig: the prediction figures of a comparison.
+
+* ``tip_error_mm``: per repeat, the distance (mm) between the needle tip the model-driven sim
+  placed and the one the rig placed; mean and max over repeats.
+* ``tracking_gap_ratio``: the gap between the sim's and the rig's measured joint profiles
+  with the model, divided by the same gap with PyBullet's ideal motors. A gap is the RMS over
+  joints and time of (sim − rig) after alignment, each joint's difference taken relative to
+  its commanded excursion (so radians and metres mix fairly; joints that hardly move are left
+  out). 1 means the model predicts no better than the ideal sim; 0.2 is an 80 % smaller gap.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.compare.analysis import Comparison
+
+__all__ = ["Prediction", "prediction", "tracking_gap"]
+
+#: Commanded excursion below which a joint counts as still (rad or m): its gap is left out.
+STILL_EXCURSION = 1e-4
+
+
+def _excursions(cmp: Comparison) -> np.ndarray:
+    q = np.concatenate([log.q_cmd for log in cmp.subject.logs])
+    return np.nanmax(q, axis=0) - np.nanmin(q, axis=0)
+
+
+def tracking_gap(cmp: Comparison) -> float:
+    """RMS over the moving joints and the repeats of (sim − rig) / excursion (unit-free)."""
+    exc = _excursions(cmp)
+    rel = [[d.rms / e for d, e in zip(pair, exc) if e > STILL_EXCURSION and math.isfinite(d.rms)]
+           for pair in cmp.profile]
+    values = np.array([v for pair in rel for v in pair])
+    return float(np.sqrt(np.mean(values ** 2))) if values.size else math.nan
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """The model's prediction of the rig, beside the ideal sim's (see the module's docstring)."""
+
+    tip_error_mm: list[float]
+    gap_model: float
+    gap_ideal: float
+
+    @property
+    def tracking_gap_ratio(self) -> float:
+        return self.gap_model / self.gap_ideal if self.gap_ideal > 0 else math.nan
+
+    def as_dict(self) -> dict:
+        clean = lambda v: None if not math.isfinite(v) else round(float(v), 6)  # noqa: E731
+        tips = np.array(self.tip_error_mm, dtype=float)
+        return {"tip_error_mm": {"mean": clean(tips.mean()) if tips.size else None,
+                                 "max": clean(tips.max()) if tips.size else None,
+                                 "per_repeat": [clean(v) for v in tips]},
+                "tracking_gap_ratio": clean(self.tracking_gap_ratio),
+                "tracking_gap": {"model": clean(self.gap_model), "ideal": clean(self.gap_ideal)}}
+
+
+def prediction(model_vs_rig: Comparison, ideal_vs_rig: Comparison) -> Prediction:
+    """The prediction figures of a model-driven sim (reference side of ``model_vs_rig``)."""
+    sim, rig = model_vs_rig.reference.outcomes, model_vs_rig.subject.outcomes
+    tips = [float(np.linalg.norm(np.subtract(r.tip_mm, sim[min(i, len(sim) - 1)].tip_mm)))
+            for i, r in enumerate(rig) if r is not None and sim[min(i, len(sim) - 1)] is not None]
+    return Prediction(tips, tracking_gap(model_vs_rig), tracking_gap(ideal_vs_rig))
