@@ -20,8 +20,9 @@ from bench.compare.analysis import Comparison
 
 __all__ = ["Prediction", "prediction", "tracking_gap"]
 
-#: Commanded excursion below which a joint counts as still (rad or m): its gap is left out.
-STILL_EXCURSION = 1e-4
+#: Commanded excursion below which a joint counts as still (its gap is left out): 0.5° or 0.5 mm,
+#: a few encoder ticks, where a plan's start at the measured pose is all that "moves" it.
+STILL_EXCURSION = {"revolute": math.radians(0.5), "prismatic": 0.5e-3}
 
 
 def _excursions(cmp: Comparison) -> np.ndarray:
@@ -32,7 +33,8 @@ def _excursions(cmp: Comparison) -> np.ndarray:
 def tracking_gap(cmp: Comparison) -> float:
     """RMS over the moving joints and the repeats of (sim − rig) / excursion (unit-free)."""
     exc = _excursions(cmp)
-    rel = [[d.rms / e for d, e in zip(pair, exc) if e > STILL_EXCURSION and math.isfinite(d.rms)]
+    still = [STILL_EXCURSION[row.kind] for row in cmp.robot.chain.rows]
+    rel = [[d.rms / e for d, e, s in zip(pair, exc, still) if e > s and math.isfinite(d.rms)]
            for pair in cmp.profile]
     values = np.array([v for pair in rel for v in pair])
     return float(np.sqrt(np.mean(values ** 2))) if values.size else math.nan

@@ -57,9 +57,9 @@ __all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "
 #: busy host's pauses of up to about 0.2 s do not end a repeat.
 EMULATED_RETRIES = 20
 
-HOME_TOLERANCE_RAD = np.radians(0.5)  #: at home: every revolute joint within this (rad) ...
-HOME_TOLERANCE_M = 0.5e-3  #: ... and every slide within this (m) ...
-HOME_STILL_S = 0.2  #: ... for this long (s) ...
+HOME_TOLERANCE_RAD = np.radians(0.2)  #: at home: every revolute joint within this (rad) ...
+HOME_TOLERANCE_M = 0.2e-3  #: ... and every slide within this (m) ...
+HOME_STILL_S = 0.5  #: ... for this long (s) ...
 HOME_TIMEOUT_S = 5.0  #: ... or at most this long after the homing move (s)
 
 ProgressFn = Callable[[str, float], None]  # (what is running, fraction of the whole session)
@@ -98,8 +98,9 @@ def sim_counterpart(config: TrialConfig, servo_model: str = "ideal") -> TrialCon
     data = json.loads(config.model_dump_json())
     data["backend"] = json.loads(PyBulletBackendConfig().model_dump_json())
     if servo_model != "ideal":
-        data["backend"].update(servo_model=servo_model, servos=json.loads(config.model_dump_json())
-                               ["backend"].get("servos", {}))
+        rig = json.loads(config.model_dump_json())["backend"]
+        data["backend"].update(servo_model=servo_model, servos=rig.get("servos", {}),
+                               ultrasonic=rig.get("ultrasonic"))
     try:
         return TrialConfig.model_validate({**data, "source": config.source})
     except Exception as e:  # pydantic's message, one line

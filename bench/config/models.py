@@ -119,6 +119,9 @@ class PyBulletBackendConfig(Strict):
                     "XM430-W350 per joint through the robot's transmissions, zero at home)")
     transport_delay_ms: float = Field(default=0.0, ge=0, le=100,
                                       description="how long a goal takes to reach the servos (servo model)")
+    ultrasonic: Optional["UltrasonicConfig"] = Field(
+        default=None, description="with a servo model: the train read through its ultrasonic sensor "
+                                  "and steered by the host loop, as on the rig (the port is not opened)")
 
     @field_validator("safe_stop", mode="before")
     @classmethod
@@ -357,9 +360,9 @@ class TrialConfig(Strict):
             if servos != set(names):
                 raise ValueError(f"backend.servos: missing {sorted(set(names) - servos)}, "
                                  f"unknown {sorted(servos - set(names))}; {self.robot} has {names}")
-            u = self.backend.ultrasonic
-            if u is not None and u.joint not in names:
-                raise ValueError(f"backend.ultrasonic.joint: unknown joint {u.joint!r}")
+        u = self.backend.ultrasonic
+        if u is not None and u.joint not in names:
+            raise ValueError(f"backend.ultrasonic.joint: unknown joint {u.joint!r}")
         if self.backend.kind == "pybullet" and self.backend.servos:
             servos = set(self.backend.servos)
             if servos != set(names):

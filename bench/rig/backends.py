@@ -10,12 +10,12 @@ import numpy as np
 
 from bench.config.calibration import calibration_of
 from bench.config.models import ConfigError, ServoConfig, TrialConfig, model_number
-from bench.kinematics.arc_train import epsilon_from_d2
+from bench.kinematics.arc_train import epsilon_from_d2, train_pose
 from bench.kinematics.transmission import servo_transmissions
 from drivers import Actuators, JointLimits
 from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings, UltrasonicSettings
 from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, SceneObject
-from drivers.pybullet.servo_sim import ServoSimActuators, ServoSimSettings
+from drivers.pybullet.servo_sim import ServoSimActuators, ServoSimSettings, TrainSensor
 from drivers.servo import ServoParams
 
 __all__ = ["backend_limits", "limits_of", "make_backend", "make_dynamixel_backend", "make_servo_sim",
@@ -65,6 +65,18 @@ def servo_params(table: dict[str, ServoConfig], names) -> ServoParams:
                                  current_limit_a=[table[n].current_limit_a for n in names])
 
 
+def _train_sensor(config: TrialConfig, robot) -> TrainSensor | None:
+    """The train's ultrasonic sensor as the simulator models it (standoff, rate, median)."""
+    u = config.backend.ultrasonic
+    if u is None:
+        return None
+    standoff, params = u.standoff_mm * 1e-3, robot.params
+    return TrainSensor(joint=list(robot.joint_names).index(u.joint),
+                       to_distance=lambda q: standoff + float(train_pose(q, params).d2),
+                       to_joint=lambda d: float(epsilon_from_d2(d - standoff, params)),
+                       rate_hz=u.rate_hz, median_window=u.median_window)
+
+
 def make_servo_sim(config: TrialConfig, robot) -> Actuators:
     """The simulator driving the joints through the servo model (``backend.servo_model``)."""
     b = config.backend
@@ -76,7 +88,8 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
         ratio=[table[n].ratio for n in names], offset=[table[n].offset for n in names],
         max_velocity=limits.velocity, max_effort=limits.effort, physics_hz=b.physics_hz,
         control_period=config.control_period, initial_position=robot.chain.home,
-        transport_delay_s=b.transport_delay_ms * 1e-3, safe_stop=b.safe_stop, start_holding=True)
+        transport_delay_s=b.transport_delay_ms * 1e-3, safe_stop=b.safe_stop, start_holding=True,
+        train_sensor=_train_sensor(config, robot))
     return ServoSimActuators(settings)
 
 

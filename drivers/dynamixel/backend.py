@@ -45,6 +45,7 @@ from drivers.dynamixel.cycle import SyncCycle
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
 from drivers.dynamixel.protocol import decode_hardware_error
 from drivers.dynamixel.units import OPERATING_MODES, RAD_PER_TICK, VELOCITY_UNIT_RAD_S
+from drivers.train_loop import TrainLoop
 from drivers.ultrasonic import UltrasonicSensor
 
 log = logging.getLogger(__name__)
@@ -159,8 +160,10 @@ class DynamixelActuators(ActuatorsBase):
         self.ph = StuffingPacketHandler()
         self._regs = RegisterAccess(self.port, self.ph, s.retries)
         self._sensor = None
-        self._correction = 0.0
         self._train = names.index(s.ultrasonic.joint) if s.ultrasonic else None
+        self._train_loop = TrainLoop(self._train if self._train is not None else 0,
+                                     s.ultrasonic.loop_gain if s.ultrasonic else 0.0,
+                                     s.ultrasonic.max_correction if s.ultrasonic else 0.0)
         try:
             try:
                 opened = self.port.openPort()
@@ -364,7 +367,7 @@ class DynamixelActuators(ActuatorsBase):
         self._send_goals(raw)
         for sid in self._ids:
             self._write(sid, "Torque Enable", 1)
-        self._correction = 0.0
+        self._train_loop.reset()
 
     def _encoder_positions(self, st: JointState) -> np.ndarray:
         q = st.position.copy()
@@ -376,18 +379,9 @@ class DynamixelActuators(ActuatorsBase):
         lim = self._limits
         q = np.minimum(np.maximum(position, lim.lower), lim.upper)
         if self._sensor is not None and self._last is not None:
-            # Host loop on the train: the servo's goal is nudged by the integral of
-            # the ultrasonic error, so the arc angle follows the sensor, not the pinion.
-            u = self.settings.ultrasonic
-            now = self._last.time
-            dt = min(max(now - getattr(self, "_last_cmd_time", now), 0.0), 0.1)
-            self._last_cmd_time = now
-            if not self._last.flags:
-                err = q[self._train] - self._last.position[self._train]
-                self._correction = float(np.clip(self._correction + u.loop_gain * err * dt,
-                                                 -u.max_correction, u.max_correction))
-            q = q.copy()
-            q[self._train] += self._correction
+            # Host loop on the train: the arc angle follows the sensor, not the pinion.
+            q = self._train_loop.goal(q, self._last.position[self._train], self._last.time,
+                                      valid=not self._last.flags)
         self._send_goals(self._goal_ticks(q))
 
     def _goal_ticks(self, q: np.ndarray) -> np.ndarray:

@@ -26,12 +26,11 @@ from typing import Callable
 import numpy as np
 
 from drivers.emulator.service import PtyService
+from drivers.train_loop import sensor_millimetres
 from drivers.ultrasonic import DEFAULT_STANDOFF_M
 
 __all__ = ["DEFAULT_STANDOFF_M", "UltrasonicEmulator", "standoff_distance"]
 
-MIN_MM = 300
-MAX_MM = 5000
 
 
 def standoff_distance(
@@ -45,12 +44,7 @@ def standoff_distance(
 
 def format_reading(distance_m: float) -> bytes:
     """The line the sensor sends for a true distance, clamped like the sensor does."""
-    if not np.isfinite(distance_m):
-        millimetres = MAX_MM  # no echo: the sensor reports its maximum range
-    else:
-        millimetres = int(round(distance_m * 1000.0))
-    millimetres = max(MIN_MM, min(MAX_MM, millimetres))
-    return b"R%04d\r" % millimetres
+    return b"R%04d\r" % sensor_millimetres(distance_m)
 
 
 class UltrasonicEmulator(PtyService):

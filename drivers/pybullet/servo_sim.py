@@ -19,7 +19,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, Sequence
+from typing import Callable, Literal, Sequence
 
 import numpy as np
 
@@ -28,8 +28,21 @@ from drivers.dynamixel.units import RAD_PER_TICK, VELOCITY_UNIT_RAD_S
 from drivers.pybullet.backend import steps_per_period
 from drivers.servo import ServoArray, ServoParams
 from drivers.servo.plant import PyBulletPlant
+from drivers.train_loop import SensedDistance, TrainLoop
 
-__all__ = ["ServoSimActuators", "ServoSimSettings"]
+__all__ = ["ServoSimActuators", "ServoSimSettings", "TrainSensor"]
+
+
+@dataclass
+class TrainSensor:
+    """The rig's ultrasonic sensor on the train, for the simulator: what it sees and how the
+    driver maps a reading back to the joint (the bench's kinematics), its rate and median."""
+
+    joint: int
+    to_distance: Callable[[float], float]  # joint value -> distance the sensor sees (m)
+    to_joint: Callable[[float], float]  # reading (m) -> joint value, as the driver maps it
+    rate_hz: float
+    median_window: int = 5
 
 
 @dataclass
@@ -52,6 +65,8 @@ class ServoSimSettings:
     #: Start as the lab keeps the rig: servos holding the initial pose with torque on, their
     #: integrators charged against gravity (False: torque off until enable()).
     start_holding: bool = False
+    #: The train read through its ultrasonic sensor and steered by the host loop, as on the rig.
+    train_sensor: TrainSensor | None = None
 
 
 class ServoSimActuators(ActuatorsBase):
@@ -82,6 +97,15 @@ class ServoSimActuators(ActuatorsBase):
         self._delay_steps = int(round(s.transport_delay_s / self._dt))
         self._step_count = 0
         self.safe_stop_report: str | None = None
+        self._sensed: SensedDistance | None = None
+        self._train_loop: TrainLoop | None = None
+        self._last: JointState | None = None
+        if s.train_sensor is not None:
+            ts = s.train_sensor
+            self._sensed = SensedDistance(lambda: ts.to_distance(float(self.plant.joint_position()[ts.joint])),
+                                          ts.rate_hz, ts.median_window)
+            self._sensed.update(0.0)
+            self._train_loop = TrainLoop(ts.joint)
         if s.start_holding:
             self._torque_on = True
             self.servos.hold(self.plant.position(), self.plant.holding_torque())
@@ -109,8 +133,12 @@ class ServoSimActuators(ActuatorsBase):
         velocity = np.round(self.plant.velocity() / VELOCITY_UNIT_RAD_S) * VELOCITY_UNIT_RAD_S
         effort = (self.servos.params.kt * self.servos.current / self._ratio if self._torque_on
                   else np.zeros_like(shaft))
-        return JointState(self.now(), self._offset + self._ratio * ticks * RAD_PER_TICK,
-                          self._ratio * velocity, effort)
+        position = self._offset + self._ratio * ticks * RAD_PER_TICK
+        if self._sensed is not None:
+            ts = self.settings.train_sensor
+            position[ts.joint] = ts.to_joint(self._sensed.read())
+        self._last = JointState(self.now(), position, self._ratio * velocity, effort)
+        return self._last
 
     def true_position(self) -> np.ndarray:
         """The joints where they really are (not quantised): the simulator's ground truth."""
@@ -120,7 +148,10 @@ class ServoSimActuators(ActuatorsBase):
         target = int(math.floor(t / self._dt + 1e-6))
         plant, servos, dt, pending = self.plant, self.servos, self._dt, self._pending
         zero = np.zeros(len(self._ratio))
+        sensed = self._sensed
         while self._step_count < target:
+            if sensed is not None:
+                sensed.update(self._step_count * dt)
             while pending and pending[0][0] <= self._step_count:
                 servos.set_goal(pending.popleft()[1])
             if self._torque_on:
@@ -134,6 +165,8 @@ class ServoSimActuators(ActuatorsBase):
         """As the rig's driver: goals = present positions, then torque on (a servo already holding
         keeps its integrator)."""
         self._pending.clear()
+        if self._train_loop is not None:
+            self._train_loop.reset()
         if self._torque_on:
             self.servos.set_goal(self.plant.position())
         else:
@@ -142,7 +175,10 @@ class ServoSimActuators(ActuatorsBase):
 
     def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
         lim = self._limits
-        goal = (np.minimum(np.maximum(position, lim.lower), lim.upper) - self._offset) / self._ratio
+        q = np.minimum(np.maximum(position, lim.lower), lim.upper)
+        if self._train_loop is not None and self._last is not None:
+            q = self._train_loop.goal(q, self._last.position[self._train_loop.joint], self._last.time)
+        goal = (q - self._offset) / self._ratio
         self._pending.append((self._step_count + self._delay_steps, goal))
 
     def _disable(self) -> None:

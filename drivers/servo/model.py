@@ -150,6 +150,11 @@ class ServoArray:
         self._goal = np.zeros(n)
         self.current = np.zeros(n)
         self.pwm = np.zeros(n)
+        self._unlimited = True
+        self._no_profile = np.zeros(n, dtype=bool)
+        self._has_prev_all = False
+        self._deadband = bool((params.deadband_ticks > 0).any())
+        self._volts_per_pwm = np.maximum(params.supply_voltage, 1e-6) / PWM_FULL_SCALE
 
     @staticmethod
     def ticks(position: np.ndarray) -> np.ndarray:
@@ -164,8 +169,10 @@ class ServoArray:
         self._traj_vel[:] = 0.0
         self._integral[:] = 0.0
         self._has_prev[:] = False
+        self._has_prev_all = False
         self._vmax[:] = np.inf
         self._amax[:] = np.inf
+        self._unlimited = True
 
     def hold(self, position: np.ndarray, torque: np.ndarray) -> None:
         """Torque on at ``position``, settled: the integrators already give the motor ``torque``
@@ -188,8 +195,12 @@ class ServoArray:
         amax = np.where((pv == 0) | (pa == 0), np.inf, pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK)
         self._vmax = np.where(changed, vmax, self._vmax)
         self._amax = np.where(changed, amax, self._amax)
+        self._unlimited = bool(np.isinf(self._vmax).all())
 
     def _advance_profile(self, dt: float) -> np.ndarray:
+        if self._unlimited:  # Profile Velocity 0 everywhere (the bench's setting): the goal at once
+            self._traj = self._goal
+            return self._no_profile
         goal, traj, vel = self._goal, self._traj, self._traj_vel
         remaining = goal - traj
         direction = np.sign(remaining)
@@ -207,20 +218,27 @@ class ServoArray:
     def step(self, dt: float, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """One firmware sample of ``dt`` s at the shaft state (rad, rad/s); the motor torque (N·m)."""
         p = self.params
-        present = self.ticks(position)
+        present = np.floor(position * (1.0 / RAD_PER_TICK) + 0.5)
         ongoing = self._advance_profile(dt)
         error = self._traj - present
         samples = dt / FIRMWARE_PERIOD_S
-        held = (p.deadband_ticks > 0) & ~ongoing & (np.abs(self._goal - present) <= p.deadband_ticks)
-        integral = np.clip(self._integral + self._ki * error * samples, -p.pwm_limit, p.pwm_limit)
-        derivative = np.where(self._has_prev, (error - self._prev_error) / samples, 0.0)
-        u = self._kp * error + integral + self._kd * derivative
-        self._integral = np.where(held, 0.0, integral)
+        lim = p.pwm_limit
+        integral = np.minimum(np.maximum(self._integral + self._ki * error * samples, -lim), lim)
+        u = self._kp * error + integral
+        if self._has_prev_all:
+            u += self._kd * ((error - self._prev_error) / samples)
+        else:
+            u += self._kd * np.where(self._has_prev, (error - self._prev_error) / samples, 0.0)
+            self._has_prev[:] = True
+            self._has_prev_all = True
         self._prev_error = error
-        self._has_prev[:] = True
-        pwm = np.where(held, 0.0, np.clip(u, -p.pwm_limit, p.pwm_limit))
-        vin = np.maximum(p.supply_voltage, 1e-6)
-        current = (pwm / PWM_FULL_SCALE * vin - p.ke * velocity) / p.resistance
-        current = np.clip(current, -p.current_limit, p.current_limit)
+        pwm = np.minimum(np.maximum(u, -lim), lim)
+        if self._deadband:
+            held = (p.deadband_ticks > 0) & ~ongoing & (np.abs(self._goal - present) <= p.deadband_ticks)
+            integral = np.where(held, 0.0, integral)
+            pwm = np.where(held, 0.0, pwm)
+        self._integral = integral
+        current = (pwm * self._volts_per_pwm - p.ke * velocity) / p.resistance
+        current = np.minimum(np.maximum(current, -p.current_limit), p.current_limit)
         self.pwm, self.current = pwm, current
         return p.kt * current

@@ -77,6 +77,7 @@ class PyBulletPlant:
         self._B = self._B_emf + servos.viscous / r2
         self._Ja = servos.armature / r2
         self._coulomb_only = servos.with_(viscous=0.0)
+        self._has_friction = bool((servos.coulomb > 0).any() or (servos.stribeck > 0).any())
         self._joint_friction = np.zeros(n) if joint_friction is None else np.asarray(joint_friction, dtype=float)
         self._dt = physics_dt
         self._q = np.clip(np.asarray(initial_position, dtype=float), self._lower, self._upper)
@@ -124,8 +125,9 @@ class PyBulletPlant:
         M = np.array(pb.calculateMassMatrix(self.body, ql, physicsClientId=c))
         h = np.array(pb.calculateInverseDynamics(self.body, ql, qd.tolist(), self._zeros,
                                                  physicsClientId=c))
-        friction = (friction_torque(self._coulomb_only, qd / self._ratio) / self._ratio
-                    + self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S))
+        friction = self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)
+        if self._has_friction:
+            friction = friction + friction_torque(self._coulomb_only, qd / self._ratio) / self._ratio
         rhs = drive - self._B * qd - h - friction
         A = M + np.diag(self._Ja + dt * self._B)
         qd_new = qd + dt * np.linalg.solve(A, rhs)
