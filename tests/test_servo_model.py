@@ -203,3 +203,6 @@ def test_compare_with_the_datasheet_model_predicts_the_emulated_rig_better_than_
     assert len(pred["tip_error_mm"]["per_repeat"]) == 2
     run = Path(json.loads(out.stdout)["report"]).parent
     assert len(list((run / "model").iterdir())) == 2 and len(list((run / "sim").iterdir())) == 2
+    md = (run / "report.md").read_text()
+    assert "## Prediction of the rig" in md and "prediction.png" in md
+    assert json.loads((run / "summary.json").read_text())["prediction"] == pred

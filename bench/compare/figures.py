@@ -38,7 +38,7 @@ def display_scale(kind: str) -> tuple[float, str]:
     return (180.0 / math.pi, "°") if kind == "revolute" else (1e3, "mm")
 
 
-def _pyplot():
+def pyplot():
     import matplotlib  # heavy: loaded only when a figure is drawn
 
     matplotlib.use("Agg")
@@ -47,7 +47,7 @@ def _pyplot():
     return plt
 
 
-def _aligned_time(log: TrialLog) -> np.ndarray:
+def aligned_time(log: TrialLog) -> np.ndarray:
     t = np.asarray(log.time, dtype=float)
     try:
         return t - first_motion_time(t, np.asarray(log.q_cmd))
@@ -58,7 +58,7 @@ def _aligned_time(log: TrialLog) -> np.ndarray:
 def plot_profiles(comparison: Comparison, path: Path) -> Path:
     """Fig. 12 for both sides: per joint, the theoretical profile (red dotted) and every repeat."""
 
-    plt = _pyplot()
+    plt = pyplot()
     robot = comparison.robot
     names = comparison.joint_names
     sides = (comparison.reference, comparison.subject)
@@ -68,13 +68,13 @@ def plot_profiles(comparison: Comparison, path: Path) -> Path:
             ax = axes[row, col]
             j = names.index(name)
             for i, log in enumerate(side.logs):
-                t = _aligned_time(log)
+                t = aligned_time(log)
                 meas, unit, label = joint_display(robot, name, np.asarray(log.q)[:, j])
                 ax.plot(t, meas, "-", color=_colour(i), lw=1.0, label=f"repeat {i + 1}")
             if side.logs:
                 log = side.logs[0]
                 cmd, unit, label = joint_display(robot, name, np.asarray(log.q_cmd)[:, j])
-                ax.plot(_aligned_time(log), cmd, "r:", lw=1.8, label="theoretical")
+                ax.plot(aligned_time(log), cmd, "r:", lw=1.8, label="theoretical")
                 ax.set_ylabel(unit, fontsize=8)
             ax.set_title(f"{label} — {side.label}", fontsize=9)
             ax.grid(alpha=0.3)
@@ -108,7 +108,7 @@ def profiles_caption(comparison: Comparison) -> str:
 
 def plot_tracking(comparison: Comparison, path: Path) -> Path:
     """Per joint: lag, RMS error relative to the commanded excursion, and tip contribution."""
-    plt = _pyplot()
+    plt = pyplot()
     names = comparison.joint_names
     x = np.arange(len(names))
     sides = (comparison.reference, comparison.subject)
@@ -141,7 +141,7 @@ def plot_tracking(comparison: Comparison, path: Path) -> Path:
 
 def plot_needle_scatter(comparison: Comparison, path: Path) -> Path:
     """Entry-point (Table 3's X, Y, Z) and tip deviations, the acceptance box and Table 3's points."""
-    plt = _pyplot()
+    plt = pyplot()
     limit = comparison.acceptance[0]
     t3 = table3_deviations()
     t3_xyz = np.stack([t3["x"], t3["y"], t3["z"]], axis=1)

@@ -27,6 +27,8 @@ from bench.compare.figures import (
     profiles_caption,
     relative_rms,
 )
+from bench.compare.prediction import Prediction
+from bench.compare.prediction_report import plot_prediction, prediction_markdown
 from bench.compare.signals import nanmean
 from bench.core.log import TrialLog
 from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, table3_deviations, train_pose
@@ -338,8 +340,11 @@ def _json_default(o: object) -> object:
 
 
 def write_compare_report(comparison: Comparison, out_dir: Path, title: str = "Sim vs real",
-                         notes: Sequence[str] = (), lost: Sequence[dict] = ()) -> dict[str, Path]:
-    """profiles.png, tracking.png, needle.png, report.md, report.html and summary.json in ``out_dir``."""
+                         notes: Sequence[str] = (), lost: Sequence[dict] = (),
+                         ideal: Optional[Comparison] = None,
+                         prediction: Optional[Prediction] = None) -> dict[str, Path]:
+    """profiles.png, tracking.png, needle.png, report.md, report.html and summary.json in ``out_dir``;
+    with a servo model (``ideal`` and ``prediction``), prediction.png and its section too."""
 
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
@@ -349,12 +354,19 @@ def write_compare_report(comparison: Comparison, out_dir: Path, title: str = "Si
     plot_needle_scatter(comparison, d / figures["needle"])
     loads = gravity_loads(comparison)
     md = render_markdown(comparison, figures, title, notes, lost, loads)
+    if ideal is not None and prediction is not None:
+        figures["prediction"] = "prediction.png"
+        plot_prediction(comparison, ideal, d / figures["prediction"])
+        head, sep, rest = md.partition("## Joint profiles (Fig. 12 layout)")
+        md = head + "\n".join(prediction_markdown(prediction, figures["prediction"])) + "\n" + sep + rest
     (d / "report.md").write_text(md)
     (d / "report.html").write_text(markdown_to_html(md, {v: d / v for v in figures.values()}, title))
     record = comparison.as_dict()
     record["gravity_load"] = None if loads is None else [float(v) for v in loads]
     record["notes"] = list(notes)
     record["lost_attempts"] = list(lost)
+    if prediction is not None:
+        record["prediction"] = prediction.as_dict()
     (d / "summary.json").write_text(json.dumps(record, indent=2, default=_json_default) + "\n")
     paths = {k: d / v for k, v in figures.items()}
     paths.update({"markdown": d / "report.md", "html": d / "report.html", "summary": d / "summary.json"})

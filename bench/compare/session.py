@@ -6,8 +6,8 @@ by the PyBullet defaults, so both backends run the same plan.
 
 The rig's repeats follow the paper's protocol: every repeat starts from home.
 Before each repeat the needle is withdrawn and the arm brought home at the
-plan's speed and held there until every joint has arrived (0.5° / 0.5 mm
-for 0.2 s, at most 5 s), in the same driver session as the trial that
+plan's speed and held there until every joint has arrived (0.2° / 0.2 mm, the
+train 0.5° as its sensor resolves it, for 0.5 s, at most 5 s), in the same driver session as the trial that
 follows; between repeats the servos hold (``safe_stop: hold``) so the arm
 does not drop. The config's own
 safe stop is applied after the last repeat and whenever the session ends
@@ -59,6 +59,7 @@ EMULATED_RETRIES = 20
 
 HOME_TOLERANCE_RAD = np.radians(0.2)  #: at home: every revolute joint within this (rad) ...
 HOME_TOLERANCE_M = 0.2e-3  #: ... and every slide within this (m) ...
+HOME_SENSED_RAD = np.radians(0.5)  #: ... a joint read by the ultrasonic sensor (1 mm of d2) within this ...
 HOME_STILL_S = 0.5  #: ... for this long (s) ...
 HOME_TIMEOUT_S = 5.0  #: ... or at most this long after the homing move (s)
 
@@ -158,8 +159,12 @@ def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
         segs = [Segment("withdraw", LSPB(q0, withdrawn, vmax, amax), 0.0),
                 Segment("home", LSPB(withdrawn, home, vmax, amax), 0.0)]
         Runner(act, config.control_period).run(segs, log)
-        log.metadata["home_reached_s"] = _hold_until_home(
-            act, home, [r.kind for r in robot.chain.rows], config.control_period, log)
+        tol = np.array([HOME_TOLERANCE_RAD if r.kind == "revolute" else HOME_TOLERANCE_M
+                        for r in robot.chain.rows])
+        u = getattr(config.backend, "ultrasonic", None)
+        if u is not None:
+            tol[list(robot.joint_names).index(u.joint)] = HOME_SENSED_RAD
+        log.metadata["home_reached_s"] = _hold_until_home(act, home, tol, config.control_period, log)
     except BaseException:
         act.close()
         raise
@@ -169,7 +174,7 @@ def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
     return act
 
 
-def _hold_until_home(act: Actuators, home: np.ndarray, kinds: list[str], period: float,
+def _hold_until_home(act: Actuators, home: np.ndarray, tol: np.ndarray, period: float,
                      log: TrialLog) -> float:
     """Keep commanding home until every joint has stayed within HOME_TOLERANCE of it for
     HOME_STILL_S (the servos' integrators take out the gravity sag), or HOME_TIMEOUT_S.
@@ -179,7 +184,6 @@ def _hold_until_home(act: Actuators, home: np.ndarray, kinds: list[str], period:
     kick would show up as tracking error that is not the plan's. Returns the time
     taken (s), NaN on timeout.
     """
-    tol = np.array([HOME_TOLERANCE_RAD if k == "revolute" else HOME_TOLERANCE_M for k in kinds])
     zero = np.zeros_like(home)
     t0 = t = act.now()
     since: Optional[float] = None
@@ -319,15 +323,17 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     reached = [TrialLog.load(p).metadata.get("home_reached_s") for p in sorted(home_dir.glob("*.npz"))]
     late = sum(1 for r in reached if r is None or not np.isfinite(r))
     head = ["The sim side is the same config with its backend replaced by the PyBullet defaults (same "
-            "name, robot, target, plan, control rate and acceptance limits); the sim has no noise, so "
-            "its repeats are identical."]
+            "name, robot, target, plan, control rate and acceptance limits)"
+            + (", running the rig's servo table through the servo model" if model_cfg is not None else "")
+            + "; the sim has no noise, so its repeats are identical."]
     if emulate:
         head.append(f"The rig is the bench's emulator (`hilbench emulate`, one process for all repeats) "
                     f"on this host; the driver retries each bus transaction up to {EMULATED_RETRIES} "
                     f"times against it, so that the host's pauses do not end a repeat.")
     head.append("Every rig repeat starts from home: the needle is withdrawn and the arm brought home at "
-                "the plan's speed and held until every joint is within 0.5° / 0.5 mm of home for "
-                f"{HOME_STILL_S:g} s"
+                f"the plan's speed and held until every joint is within {np.degrees(HOME_TOLERANCE_RAD):g}° / "
+                f"{HOME_TOLERANCE_M * 1e3:g} mm of home (the sensed train {np.degrees(HOME_SENSED_RAD):g}°) "
+                f"for {HOME_STILL_S:g} s"
                 + (f" ({late} homing(s) timed out after {HOME_TIMEOUT_S:g} s and went on)" if late else "")
                 + "; the servos hold between repeats and the config's safe stop "
                 f"({config.backend.safe_stop}) is applied after the last one.")
@@ -341,7 +347,8 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     if report:
 
         write_compare_report(result.comparison, out_dir, title=f"Sim vs {real_label}: {config.name}",
-                             notes=notes, lost=[a.__dict__ for a in lost])
+                             notes=notes, lost=[a.__dict__ for a in lost], ideal=result.ideal,
+                             prediction=result.prediction)
     return result
 
 

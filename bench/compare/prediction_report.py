@@ -1,0 +1,71 @@
+"""The prediction part of a comparison report: a Fig. 12-style figure with the commanded profile,
+the rig, the ideal sim and the model-driven sim in one panel per joint, and its table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bench.compare.analysis import Comparison
+from bench.compare.figures import aligned_time, pyplot
+from bench.compare.prediction import STILL_EXCURSION, Prediction
+from bench.report.trial import joint_display
+
+__all__ = ["plot_prediction", "prediction_markdown"]
+
+
+def plot_prediction(model: Comparison, ideal: Comparison, path: Path) -> Path:
+    """Per joint, repeat 1: commanded (red dotted), rig (black), ideal sim (blue dashed), model sim (green)."""
+    plt = pyplot()
+    robot, names = model.robot, model.joint_names
+    cols = 3
+    rows = -(-len(names) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(12, 2.3 * rows), sharex=True, squeeze=False)
+    rig, sim, ideal_sim = model.subject.logs[0], model.reference.logs[0], ideal.reference.logs[0]
+    for k, name in enumerate(names):
+        ax = axes[k // cols, k % cols]
+        j = names.index(name)
+        for log, style, colour, label in ((rig, "-", "black", model.subject.label),
+                                          (ideal_sim, "--", "tab:blue", "ideal sim"),
+                                          (sim, "-", "tab:green", model.reference.label)):
+            y, unit, title = joint_display(robot, name, np.asarray(log.q)[:, j])
+            ax.plot(aligned_time(log), y, style, color=colour, lw=1.1, label=label)
+        cmd, unit, title = joint_display(robot, name, np.asarray(rig.q_cmd)[:, j])
+        ax.plot(aligned_time(rig), cmd, "r:", lw=1.6, label="commanded")
+        ax.set_title(title, fontsize=9)
+        ax.set_ylabel(unit, fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+    for k in range(len(names), rows * cols):
+        axes[k // cols, k % cols].set_axis_off()
+    for ax in axes[-1]:
+        ax.set_xlabel("time from the first commanded motion (s)", fontsize=8)
+    axes[0, 0].legend(loc="best", fontsize=7)
+    fig.suptitle("Commanded, rig, ideal sim and model sim, repeat 1 (Fig. 12 layout)")
+    fig.subplots_adjust(left=0.07, right=0.98, top=0.93, bottom=0.07, hspace=0.5, wspace=0.3)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return Path(path)
+
+
+def prediction_markdown(pred: Prediction, figure: str) -> list[str]:
+    """The section's lines: what the figures mean, the table, the figure."""
+    d = pred.as_dict()
+    tips = d["tip_error_mm"]["per_repeat"]
+    still = ", ".join(f"{v:g} {'°' if k == 'revolute' else 'm'}" for k, v in
+                      (("revolute", round(np.degrees(STILL_EXCURSION["revolute"]), 3)),
+                       ("prismatic", STILL_EXCURSION["prismatic"])))
+    return ["## Prediction of the rig", "",
+            "How well the sim with the servo model foresees the rig. *Tip error*: the distance "
+            "between the needle tips the model sim and the rig placed, per repeat (mm). *Tracking "
+            "gap*: the RMS over joints and time of (sim − rig) measured positions, each joint's "
+            "relative to its commanded excursion (joints moving less than " + still + " left out); "
+            "the ratio is the model's gap over the ideal sim's (1: no better; 0.2: 80 % smaller).", "",
+            "| figure | value |", "| --- | --- |",
+            f"| tip error per repeat (mm) | {', '.join(f'{v:.3f}' for v in tips) or '—'} |",
+            f"| tip error mean / max (mm) | {d['tip_error_mm']['mean']} / {d['tip_error_mm']['max']} |",
+            f"| tracking gap, model sim | {d['tracking_gap']['model']} |",
+            f"| tracking gap, ideal sim | {d['tracking_gap']['ideal']} |",
+            f"| tracking gap ratio (model / ideal) | {d['tracking_gap_ratio']} |", "",
+            f"![Commanded, rig, ideal sim and model sim]({figure})", ""]
