@@ -206,3 +206,32 @@ def test_compare_with_the_datasheet_model_predicts_the_emulated_rig_better_than_
     md = (run / "report.md").read_text()
     assert "## Prediction of the rig" in md and "prediction.png" in md
     assert json.loads((run / "summary.json").read_text())["prediction"] == pred
+
+
+def test_a_sim_naming_its_rig_runs_the_rigs_servo_table_in_trials_and_campaigns(tmp_path):
+    """backend.rig: the lab's servo table (its I gains of 300) reaches every trial of a campaign,
+    whose trial configs are built from the base file's raw data."""
+    from bench.campaign.spec import load_campaign_spec, plan_trials
+
+    repo = Path(__file__).resolve().parents[1]
+    cfg = load_trial_config(repo / "hil_configs" / "sim_target1_servo.yaml")
+    assert cfg.backend.servos["theta4"].position_i == 300 and cfg.backend.ultrasonic is not None
+    spec = load_campaign_spec(repo / "hil_configs" / "campaigns" / "tolerance_sweep_servo.yaml")
+    trial = plan_trials(spec, limit=1)[0]
+    backend = trial.config["backend"]
+    assert backend["servo_model"] == "datasheet" and backend["servos"]["theta4"]["position_i"] == 300
+
+
+def test_backend_rig_is_refused_without_a_servo_model_or_for_a_sim_config(tmp_path):
+    import yaml
+
+    data = yaml.safe_load((Path(__file__).resolve().parents[1] / "hil_configs" / "sim_target1_servo.yaml")
+                          .read_text())
+    for change, words in (({"servo_model": "ideal"}, "only matter with a servo model"),
+                          ({"rig": "hil_configs/sim_target1.yaml"}, "not a dynamixel config"),
+                          ({"rig": "hil_configs/nowhere.yaml"}, "not found")):
+        bad = {**data, "backend": {**data["backend"], **change}}
+        path = tmp_path / "bad.yaml"
+        path.write_text(yaml.safe_dump(bad))
+        with pytest.raises(ConfigError, match=words):
+            load_trial_config(path)

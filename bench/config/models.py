@@ -7,6 +7,7 @@ and degrees for targets, SI for joint limits and gains.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -122,6 +123,10 @@ class PyBulletBackendConfig(Strict):
     ultrasonic: Optional["UltrasonicConfig"] = Field(
         default=None, description="with a servo model: the train read through its ultrasonic sensor "
                                   "and steered by the host loop, as on the rig (the port is not opened)")
+    rig: Optional[Path] = Field(
+        default=None, description="with a servo model: a dynamixel trial config whose servo table and "
+                                  "ultrasonic sensor the sim runs (relative: to the project), instead "
+                                  "of writing them again here")
 
     @field_validator("safe_stop", mode="before")
     @classmethod
@@ -342,6 +347,28 @@ class TrialConfig(Strict):
         if refusal:
             raise ValueError(refusal)
         return value
+
+    @model_validator(mode="before")
+    @classmethod
+    def _rig_servos(cls, data: Any) -> Any:
+        """A sim naming its rig (``backend.rig``) takes the rig's servo table and sensor, once."""
+        b = data.get("backend") if isinstance(data, dict) else None
+        if not isinstance(b, dict) or b.get("kind") != "pybullet" or not b.get("rig"):
+            return data
+        if b.get("servo_model", "ideal") == "ideal":
+            raise ValueError("backend.rig: the rig's servos only matter with a servo model; set "
+                             "backend.servo_model: datasheet, or drop backend.rig")
+        if b.get("servos"):  # taken already (a config read back from a record)
+            return data
+        path = Path(b["rig"]) if Path(b["rig"]).is_absolute() else REPO_ROOT / b["rig"]
+        try:
+            rig = load_trial_config(path)
+        except ConfigError as e:
+            raise ValueError(f"backend.rig: {e}") from None
+        if rig.backend.kind != "dynamixel" or rig.robot != data.get("robot", "arc-train"):
+            raise ValueError(f"backend.rig: {path} is not a dynamixel config of the same robot")
+        dumped = json.loads(rig.backend.model_dump_json())
+        return {**data, "backend": {**b, "servos": dumped["servos"], "ultrasonic": dumped["ultrasonic"]}}
 
     @model_validator(mode="after")
     def _joint_names_known(self) -> "TrialConfig":
