@@ -28,8 +28,10 @@ def _emulated(model: int, gains: tuple[int, int, int], profile: tuple[int, int],
     (XM430_W350, (1200, 300, 400), (60, 20), 0),
     (XM540_W270, (900, 100, 50), (0, 0), 3),
 ])
-def test_the_vectorised_model_gives_the_emulated_servos_torque_step_for_step(model, gains, profile, deadband):
-    """Same goals, same shaft states: the same motor torque to 1e-9 N·m, for 3 s of moves."""
+def test_the_sims_servo_model_gives_the_emulated_servos_torque_step_for_step(model, gains, profile, deadband):
+    """One model, two doors: goals in SI through ServoArray.set_goal (the simulator) and goals as
+    Goal Position writes through the emulated servo's registers (the rig), same shaft states:
+    the same motor torque to 1e-9 N·m for 3 s of moves (ticks, offsets and profiles agree)."""
     rng = np.random.default_rng(7)
     n = 3
     emulated = [_emulated(model, gains, profile, deadband) for _ in range(n)]

@@ -76,6 +76,7 @@ from drivers.emulator.plant import InertiaPlant, Plant
 from drivers.emulator.service import PtyService
 from drivers.emulator.servo import ServoModel
 from drivers.emulator.wire import StatusWire
+from drivers.servo.model import ServoArray
 from drivers.timing import tighten_timer_slack
 
 __all__ = ["BusFaults", "BusStats", "DynamixelBusEmulator"]
@@ -171,6 +172,10 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
                 )
             servo.set("ID", key)
             self._servos.append((servo, joint))
+        # One servo array for the bus: every physics step runs all the servos' loops at once.
+        self._bank = ServoArray.gather([s for s, _ in self._servos])
+        for slot, (servo, _) in enumerate(self._servos):
+            servo.attach(self._bank, slot)
         self.physics_dt = float(physics_dt)
         self.wire_timing = wire_timing
         self.check_baud = check_baud

@@ -108,11 +108,15 @@ class PhysicsClock:
         dt = self.physics_dt
         plant = self.plant
         torque = np.zeros(plant.joint_count)
+        bank, servos = self._bank, self._servos
         for _ in range(steps):
-            q, v = plant.position(), plant.velocity()
+            q, v = plant.position().tolist(), plant.velocity().tolist()
             torque[:] = 0.0
-            for servo, joint in self._servos:
-                torque[joint] += servo.step(dt, float(q[joint]), float(v[joint]))
+            for servo, joint in servos:
+                servo.begin_step(dt, q[joint], v[joint])
+            bank.step_ticks(dt)
+            for servo, joint in servos:
+                torque[joint] += servo.end_step(dt)
             plant.step(dt, torque)
         q, v = plant.position(), plant.velocity()
         for servo, joint in self._servos:

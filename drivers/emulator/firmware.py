@@ -1,21 +1,30 @@
-"""An X-series servo's firmware loop and motor, per 1 ms substep: profile, position or velocity
-PID in firmware units, PWM and current limits, the DC motor, overload supervision
-(the physics half of :class:`~drivers.emulator.servo.ServoModel`; the register half is there)."""
+"""An X-series servo's firmware loop and motor, per 1 ms substep: what the registers ask of the
+shared servo model, and what it reports back (the physics half of
+:class:`~drivers.emulator.servo.ServoModel`; the register half is there).
+
+The profile, the position PID and the motor run in :class:`~drivers.servo.model.ServoArray`,
+one slot per servo: the bus steps all its servos' slots at once (:meth:`begin_step`, the
+array's step, :meth:`end_step`), a servo on its own steps a one-slot array. The simulator's
+servo model is the same class, so the emulated rig and the sim cannot drift apart. The
+velocity mode's PI loop, the supervision (voltage, temperature, overload) and the reports
+are the emulator's own."""
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from drivers.dynamixel.units import (
     ACCEL_UNIT_RAD_S2,
     CENTER_TICK,
     POSITION_MODES,
-    PWM_FULL_SCALE,
     RAD_PER_TICK,
     TICKS_PER_REV,
     VELOCITY_UNIT_RAD_S,
     OperatingMode,
 )
+from drivers.servo.model import ServoArray, ServoParams
 
 __all__ = ["CONTROL_PERIOD_S", "ServoFirmware", "clamp"]
 
@@ -28,51 +37,114 @@ def clamp(value: float, limit: float) -> float:
 
 class ServoFirmware:
     """The firmware and motor of :class:`~drivers.emulator.servo.ServoModel` (a mixin: it reads and
-    reports through the servo's control table)."""
+    reports through the servo's control table, and keeps its loop in a slot of a servo array)."""
 
+    _bank: ServoArray
+    _slot: int
+
+    # -- the slot -------------------------------------------------------------------------
+    def _motor_params(self) -> ServoParams:
+        """This servo's motor as the servo model's parameters (one slot)."""
+        p = ServoParams.datasheet([self.spec.number])
+        return p.with_(kt=self._kt, ke=self._ke, resistance=self._resistance)
+
+    def _own_bank(self) -> None:
+        """A one-slot array: the servo runs on its own until a bus gathers it."""
+        self._bank = ServoArray(self._motor_params(), amps_per_unit=self._amps_per_unit)
+        self._slot = 0
+
+    def attach(self, bank: ServoArray, slot: int) -> None:
+        """Move this servo's loop into ``slot`` of a bus's array, state and all."""
+        old, i = self._bank, self._slot
+        for name in ("traj", "traj_vel", "integral", "prev_error", "has_prev", "vmax", "amax", "goal",
+                     "ongoing", "gains", "pwm_limit", "pwm_cap", "current_limit", "supply", "deadband",
+                     "current_based", "goal_current", "amps_per_unit"):
+            getattr(bank, name)[slot] = getattr(old, name)[i]
+        self._bank, self._slot = bank, slot
+
+    # -- one physics step ---------------------------------------------------------------------
     def step(self, dt: float, position: float, velocity: float) -> float:
-        """Run the firmware for ``dt`` s given the shaft state (rad, rad/s); return shaft torque (N·m)."""
+        """Run the firmware for ``dt`` s given the shaft state (rad, rad/s); return shaft torque (N·m).
+
+        A servo on a bus is stepped with the others (:meth:`begin_step`, the array, :meth:`end_step`)."""
+        self.begin_step(dt, position, velocity)
+        if self._bank.params.n == 1:
+            self._bank.step_ticks(dt)
+        else:  # stepped alone while on a bus: the others' slots are left as they are
+            pid = self._bank.pid.copy()
+            others = np.ones_like(pid)
+            others[self._slot] = False
+            self._bank.pid = pid & ~others
+            keep = {k: getattr(self._bank, k).copy() for k in ("current", "pwm")}
+            self._bank.step_ticks(dt)
+            self._bank.pid = pid
+            for k, v in keep.items():
+                getattr(self._bank, k)[others] = v[others]
+        return self.end_step(dt)
+
+    def begin_step(self, dt: float, position: float, velocity: float) -> None:
+        """Sense, supervise and hand the array this servo's inputs for the step."""
         # The bus runs this for every servo every millisecond: items are read from
         # the value dict directly rather than through get().
         values = self._values
         self._time += dt
         sign = -1.0 if values["Drive Mode"] & 1 else 1.0
+        self._sign = sign
         present = self._sense(position, velocity, sign)
         self._check_supervision()
-        mode = values["Operating Mode"]
-        omega = sign * velocity  # servo frame
-        pwm_limit = float(values["PWM Limit"])
-        current_cmd: float | None = None
-        pwm = 0.0
+        b, i = self._bank, self._slot
+        b.present[i] = present
+        b.omega[i] = sign * velocity  # servo frame
+        b.pid[i] = False
+        b.pwm_in[i] = b.current_in[i] = math.nan
         if values["Torque Enable"] != 1:
             self._track_present(present)
-            current = 0.0
-        else:
-            if mode in POSITION_MODES:
-                u = self._position_control(dt, present)
-                if mode == OperatingMode.CURRENT_BASED_POSITION:
-                    current_cmd = clamp(u, abs(self.get("Goal Current"))) * self._amps_per_unit
-                else:
-                    pwm = clamp(u, min(pwm_limit, abs(values["Goal PWM"])))
-            elif mode == OperatingMode.VELOCITY:
-                pwm = clamp(self._velocity_control(dt), min(pwm_limit, abs(values["Goal PWM"])))
-            elif mode == OperatingMode.CURRENT:
-                current_cmd = self.get("Goal Current") * self._amps_per_unit
-            else:  # PWM
-                pwm = clamp(float(values["Goal PWM"]), pwm_limit)
-            vin = max(self.input_voltage, 1e-6)
-            if current_cmd is not None:
-                needed = current_cmd * self._resistance + self._ke * omega
-                pwm = clamp(needed / vin * PWM_FULL_SCALE, pwm_limit)
-            current = (pwm / PWM_FULL_SCALE * vin - self._ke * omega) / self._resistance
-            current = clamp(current, self._current_limit_a())
+            self._driving = False
+            return
+        self._driving = True
+        mode = values["Operating Mode"]
+        pwm_limit = float(values["PWM Limit"])
+        b.pwm_limit[i] = pwm_limit
+        b.supply[i] = self.input_voltage
+        b.current_limit[i] = self._current_limit_a()
+        b.current_based[i] = False
+        if mode in POSITION_MODES:
+            b.pid[i] = True
+            b.gains[i, 0] = values["Position P Gain"]
+            b.gains[i, 1] = values["Position I Gain"]
+            b.gains[i, 2] = values["Position D Gain"]
+            b.deadband[i] = self.deadband_ticks
+            if mode == OperatingMode.CURRENT_BASED_POSITION:
+                b.current_based[i] = True
+                b.goal_current[i] = abs(values["Goal Current"])
+            else:
+                b.pwm_cap[i] = min(pwm_limit, abs(values["Goal PWM"]))
+        elif mode == OperatingMode.VELOCITY:
+            b.pwm_in[i] = clamp(self._velocity_control(dt), min(pwm_limit, abs(values["Goal PWM"])))
+        elif mode == OperatingMode.CURRENT:
+            b.current_in[i] = values["Goal Current"] * self._amps_per_unit
+        else:  # PWM
+            b.pwm_in[i] = clamp(float(values["Goal PWM"]), pwm_limit)
+
+    def end_step(self, dt: float) -> float:
+        """Take the array's drive for this servo: supervise the current, report, return the torque."""
+        values = self._values
+        b, i = self._bank, self._slot
+        current = pwm = 0.0
+        if self._driving:
+            current, pwm = float(b.current[i]), float(b.pwm[i])
             self._check_overload(dt, current)
+            if b.pid[i]:
+                self._profile_ongoing = bool(b.ongoing[i])
+                self._report("Position Trajectory", round(float(b.traj[i])))
+                self._report("Velocity Trajectory",
+                             round(float(b.traj_vel[i]) * RAD_PER_TICK / VELOCITY_UNIT_RAD_S))
         if values["Torque Enable"] != 1:  # overload may just have switched it off
             current, pwm = 0.0, 0.0
         self._report_drive(pwm, current)
         if self._forced:
             self._apply_forced()
-        return sign * self._kt * current
+        return self._sign * self._kt * current
 
     def power_on(self, position: float, velocity: float = 0.0) -> None:
         """Read the absolute encoder as at power-up: one turn, goal = present, torque off."""
@@ -114,90 +186,47 @@ class ServoFirmware:
         self.set("Present Position", math.floor(self._raw_ticks + 0.5) + self.get("Homing Offset"))
 
     def _reset_controller(self, *, goal_to_present: bool) -> None:
+        if not hasattr(self, "_bank"):
+            self._own_bank()
         present = float(self.get("Present Position"))
-        self._traj_pos = present
-        self._traj_vel = 0.0
-        self._integral = 0.0
-        self._prev_error: float | None = None
+        self._bank.reset_slot(self._slot, present)
+        self._bank.goal[self._slot] = float(self.get("Goal Position"))
+        self._vel_traj = 0.0
         self._vel_integral = 0.0
         self._overload_timer = 0.0
-        self._profile_vmax = math.inf
-        self._profile_amax = math.inf
         self._profile_ongoing = False
         if goal_to_present and self.get("Operating Mode") in POSITION_MODES:
             self.set("Goal Position", int(present))
+            self._bank.goal[self._slot] = present
         self.set("Position Trajectory", int(present))
         self.set("Velocity Trajectory", 0)
 
     def _track_present(self, present: float) -> None:
-        self._traj_pos = present
-        self._traj_vel = 0.0
+        self._bank.track_slot(self._slot, present)
+        self._vel_traj = 0.0
         self._profile_ongoing = False
         self._report("Position Trajectory", int(present))
         self._report("Velocity Trajectory", 0)
         self._report("Moving Status", 0)
 
     def _plan_profile(self) -> None:
-        """Profile limits for a new Goal Position (ticks/s, ticks/s²)."""
+        """Profile limits for a new Goal Position (ticks/s, ticks/s²), into the servo's slot."""
         pv = self.get("Profile Velocity")
         pa = self.get("Profile Acceleration")
+        goal = float(self.get("Goal Position"))
         if pv == 0:
-            self._profile_vmax = self._profile_amax = math.inf
+            vmax = amax = math.inf
         elif self.get("Drive Mode") & 0x04:  # time-based profile
-            distance = abs(self.get("Goal Position") - self._traj_pos)
+            distance = abs(goal - float(self._bank.traj[self._slot]))
             total = pv / 1000.0
             ramp = min(pa, pv / 2.0) / 1000.0
-            self._profile_vmax = max(distance / max(total - ramp, 1e-3), 1e-9)
-            self._profile_amax = self._profile_vmax / ramp if ramp > 0 else math.inf
+            vmax = max(distance / max(total - ramp, 1e-3), 1e-9)
+            amax = vmax / ramp if ramp > 0 else math.inf
         else:
-            self._profile_vmax = pv * VELOCITY_UNIT_RAD_S / RAD_PER_TICK
-            self._profile_amax = pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK if pa else math.inf
+            vmax = pv * VELOCITY_UNIT_RAD_S / RAD_PER_TICK
+            amax = pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK if pa else math.inf
+        self._bank.plan_slot(self._slot, goal, vmax, amax)
         self._profile_ongoing = True
-
-    def _advance_profile(self, dt: float) -> None:
-        goal = float(self._values["Goal Position"])
-        remaining = goal - self._traj_pos
-        vmax, amax = self._profile_vmax, self._profile_amax
-        if math.isinf(vmax) or remaining == 0.0:
-            self._traj_pos, self._traj_vel = goal, 0.0
-        else:
-            direction = math.copysign(1.0, remaining)
-            if math.isinf(amax):
-                self._traj_vel = direction * vmax
-            else:
-                target = direction * min(vmax, math.sqrt(2.0 * amax * abs(remaining)))
-                self._traj_vel += clamp(target - self._traj_vel, amax * dt)
-            step = self._traj_vel * dt
-            if abs(step) >= abs(remaining) or abs(remaining) < 1e-3:
-                self._traj_pos, self._traj_vel = goal, 0.0
-            else:
-                self._traj_pos += step
-        self._profile_ongoing = self._traj_pos != goal
-        self._report("Position Trajectory", round(self._traj_pos))
-        self._report("Velocity Trajectory", round(self._traj_vel * RAD_PER_TICK / VELOCITY_UNIT_RAD_S))
-
-    def _position_control(self, dt: float, present: float) -> float:
-        self._advance_profile(dt)
-        values = self._values
-        goal = values["Goal Position"]
-        error = self._traj_pos - present
-        if (
-            self.deadband_ticks
-            and not self._profile_ongoing
-            and abs(goal - present) <= self.deadband_ticks
-        ):
-            self._integral = 0.0
-            self._prev_error = error
-            return 0.0
-        kp = values["Position P Gain"] / 128.0
-        ki = values["Position I Gain"] / 65536.0
-        kd = values["Position D Gain"] / 16.0
-        samples = dt / CONTROL_PERIOD_S
-        limit = float(values["PWM Limit"])
-        self._integral = clamp(self._integral + ki * error * samples, limit)
-        derivative = 0.0 if self._prev_error is None else (error - self._prev_error) / samples
-        self._prev_error = error
-        return kp * error + self._integral + kd * derivative
 
     def _velocity_control(self, dt: float) -> float:
         goal = float(self.get("Goal Velocity"))  # 0.229 rev/min units
@@ -205,12 +234,12 @@ class ServoFirmware:
         per_unit = VELOCITY_UNIT_RAD_S / RAD_PER_TICK  # ticks/s per velocity unit
         target = goal * per_unit
         if pa:
-            self._traj_vel += clamp(target - self._traj_vel, pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK * dt)
+            self._vel_traj += clamp(target - self._vel_traj, pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK * dt)
         else:
-            self._traj_vel = target
-        self._profile_ongoing = self._traj_vel != target
-        self._report("Velocity Trajectory", round(self._traj_vel / per_unit))
-        error = self._traj_vel / per_unit - self.get("Present Velocity")
+            self._vel_traj = target
+        self._profile_ongoing = self._vel_traj != target
+        self._report("Velocity Trajectory", round(self._vel_traj / per_unit))
+        error = self._vel_traj / per_unit - self.get("Present Velocity")
         kp = self.get("Velocity P Gain") / 128.0
         ki = self.get("Velocity I Gain") / 65536.0
         limit = float(self.get("PWM Limit"))
@@ -251,8 +280,8 @@ class ServoFirmware:
                 status |= 0x01  # in position
             if self._profile_ongoing:
                 status |= 0x02
-            if not math.isinf(self._profile_vmax):
-                status |= 0x30 if not math.isinf(self._profile_amax) else 0x10
+            if not math.isinf(self._bank.vmax[self._slot]):
+                status |= 0x30 if not math.isinf(self._bank.amax[self._slot]) else 0x10
         self._report("Moving Status", status)
 
     def _apply_forced(self) -> None:

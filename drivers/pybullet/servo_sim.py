@@ -196,10 +196,7 @@ class ServoSimActuators(ActuatorsBase):
     # -- extras ----------------------------------------------------------------
     def set_effort_limit(self, joint: int, effort: float) -> None:
         """Lower a joint's available torque/force: its servo's current limit, through the transmission."""
-        p = self.servos.params
-        limit = p.current_limit.copy()
-        limit[joint] = effort * abs(self._ratio[joint]) / p.kt[joint]
-        self.servos.params = p.with_(current_limit=limit)
+        self.servos.current_limit[joint] = effort * abs(self._ratio[joint]) / self.servos.params.kt[joint]
         eff = self._limits.effort.copy()
         eff[joint] = effort
         self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)

@@ -127,118 +127,193 @@ def friction_torque(params: ServoParams, omega: np.ndarray) -> np.ndarray:
 
 
 class ServoArray:
-    """The firmware and motors of n servos in position control, stepped together.
+    """The firmware and motors of n servos, stepped together (the emulated rig's servos and the
+    simulator's are both one of these).
 
-    :meth:`reset` starts the profile and the PID at the present positions (as a servo does at
-    torque on); :meth:`step` takes the goals and the shaft state and returns the motor torque
-    (N·m, before friction), the current (A) and the PWM (units of 885 = 100 %).
+    The position loop (profile and PID, in ticks) runs on the slots in a position mode; a slot
+    may instead be given a PWM (velocity and PWM modes) or a current to drive (current mode),
+    and a current-based position slot turns the PID's output into a current first, as the
+    firmware does. The firmware settings the registers hold (gains, limits, supply, mode) are
+    arrays the owner may change between steps: :attr:`gains`, :attr:`pwm_limit`,
+    :attr:`pwm_cap`, :attr:`current_limit`, :attr:`supply`, :attr:`current_based`,
+    :attr:`goal_current`, :attr:`deadband`.
     """
 
-    def __init__(self, params: ServoParams) -> None:
+    def __init__(self, params: ServoParams, amps_per_unit: Sequence[float] | float = 0.00269) -> None:
         self.params = params
         n = params.n
-        self._kp = params.position_p / 128.0
-        self._ki = params.position_i / 65536.0
-        self._kd = params.position_d / 16.0
-        self._traj = np.zeros(n)
-        self._traj_vel = np.zeros(n)
-        self._integral = np.zeros(n)
-        self._prev_error = np.zeros(n)
-        self._has_prev = np.zeros(n, dtype=bool)
-        self._vmax = np.full(n, np.inf)
-        self._amax = np.full(n, np.inf)
-        self._goal = np.zeros(n)
+        # the registers' firmware settings
+        self.gains = np.stack([params.position_p, params.position_i, params.position_d], axis=1).astype(float)
+        self.pwm_limit = params.pwm_limit.astype(float).copy()  # PWM Limit: bounds the integrator
+        self.pwm_cap = self.pwm_limit.copy()  # min(PWM Limit, |Goal PWM|): bounds the output
+        self.current_limit = params.current_limit.astype(float).copy()
+        self.supply = params.supply_voltage.astype(float).copy()
+        self.deadband = params.deadband_ticks.astype(float).copy()
+        self.current_based = np.zeros(n, dtype=bool)
+        self.goal_current = np.full(n, np.inf)  # |Goal Current| (units) in current-based position mode
+        self.amps_per_unit = _arr(amps_per_unit, n)
+        self.profile_velocity = params.profile_velocity.astype(float).copy()
+        self.profile_acceleration = params.profile_acceleration.astype(float).copy()
+        # the firmware's state, in ticks
+        self.traj = np.zeros(n)
+        self.traj_vel = np.zeros(n)
+        self.integral = np.zeros(n)
+        self.prev_error = np.zeros(n)
+        self.has_prev = np.zeros(n, dtype=bool)
+        self.vmax = np.full(n, np.inf)
+        self.amax = np.full(n, np.inf)
+        self.goal = np.zeros(n)
+        self.ongoing = np.zeros(n, dtype=bool)
+        # what the owner hands in for one step
+        self.present = np.zeros(n)
+        self.omega = np.zeros(n)
+        self.pid = np.ones(n, dtype=bool)
+        self.pwm_in = np.full(n, np.nan)
+        self.current_in = np.full(n, np.nan)
+        # what comes out
         self.current = np.zeros(n)
         self.pwm = np.zeros(n)
-        self._unlimited = True
-        self._no_profile = np.zeros(n, dtype=bool)
-        self._has_prev_all = False
-        self._deadband = bool((params.deadband_ticks > 0).any())
-        self._volts_per_pwm = np.maximum(params.supply_voltage, 1e-6) / PWM_FULL_SCALE
+
+    @classmethod
+    def gather(cls, servos) -> "ServoArray":
+        """One array for several emulated servos (each servo then moves its loop into a slot)."""
+        params = [s._bank.params for s in servos]
+        fields = {f: np.concatenate([getattr(p, f) for p in params]) for f in ServoParams.__dataclass_fields__}
+        return cls(ServoParams(**fields), amps_per_unit=[float(s._bank.amps_per_unit[0]) for s in servos])
 
     @staticmethod
     def ticks(position: np.ndarray) -> np.ndarray:
         """Encoder reading (integer ticks, 0 at shaft angle 0) of shaft angles (rad)."""
         return np.floor(np.asarray(position, dtype=float) / RAD_PER_TICK + 0.5)
 
+    # -- per slot: what a servo does on a register write ---------------------------------
+    def reset_slot(self, i, present) -> None:
+        """Torque on (or a reboot): trajectory at ``present`` ticks, PID state cleared, no profile."""
+        self.traj[i] = present
+        self.traj_vel[i] = 0.0
+        self.integral[i] = 0.0
+        self.has_prev[i] = False
+        self.vmax[i] = np.inf
+        self.amax[i] = np.inf
+        self.ongoing[i] = False
+
+    def track_slot(self, i, present) -> None:
+        """Torque off: the trajectory follows the encoder, nothing planned."""
+        self.traj[i] = present
+        self.traj_vel[i] = 0.0
+        self.ongoing[i] = False
+
+    def plan_slot(self, i, goal, vmax, amax) -> None:
+        """A new goal (ticks) with its profile limits (ticks/s, ticks/s²; inf: none)."""
+        self.goal[i] = goal
+        self.vmax[i] = vmax
+        self.amax[i] = amax
+        self.ongoing[i] = True
+
+    # -- the simulator's side: SI in, torque out -----------------------------------------
     def reset(self, position: np.ndarray) -> None:
         """Torque on at ``position`` (rad): goal = trajectory = present, PID state cleared."""
         present = self.ticks(position)
-        self._traj[:] = present
-        self._goal[:] = present
-        self._traj_vel[:] = 0.0
-        self._integral[:] = 0.0
-        self._has_prev[:] = False
-        self._has_prev_all = False
-        self._vmax[:] = np.inf
-        self._amax[:] = np.inf
-        self._unlimited = True
+        self.reset_slot(slice(None), present)
+        self.goal[:] = present
 
     def hold(self, position: np.ndarray, torque: np.ndarray) -> None:
         """Torque on at ``position``, settled: the integrators already give the motor ``torque``
         (N·m at the shaft, e.g. against gravity), as in a servo that has held its pose a while."""
         self.reset(position)
         p = self.params
-        pwm = np.asarray(torque, dtype=float) / p.kt * p.resistance / np.maximum(p.supply_voltage, 1e-6)
-        self._integral = np.clip(pwm * PWM_FULL_SCALE, -p.pwm_limit, p.pwm_limit)
+        pwm = np.asarray(torque, dtype=float) / p.kt * p.resistance / np.maximum(self.supply, 1e-6)
+        self.integral = np.clip(pwm * PWM_FULL_SCALE, -self.pwm_limit, self.pwm_limit)
 
     def set_goal(self, goal: np.ndarray) -> None:
         """New goal positions (rad): ticks as the bus writes them, with the profile planned."""
         goal_ticks = np.round(np.asarray(goal, dtype=float) / RAD_PER_TICK)
-        changed = goal_ticks != self._goal
+        changed = goal_ticks != self.goal
         if not changed.any():
             return
-        self._goal = np.where(changed, goal_ticks, self._goal)
-        p = self.params
-        pv, pa = p.profile_velocity, p.profile_acceleration
+        pv, pa = self.profile_velocity, self.profile_acceleration
         vmax = np.where(pv == 0, np.inf, pv * VELOCITY_UNIT_RAD_S / RAD_PER_TICK)
         amax = np.where((pv == 0) | (pa == 0), np.inf, pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK)
-        self._vmax = np.where(changed, vmax, self._vmax)
-        self._amax = np.where(changed, amax, self._amax)
-        self._unlimited = bool(np.isinf(self._vmax).all())
-
-    def _advance_profile(self, dt: float) -> np.ndarray:
-        if self._unlimited:  # Profile Velocity 0 everywhere (the bench's setting): the goal at once
-            self._traj = self._goal
-            return self._no_profile
-        goal, traj, vel = self._goal, self._traj, self._traj_vel
-        remaining = goal - traj
-        direction = np.sign(remaining)
-        with np.errstate(invalid="ignore"):  # inf · 0 where a joint has no profile or no distance left
-            target = direction * np.minimum(self._vmax, np.sqrt(2.0 * self._amax * np.abs(remaining)))
-            accel = np.clip(target - vel, -self._amax * dt, self._amax * dt)
-            vel = np.where(np.isinf(self._amax), direction * self._vmax, vel + np.nan_to_num(accel))
-        step = vel * dt
-        arrive = (np.isinf(self._vmax) | (remaining == 0.0) | (np.abs(step) >= np.abs(remaining))
-                  | (np.abs(remaining) < 1e-3))
-        self._traj = np.where(arrive, goal, traj + np.where(arrive, 0.0, step))
-        self._traj_vel = np.where(arrive, 0.0, vel)
-        return self._traj != goal  # profile still running
+        idx = np.flatnonzero(changed)
+        self.plan_slot(idx, goal_ticks[idx], vmax[idx], amax[idx])
 
     def step(self, dt: float, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """One firmware sample of ``dt`` s at the shaft state (rad, rad/s); the motor torque (N·m)."""
-        p = self.params
-        present = np.floor(position * (1.0 / RAD_PER_TICK) + 0.5)
-        ongoing = self._advance_profile(dt)
-        error = self._traj - present
+        self.present = np.floor(position * (1.0 / RAD_PER_TICK) + 0.5)
+        self.omega = velocity
+        self.step_ticks(dt)
+        return self.params.kt * self.current
+
+    # -- one step for every slot -----------------------------------------------------------
+    def _advance_profile(self, dt: float, pid: np.ndarray, every: bool) -> None:
+        goal, traj, vel, vmax, amax = self.goal, self.traj, self.traj_vel, self.vmax, self.amax
+        if np.isinf(vmax).all():  # no profile anywhere (the bench's Profile Velocity 0): the goal at once
+            if every:
+                self.traj = goal.copy()
+                self.traj_vel[:] = 0.0
+                self.ongoing[:] = False
+            else:
+                self.traj = np.where(pid, goal, traj)
+                self.traj_vel = np.where(pid, 0.0, vel)
+                self.ongoing = np.where(pid, False, self.ongoing)
+            return
+        remaining = goal - traj
+        direction = np.sign(remaining)
+        with np.errstate(invalid="ignore"):  # inf · 0 where a joint has no profile or no distance left
+            target = direction * np.minimum(vmax, np.sqrt(2.0 * amax * np.abs(remaining)))
+            accel = np.clip(target - vel, -amax * dt, amax * dt)
+            new_vel = np.where(np.isinf(amax), direction * vmax, vel + np.nan_to_num(accel))
+            step = new_vel * dt
+        arrive = (np.isinf(vmax) | (remaining == 0.0) | (np.abs(step) >= np.abs(remaining))
+                  | (np.abs(remaining) < 1e-3))
+        new_traj = np.where(arrive, goal, traj + np.where(arrive, 0.0, step))
+        new_vel = np.where(arrive, 0.0, new_vel)
+        self.traj = np.where(pid, new_traj, traj)
+        self.traj_vel = np.where(pid, new_vel, vel)
+        self.ongoing = np.where(pid, new_traj != goal, self.ongoing)
+
+    def step_ticks(self, dt: float) -> None:
+        """One firmware sample for every slot from :attr:`present` (ticks) and :attr:`omega`
+        (rad/s); fills :attr:`pwm` and :attr:`current` (A)."""
+        p, pid, present, omega = self.params, self.pid, self.present, self.omega
+        every = bool(pid.all())
+        self._advance_profile(dt, pid, every)
+        error = self.traj - present
         samples = dt / FIRMWARE_PERIOD_S
-        lim = p.pwm_limit
-        integral = np.minimum(np.maximum(self._integral + self._ki * error * samples, -lim), lim)
-        u = self._kp * error + integral
-        if self._has_prev_all:
-            u += self._kd * ((error - self._prev_error) / samples)
+        lim = self.pwm_limit
+        g = self.gains
+        integral = np.minimum(np.maximum(self.integral + (g[:, 1] * (samples / 65536.0)) * error, -lim), lim)
+        u = (g[:, 0] / 128.0) * error + integral
+        if self.has_prev.all():
+            u += (g[:, 2] / (16.0 * samples)) * (error - self.prev_error)
         else:
-            u += self._kd * np.where(self._has_prev, (error - self._prev_error) / samples, 0.0)
-            self._has_prev[:] = True
-            self._has_prev_all = True
-        self._prev_error = error
-        pwm = np.minimum(np.maximum(u, -lim), lim)
-        if self._deadband:
-            held = (p.deadband_ticks > 0) & ~ongoing & (np.abs(self._goal - present) <= p.deadband_ticks)
+            u += (g[:, 2] / 16.0) * np.where(self.has_prev, (error - self.prev_error) / samples, 0.0)
+        if (self.deadband > 0).any():
+            held = (self.deadband > 0) & ~self.ongoing & (np.abs(self.goal - present) <= self.deadband)
+            u = np.where(held, 0.0, u)
             integral = np.where(held, 0.0, integral)
-            pwm = np.where(held, 0.0, pwm)
-        self._integral = integral
-        current = (pwm * self._volts_per_pwm - p.ke * velocity) / p.resistance
-        current = np.minimum(np.maximum(current, -p.current_limit), p.current_limit)
-        self.pwm, self.current = pwm, current
-        return p.kt * current
+        cap = self.pwm_cap
+        pwm = np.minimum(np.maximum(u, -cap), cap)
+        if every:
+            self.integral, self.prev_error = integral, error
+            self.has_prev[:] = True
+            current_cmd = None
+        else:
+            self.integral = np.where(pid, integral, self.integral)
+            self.prev_error = np.where(pid, error, self.prev_error)
+            self.has_prev = self.has_prev | pid
+            pwm = np.where(pid, pwm, np.nan_to_num(self.pwm_in))
+            current_cmd = np.where(pid, np.nan, self.current_in)
+        if self.current_based.any():
+            cb = np.minimum(np.maximum(u, -self.goal_current), self.goal_current) * self.amps_per_unit
+            mask = pid & self.current_based
+            current_cmd = np.where(mask, cb, np.nan if current_cmd is None else current_cmd)
+        vin = np.maximum(self.supply, 1e-6)
+        if current_cmd is not None:
+            commanded = np.isfinite(current_cmd)
+            if commanded.any():
+                needed = (np.nan_to_num(current_cmd) * p.resistance + p.ke * omega) / vin * PWM_FULL_SCALE
+                pwm = np.where(commanded, np.minimum(np.maximum(needed, -lim), lim), pwm)
+        current = (pwm * (vin / PWM_FULL_SCALE) - p.ke * omega) / p.resistance
+        self.current = np.minimum(np.maximum(current, -self.current_limit), self.current_limit)
+        self.pwm = pwm
