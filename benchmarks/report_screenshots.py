@@ -1,7 +1,8 @@
 """Every kind of HTML report, built small and photographed with headless Chromium at 1280 px.
 
 Builds a passed trial, a trial stopped by an interlock, a sim-vs-sim compare of two
-runs, a 12-trial tolerance campaign and the arc-train accuracy budget, then writes
+runs, a compare of the emulated rig with the servo-model sim's prediction, a 12-trial
+tolerance campaign and the arc-train accuracy budget, then writes
 one full-page PNG per report into ``--out`` (default ``runs/screenshots``) so a
 person can look at what a technician will see. Needs Debian's ``chromium``.
 
@@ -51,6 +52,8 @@ def build_reports(work: Path) -> dict[str, Path]:
     hilbench("trial", str(stopped), "--out", str(work / "stopped"))
     run_a, run_b = only_dir(work / "passed"), only_dir(work / "passed2")
     hilbench("compare", str(run_a), str(run_b), "--out", str(work / "compare"))
+    hilbench("compare", str(REPO / "hil_configs" / "lab_real.yaml"), "--emulate", "--repeats", "2",
+             "--sim-model", "datasheet", "--out", str(work / "prediction"))
     spec = yaml.safe_load((REPO / "hil_configs" / "campaigns" / "tolerance_sweep.yaml").read_text())
     spec.update(samples=12, base=str(REPO / "hil_configs" / "sim_target1_fast.yaml"))
     (work / "campaign.yaml").write_text(yaml.safe_dump(spec))
@@ -59,6 +62,7 @@ def build_reports(work: Path) -> dict[str, Path]:
     return {"trial-passed": run_a / "report.html",
             "trial-stopped": only_dir(work / "stopped") / "report.html",
             "compare": next((work / "compare").rglob("report.html")),
+            "compare-prediction": next((work / "prediction").glob("*/report.html")),
             "campaign": work / "campaign" / "report.html",
             "accuracy": next((work / "accuracy").rglob("*.html"))}
 

@@ -237,3 +237,23 @@ def test_backend_rig_is_refused_without_a_servo_model_or_for_a_sim_config(tmp_pa
         path.write_text(yaml.safe_dump(bad))
         with pytest.raises(ConfigError, match=words):
             load_trial_config(path)
+
+
+def test_a_current_based_servo_in_the_sim_is_capped_by_its_current_as_on_the_rig(tmp_path):
+    """θ5 holds the wrist against gravity with about 2.4 N·m: in current-based position mode at
+    1 A (1.8 N·m through Kt) it cannot, and the tracking interlock stops the trial naming it."""
+    import yaml
+
+    from bench.trial.run import run_trial
+
+    repo = Path(__file__).resolve().parents[1]
+    data = yaml.safe_load((repo / "hil_configs" / "sim_target1_servo.yaml").read_text())
+    lab = yaml.safe_load(LAB.read_text())["backend"]
+    servos = lab["servos"]
+    servos["theta5"].update(mode="current_based_position", current_limit_a=1.0)
+    data["backend"].pop("rig")
+    data["backend"].update(servos=servos, ultrasonic=lab["ultrasonic"])
+    path = tmp_path / "weak.yaml"
+    path.write_text(yaml.safe_dump(data))
+    res = run_trial(load_trial_config(path), tmp_path / "runs", report=False)
+    assert not res.completed and "theta5" in res.reason and "tracking" in res.reason

@@ -89,7 +89,8 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
         max_velocity=limits.velocity, max_effort=limits.effort, physics_hz=b.physics_hz,
         control_period=config.control_period, initial_position=robot.chain.home,
         transport_delay_s=b.transport_delay_ms * 1e-3, safe_stop=b.safe_stop, start_holding=True,
-        train_sensor=_train_sensor(config, robot))
+        train_sensor=_train_sensor(config, robot),
+        current_based=[table[n].mode == "current_based_position" for n in names])
     return ServoSimActuators(settings)
 
 

@@ -46,11 +46,11 @@ class ServoFirmware:
     def _motor_params(self) -> ServoParams:
         """This servo's motor as the servo model's parameters (one slot)."""
         p = ServoParams.datasheet([self.spec.number])
-        return p.with_(kt=self._kt, ke=self._ke, resistance=self._resistance)
+        return p.with_(kt=self._kt, ke=self._ke, resistance=self._resistance, amps_per_unit=self._amps_per_unit)
 
     def _own_bank(self) -> None:
         """A one-slot array: the servo runs on its own until a bus gathers it."""
-        self._bank = ServoArray(self._motor_params(), amps_per_unit=self._amps_per_unit)
+        self._bank = ServoArray(self._motor_params())
         self._slot = 0
 
     def attach(self, bank: ServoArray, slot: int) -> None:

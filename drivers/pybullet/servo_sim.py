@@ -67,6 +67,9 @@ class ServoSimSettings:
     start_holding: bool = False
     #: The train read through its ultrasonic sensor and steered by the host loop, as on the rig.
     train_sensor: TrainSensor | None = None
+    #: Per joint: the servo in current-based position mode (its PID drives a current, capped at
+    #: the current limit, as Goal Current is on the rig).
+    current_based: Sequence[bool] | None = None
 
 
 class ServoSimActuators(ActuatorsBase):
@@ -88,6 +91,9 @@ class ServoSimActuators(ActuatorsBase):
         self.plant = PyBulletPlant(Path(s.robot_urdf), s.joint_names, self._ratio, self._offset, q0,
                                    s.servos, physics_dt=self._dt, gravity=s.gravity)
         self.servos = ServoArray(s.servos)
+        if s.current_based is not None:
+            self.servos.current_based[:] = np.asarray(s.current_based, dtype=bool)
+            self.servos.goal_current[:] = s.servos.current_limit / s.servos.amps_per_unit
         lower, upper = self.plant.limits
         self._limits = JointLimits(lower, upper, np.asarray(s.max_velocity, dtype=float),
                                    np.asarray(s.max_effort, dtype=float))

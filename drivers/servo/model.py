@@ -67,6 +67,8 @@ class ServoParams:
     stribeck: np.ndarray
     stribeck_velocity: np.ndarray
     deadband_ticks: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: A per Goal/Present Current unit (the current-based position mode's PID output unit).
+    amps_per_unit: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n(self) -> int:
@@ -101,7 +103,7 @@ class ServoParams:
             profile_velocity=np.zeros(n), profile_acceleration=np.zeros(n),
             armature=_arr(armature, n), coulomb=_arr(coulomb, n), viscous=_arr(viscous, n),
             stribeck=_arr(stribeck, n), stribeck_velocity=_arr(stribeck_velocity, n),
-            deadband_ticks=_arr(deadband_ticks, n))
+            deadband_ticks=_arr(deadband_ticks, n), amps_per_unit=unit)
 
     def with_(self, **changes) -> "ServoParams":
         """A copy with some fields replaced (scalars broadcast to every joint)."""
@@ -139,7 +141,7 @@ class ServoArray:
     :attr:`goal_current`, :attr:`deadband`.
     """
 
-    def __init__(self, params: ServoParams, amps_per_unit: Sequence[float] | float = 0.00269) -> None:
+    def __init__(self, params: ServoParams) -> None:
         self.params = params
         n = params.n
         # the registers' firmware settings
@@ -151,7 +153,7 @@ class ServoArray:
         self.deadband = params.deadband_ticks.astype(float).copy()
         self.current_based = np.zeros(n, dtype=bool)
         self.goal_current = np.full(n, np.inf)  # |Goal Current| (units) in current-based position mode
-        self.amps_per_unit = _arr(amps_per_unit, n)
+        self.amps_per_unit = params.amps_per_unit.astype(float).copy()
         self.profile_velocity = params.profile_velocity.astype(float).copy()
         self.profile_acceleration = params.profile_acceleration.astype(float).copy()
         # the firmware's state, in ticks
@@ -179,7 +181,7 @@ class ServoArray:
         """One array for several emulated servos (each servo then moves its loop into a slot)."""
         params = [s._bank.params for s in servos]
         fields = {f: np.concatenate([getattr(p, f) for p in params]) for f in ServoParams.__dataclass_fields__}
-        return cls(ServoParams(**fields), amps_per_unit=[float(s._bank.amps_per_unit[0]) for s in servos])
+        return cls(ServoParams(**fields))
 
     @staticmethod
     def ticks(position: np.ndarray) -> np.ndarray:
