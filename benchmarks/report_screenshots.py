@@ -188,9 +188,9 @@ def main() -> None:
             png = screenshot(html, args.out / f"{kind}.png", args.width)
             problems = layout_problems(html, args.width)
             failed |= bool(problems)
-            print(f"{kind:>14}: {png}  " + ("layout ok" if not problems else f"{len(problems)} problem(s)"))
+            print(f"{kind:>18}: {png}  " + ("layout ok" if not problems else f"{len(problems)} problem(s)"))
             for p in problems:
-                print(f"{'':>16}- {p}")
+                print(f"{'':>20}- {p}")
     raise SystemExit(1 if failed else 0)
 
 

@@ -365,3 +365,35 @@ def test_emulated_rig_five_repeats_pass_and_heavy_joints_lag(prep, tmp_path):
     assert one["repeats"] == 1 and one["passed"] is True
     two_summary = json.loads((Path(one["report"]).parent / "summary.json").read_text())
     assert two_summary["subject"]["label"] == "emulated rig"  # the rig is judged, whatever the order
+
+
+# ---------------------------------------------------------------------------
+# The prediction figures of a model sim
+# ---------------------------------------------------------------------------
+
+
+def test_prediction_figures_from_known_offsets(prep):
+    """A model sim off the rig by a constant 10 % of each moving joint's offset, an ideal sim off
+    by the whole offset: the tracking gap ratio is exactly 0.1; a still joint counts for nothing;
+    the tip error is the distance between the two placements."""
+    from bench.compare.prediction import prediction, tracking_gap
+
+    rig = synthetic_log(prep)
+    ideal = synthetic_log(prep, offset=OFFSET)
+    model = synthetic_log(prep, offset=0.1 * OFFSET)
+    model_cmp = compare_logs([model], [rig], labels=("model sim", "rig"))
+    ideal_cmp = compare_logs([ideal], [rig], labels=("sim", "rig"))
+    pred = prediction(model_cmp, ideal_cmp)
+    assert pred.tracking_gap_ratio == pytest.approx(0.1, rel=1e-6)
+    # each moving joint's gap is |offset| / excursion; theta3 does not move in this plan
+    exc = rig.q_cmd.max(axis=0) - rig.q_cmd.min(axis=0)
+    moving = exc > np.radians(0.5)
+    assert not moving[1]
+    assert tracking_gap(ideal_cmp) == pytest.approx(np.sqrt(np.mean((OFFSET[moving] / exc[moving]) ** 2)),
+                                                    rel=1e-3)
+    tip_sim = np.array(model_cmp.reference.outcomes[0].tip_mm)
+    tip_rig = np.array(model_cmp.subject.outcomes[0].tip_mm)
+    assert pred.tip_error_mm == [pytest.approx(float(np.linalg.norm(tip_sim - tip_rig)))]
+    assert pred.tip_error_mm[0] > 0.01
+    d = pred.as_dict()
+    assert d["tracking_gap_ratio"] == pytest.approx(0.1, rel=1e-5) and d["tip_error_mm"]["max"] > 0

@@ -16,7 +16,7 @@ __all__ = ["plot_prediction", "prediction_markdown"]
 
 
 def plot_prediction(model: Comparison, ideal: Comparison, path: Path) -> Path:
-    """Per joint, repeat 1: commanded (red dotted), rig (black), ideal sim (blue dashed), model sim (green)."""
+    """Per joint, repeat 1: commanded (red dotted), rig (wide grey), ideal sim (blue dashed), model sim (green)."""
     plt = pyplot()
     robot, names = model.robot, model.joint_names
     cols = 3
@@ -26,11 +26,12 @@ def plot_prediction(model: Comparison, ideal: Comparison, path: Path) -> Path:
     for k, name in enumerate(names):
         ax = axes[k // cols, k % cols]
         j = names.index(name)
-        for log, style, colour, label in ((rig, "-", "black", model.subject.label),
-                                          (ideal_sim, "--", "tab:blue", "ideal sim"),
-                                          (sim, "-", "tab:green", model.reference.label)):
+        # the rig wide and pale underneath, so a model sim that lies on it leaves it visible
+        for log, style, colour, width, label in ((rig, "-", "0.55", 3.2, model.subject.label),
+                                                 (ideal_sim, "--", "tab:blue", 1.1, "ideal sim"),
+                                                 (sim, "-", "tab:green", 1.0, model.reference.label)):
             y, unit, title = joint_display(robot, name, np.asarray(log.q)[:, j])
-            ax.plot(aligned_time(log), y, style, color=colour, lw=1.1, label=label)
+            ax.plot(aligned_time(log), y, style, color=colour, lw=width, label=label)
         cmd, unit, title = joint_display(robot, name, np.asarray(rig.q_cmd)[:, j])
         ax.plot(aligned_time(rig), cmd, "r:", lw=1.6, label="commanded")
         ax.set_title(title, fontsize=9)
