@@ -387,8 +387,9 @@ def test_prediction_figures_from_known_offsets(prep):
     assert pred.tracking_gap_ratio == pytest.approx(0.1, rel=1e-6)
     # each moving joint's gap is |offset| / excursion; theta3 does not move in this plan
     exc = rig.q_cmd.max(axis=0) - rig.q_cmd.min(axis=0)
-    moving = exc > np.radians(0.5)
-    assert not moving[1]
+    still = np.array([np.radians(0.5) if r.kind == "revolute" else 0.5e-3 for r in prep.robot.chain.rows])
+    moving = exc > still
+    assert not moving[1] and moving.sum() == 8
     assert tracking_gap(ideal_cmp) == pytest.approx(np.sqrt(np.mean((OFFSET[moving] / exc[moving]) ** 2)),
                                                     rel=1e-3)
     tip_sim = np.array(model_cmp.reference.outcomes[0].tip_mm)
