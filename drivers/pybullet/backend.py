@@ -19,7 +19,8 @@ from typing import Callable, Literal, Sequence
 
 import numpy as np
 
-from drivers import ActuatorError, ActuatorsBase, ConfigurationError, JointLimits, JointState, NotEnabledError
+from drivers import ActuatorError, ConfigurationError, JointLimits, JointState, NotEnabledError
+from drivers.pybullet.stepped import SteppedActuators
 from drivers.quiet import muted_output, quiet_pybullet
 
 
@@ -84,7 +85,7 @@ def steps_per_period(physics_hz: float, control_period: float) -> int:
     return int(round(n))
 
 
-class PyBulletActuators(ActuatorsBase):
+class PyBulletActuators(SteppedActuators):
     """The robot's joints in a private PyBullet world."""
 
 
@@ -178,17 +179,6 @@ class PyBulletActuators(ActuatorsBase):
         return arr
 
     # -- the Actuators interface ---------------------------------------------
-    @property
-    def joint_names(self) -> Sequence[str]:
-        return list(self.settings.joint_names)
-
-    @property
-    def joint_kinds(self) -> list[str]:
-        return list(self._kinds)
-
-    @property
-    def limits(self) -> JointLimits:
-        return self._limits
 
     @property
     def client(self) -> int:
@@ -197,9 +187,6 @@ class PyBulletActuators(ActuatorsBase):
     @property
     def physics_dt(self) -> float:
         return self._dt
-
-    def now(self) -> float:
-        return self._step_count * self._dt
 
     def read(self) -> JointState:
         states = self._pb.getJointStates(self.robot, self._joint_index, physicsClientId=self._client)

@@ -23,9 +23,10 @@ from typing import Callable, Literal, Sequence
 
 import numpy as np
 
-from drivers import ActuatorsBase, ConfigurationError, JointLimits, JointState
+from drivers import ConfigurationError, JointLimits, JointState
 from drivers.dynamixel.units import RAD_PER_TICK, VELOCITY_UNIT_RAD_S
 from drivers.pybullet.backend import steps_per_period
+from drivers.pybullet.stepped import SteppedActuators
 from drivers.servo import ServoArray, ServoParams
 from drivers.servo.plant import PyBulletPlant
 from drivers.train_loop import SensedDistance, TrainLoop
@@ -72,7 +73,7 @@ class ServoSimSettings:
     current_based: Sequence[bool] | None = None
 
 
-class ServoSimActuators(ActuatorsBase):
+class ServoSimActuators(SteppedActuators):
     """PyBullet joints moved by simulated X-series servos (torque control through the servo model)."""
 
     def __init__(self, settings: ServoSimSettings) -> None:
@@ -117,20 +118,6 @@ class ServoSimActuators(ActuatorsBase):
             self.servos.hold(self.plant.position(), self.plant.holding_torque())
 
     # -- the Actuators interface ---------------------------------------------
-    @property
-    def joint_names(self) -> Sequence[str]:
-        return list(self.settings.joint_names)
-
-    @property
-    def joint_kinds(self) -> list[str]:
-        return list(self._kinds)
-
-    @property
-    def limits(self) -> JointLimits:
-        return self._limits
-
-    def now(self) -> float:
-        return self._step_count * self._dt
 
     def read(self) -> JointState:
         """What the rig's driver reads: ticks and velocity units through the transmissions."""
