@@ -68,3 +68,50 @@ def test_a_joint_with_no_room_or_a_bad_spec_is_refused(arm):
         ExcitationSpec(f0_hz=2.0, f1_hz=1.0)
     with pytest.raises(TrajectoryError, match="indices"):
         Excitation(rest, [9], np.full(9, 0.01), lo, hi, lim)
+
+
+def test_an_excitation_trial_runs_around_the_entry_pose_and_passes_by_completing(tmp_path):
+    """`excitation:` in a trial config: approach, excite, home; every interlock on; no needle."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import yaml
+
+    from bench.core.log import TrialLog
+
+    repo = Path(__file__).resolve().parents[1]
+    data = yaml.safe_load((repo / "hil_configs" / "sim_target1_servo.yaml").read_text())
+    data.update(name="excite", excitation={"joints": ["theta4", "d9"], "chirp_s": 2.0, "multisine_s": 2.0,
+                                           "multisine_period_s": 1.0})
+    cfg = tmp_path / "excite.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = subprocess.run([str(Path(sys.executable).with_name("hilbench")), "trial", str(cfg), "--json",
+                          "--out", str(tmp_path / "runs")], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert res["passed"] is True and res["completed"] is True and res["tip_deviation_mm"] is None
+    log = TrialLog.load(Path(res["run_dir"]) / "trial.npz")
+    assert log.segment_names == ["approach", "excite", "home"]
+    excite = log.segment == 1
+    swing = np.ptp(log.q[excite], axis=0)
+    names = list(log.joint_names)
+    assert swing[names.index("theta4")] > np.radians(2.0) and swing[names.index("d9")] > 1e-3
+    assert swing[names.index("theta7")] < np.radians(0.5)  # not excited: holds
+    md = (Path(res["run_dir"]) / "report.md").read_text()
+    assert "## Excitation" in md and "Table 3" not in md
+
+
+def test_the_lab_excitation_plan_checks_out_and_excites_every_joint_with_room():
+    from pathlib import Path
+
+    from bench.config.models import load_trial_config
+    from bench.trial.plan import plan, planned_limits, prepare
+
+    cfg = load_trial_config(Path(__file__).resolve().parents[1] / "hil_configs" / "identify.yaml")
+    prep = prepare(cfg)  # refuses a plan that would trip an interlock
+    segs = plan(prep, prep.robot.chain.home, planned_limits(prep).velocity)
+    excited = {prep.robot.joint_names[j] for _, _, j, _ in segs[1].trajectory.pieces}
+    assert excited == set(prep.robot.joint_names) - {"d10"}  # the needle slide sits at its limit
+    assert segs[1].trajectory.duration < 120.0

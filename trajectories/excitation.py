@@ -6,7 +6,7 @@ For each excited joint, in turn, three pieces around the rest pose (the other jo
   over the band the servos work in;
 * a **multi-sine**: a sum of harmonics of ``1/period`` with Schroeder phases (a low crest
   factor, so the amplitude is spent on excitation rather than one peak);
-* a **slow up-and-down**: out to the amplitude and back at a low constant speed, the
+* a **slow up-and-down** (``updown_s`` long): out to the amplitude and back at one constant speed, the
   friction's home ground (nearly no inertia, the velocity held long enough to read the
   Coulomb and Stribeck levels on both sides).
 
@@ -41,7 +41,7 @@ class ExcitationSpec:
     multisine_s: float = 6.0
     multisine_period_s: float = 3.0
     harmonics: int = 6
-    updown_speed_fraction: float = 0.05  # of the joint's velocity limit
+    updown_s: float = 6.0  # the slow up-and-down's length: out, through and back at one speed
     pause_s: float = 0.5
     fade_s: float = 0.5
 
@@ -54,8 +54,8 @@ class ExcitationSpec:
             raise TrajectoryError(f"excitation f1_hz ({self.f1_hz}) must be above f0_hz ({self.f0_hz})")
         if self.harmonics < 1:
             raise TrajectoryError(f"excitation harmonics must be >= 1, got {self.harmonics}")
-        if not 0 < self.updown_speed_fraction <= 1:
-            raise TrajectoryError("excitation updown_speed_fraction must be in (0, 1]")
+        if not (math.isfinite(self.updown_s) and self.updown_s > 0):
+            raise TrajectoryError(f"excitation updown_s must be positive, got {self.updown_s!r}")
         if self.pause_s < 0:
             raise TrajectoryError(f"excitation pause_s must be >= 0, got {self.pause_s}")
 
@@ -107,8 +107,8 @@ class Excitation(PointToPoint):
         t = 0.0
         self._legs: dict[int, list[LSPB]] = {}
         for j in joints:
-            speed = s.updown_speed_fraction * float(limits.velocity[j])
             a = float(self.updown_amplitude[j])
+            speed = min(4.0 * a / s.updown_s, float(limits.velocity[j]))
             # out, back through the rest pose and home at `speed`, corners blended in 0.2 s
             acc = np.array([speed / 0.2])
             self._legs[j] = [LSPB([x0], [x1], [speed], acc) for x0, x1 in ((0.0, a), (a, -a), (-a, 0.0))]

@@ -272,6 +272,25 @@ class PlanConfig(Strict):
     retract: bool = Field(default=True, description="pull the needle back out at the end")
 
 
+class ExcitationConfig(Strict):
+    """An excitation run for identifying the servos: around the target's entry pose, each joint in
+    turn gets a chirp, a multi-sine and a slow up-and-down (trajectories/excitation.py)."""
+
+    joints: Union[Literal["all"], list[str]] = Field(
+        default="all", description="the joints excited, in order (all: every joint with room to move)")
+    amplitude_deg: float = Field(default=10.0, gt=0, le=45, description="largest swing of a revolute joint (°)")
+    amplitude_mm: float = Field(default=5.0, gt=0, le=50, description="largest swing of a slide (mm)")
+    chirp_s: float = Field(default=6.0, gt=0, le=120, description="length of each chirp (s)")
+    f0_hz: float = Field(default=0.2, gt=0, le=20, description="the chirp's first frequency (Hz)")
+    f1_hz: float = Field(default=2.0, gt=0, le=20, description="the chirp's last frequency (Hz)")
+    multisine_s: float = Field(default=6.0, gt=0, le=120, description="length of each multi-sine (s)")
+    multisine_period_s: float = Field(default=3.0, gt=0, le=60, description="the multi-sine's period (s)")
+    harmonics: int = Field(default=6, ge=1, le=50, description="harmonics in the multi-sine")
+    updown_s: float = Field(default=6.0, gt=0, le=120,
+                            description="length of the slow up-and-down, at one constant speed (s)")
+    pause_s: float = Field(default=0.5, ge=0, le=60, description="rest between pieces (s)")
+
+
 class AcceptanceConfig(Strict):
     """Seed 000's limits: 5 mm in each of X, Y, Z and depth, 1° in angle."""
 
@@ -319,6 +338,9 @@ class TrialConfig(Strict):
     acceptance: AcceptanceConfig = Field(default=AcceptanceConfig(),
                                          description="what counts as a pass")
     safety: SafetyConfig = Field(default=SafetyConfig(), description="the interlocks")
+    excitation: Optional[ExcitationConfig] = Field(
+        default=None, description="an excitation run for identifying the servos instead of an insertion "
+                                  "(around the target's entry pose; passes when it completes)")
     backend: Annotated[Union[PyBulletBackendConfig, DynamixelBackendConfig],
                        Field(discriminator="kind")] = Field(
         default=PyBulletBackendConfig(), description="what runs the joints: pybullet or dynamixel")
@@ -376,6 +398,13 @@ class TrialConfig(Strict):
         unknown = sorted(set(getattr(self.backend, "joints", {})) - set(names))
         if unknown:
             raise ValueError(f"backend.joints: unknown joint(s) {unknown}; {self.robot} has {names}")
+        ex = self.excitation
+        if ex is not None and ex.joints != "all":
+            unknown = sorted(set(ex.joints) - set(names))
+            if unknown or not ex.joints:
+                raise ValueError(f"excitation.joints: unknown joint(s) {unknown}; {self.robot} has {names}")
+        if ex is not None and ex.f1_hz <= ex.f0_hz:
+            raise ValueError(f"excitation.f1_hz ({ex.f1_hz:g}) must be above f0_hz ({ex.f0_hz:g})")
         for key, where in ((self.emulator.servo_physics, "emulator.servo_physics"),
                            (self.emulator.joint_friction, "emulator.joint_friction")):
             unknown = sorted(set(key) - set(names) - ({"all"} if where.endswith("physics") else set()))

@@ -46,9 +46,13 @@ class TrialResult:
     reason: str
     outcome: Optional[NeedleOutcome]
     extra: dict = field(default_factory=dict)
+    #: An excitation run (identification): it passes by completing; there is no needle to place.
+    excitation: bool = False
 
     @property
     def passed(self) -> bool:
+        if self.excitation:
+            return self.completed
         return self.completed and self.outcome is not None and self.outcome.passed
 
     @property
@@ -99,7 +103,8 @@ def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialR
     except (KeyError, ValueError):
         pass
     completed, reason = status_from_log(log)
-    return TrialResult(Path(run_dir), Path(run_dir) / "trial.npz", completed, reason, outcome)
+    return TrialResult(Path(run_dir), Path(run_dir) / "trial.npz", completed, reason, outcome,
+                       excitation=cfg.excitation is not None)
 
 
 def write_result_json(res: TrialResult) -> None:

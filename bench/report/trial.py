@@ -169,14 +169,20 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
     lines.append("")
     lines.append("## Needle placement (Table 3 layout)")
     lines.append("")
-    if o is not None:
+    if result.excitation:
+        lines[-2:] = ["## Excitation", "",
+                      "An excitation run for identifying the servos: around the target's entry pose each "
+                      "joint in turn took a chirp, a multi-sine and a slow up-and-down; no needle was "
+                      "placed. It passes by completing with every interlock on; the log feeds "
+                      "identification.", ""]
+    elif o is not None:
         lines.append(table3_markdown([t.x_mm, t.y_mm, t.z_mm], t.depth_mm, t.angle_deg, o))
     else:
         lines.append("The trial stopped before the insertion finished: no placement to report.\n")
     if not result.completed:
-        lines[lines.index("## Needle placement (Table 3 layout)"):
-              lines.index("## Needle placement (Table 3 layout)")] = [
-            "## What stopped it", "", stop_markdown(result, log)]
+        at = next(i for i, line in enumerate(lines) if line in ("## Needle placement (Table 3 layout)",
+                                                               "## Excitation"))
+        lines[at:at] = ["## What stopped it", "", stop_markdown(result, log)]
     lines += ["## Joint profiles (Fig. 12 layout)", ""]
     if "joints" in figures:
         lines += [f"![joint profiles]({figures['joints']})", ""]
@@ -186,7 +192,8 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
                   f"{span:.3f} s the trial ran ({len(log)} samples): nothing to plot. The tracking "
                   f"and events tables below hold what was measured.", ""]
     if "robot" in figures:
-        where = "at the end of the insertion" if result.completed else "where the trial stopped"
+        where = ("where the trial stopped" if not result.completed else
+                 "at the end of the run" if result.excitation else "at the end of the insertion")
         lines += [f"![robot {where}]({figures['robot']})", ""]
     lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Events", "",
               _events_markdown(log), "## Versions", "",

@@ -25,9 +25,17 @@ from bench.kinematics.registry import get_robot
 from bench.rig.backends import backend_limits
 from bench.trial.preflight import needle_direction_problem, planned_path_trip
 from drivers import Actuators, JointLimits
-from trajectories import LSPB, Limits, RuckigOnline, RuckigTrajectory, TrajectoryError
+from trajectories import (
+    LSPB,
+    Excitation,
+    ExcitationSpec,
+    Limits,
+    RuckigOnline,
+    RuckigTrajectory,
+    TrajectoryError,
+)
 
-__all__ = ["interlocks_for", "plan", "planned_limits", "prepare", "target_of"]
+__all__ = ["excitation_of", "interlocks_for", "plan", "planned_limits", "prepare", "target_of"]
 
 
 def target_of(config: TrialConfig) -> NeedleTarget:
@@ -103,11 +111,38 @@ def plan(prep: PreparedTrial, q_start: np.ndarray, limits_velocity: np.ndarray) 
             return RuckigTrajectory(a, b, Limits(vmax, amax, jmax))
         return RuckigOnline(a, b, Limits(vmax, amax, jmax), dt_ctrl)
 
+    if prep.config.excitation is not None:
+        return [Segment("approach", traj(q_start, prep.q_entry), p.settle_s),
+                Segment("excite", excitation_of(prep, Limits(vmax, amax)), p.settle_s),
+                Segment("home", traj(prep.q_entry, q_start), 0.0)]
     segs = [Segment("approach", traj(q_start, prep.q_entry), p.settle_s),
             Segment("insert", traj(prep.q_entry, prep.q_insert), p.settle_s)]
     if p.retract:
         segs.append(Segment("retract", traj(prep.q_insert, prep.q_entry), 0.0))
     return segs
+
+
+def excitation_of(prep: PreparedTrial, limits: Limits) -> Excitation:
+    """The excitation around the entry pose, within the plan's speeds and the joint limits (a
+    margin of half the tracking-error bound keeps the limit interlock quiet)."""
+    ex = prep.config.excitation
+    rows = prep.robot.chain.rows
+    names = list(prep.robot.joint_names)
+    lim = planned_limits(prep)
+    kinds = [r.kind for r in rows]
+    amp = np.array([np.radians(ex.amplitude_deg) if k == "revolute" else ex.amplitude_mm * 1e-3 for k in kinds])
+    s = prep.config.safety
+    margin = np.array([np.radians(s.tracking_error_deg) if k == "revolute" else s.tracking_error_mm * 1e-3
+                       for k in kinds]) * 0.5 + s.joint_limit_tolerance
+    room = np.minimum(prep.q_entry - lim.lower, lim.upper - prep.q_entry) - margin
+    if ex.joints == "all":
+        joints = [j for j in range(len(names)) if room[j] > 0]
+    else:
+        joints = [names.index(n) for n in ex.joints]
+    spec = ExcitationSpec(chirp_s=ex.chirp_s, f0_hz=ex.f0_hz, f1_hz=ex.f1_hz, multisine_s=ex.multisine_s,
+                          multisine_period_s=ex.multisine_period_s, harmonics=ex.harmonics,
+                          updown_s=ex.updown_s, pause_s=ex.pause_s)
+    return Excitation(prep.q_entry, joints, amp, lim.lower, lim.upper, limits, spec, margin)
 
 
 def interlocks_for(prep: PreparedTrial, act: Actuators | JointLimits):
