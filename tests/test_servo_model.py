@@ -229,11 +229,12 @@ def test_backend_rig_is_refused_without_a_servo_model_or_for_a_sim_config(tmp_pa
 
     data = yaml.safe_load((Path(__file__).resolve().parents[1] / "hil_configs" / "sim_target1_servo.yaml")
                           .read_text())
+    path = tmp_path / "bad.yaml"
     for change, words in (({"servo_model": "ideal"}, "only matter with a servo model"),
                           ({"rig": "hil_configs/sim_target1.yaml"}, "not a dynamixel config"),
+                          ({"rig": str(path)}, "not a dynamixel config"),  # itself: refused, no loop
                           ({"rig": "hil_configs/nowhere.yaml"}, "not found")):
         bad = {**data, "backend": {**data["backend"], **change}}
-        path = tmp_path / "bad.yaml"
         path.write_text(yaml.safe_dump(bad))
         with pytest.raises(ConfigError, match=words):
             load_trial_config(path)

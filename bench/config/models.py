@@ -384,6 +384,10 @@ class TrialConfig(Strict):
             return data
         path = Path(b["rig"]) if Path(b["rig"]).is_absolute() else REPO_ROOT / b["rig"]
         try:
+            raw = read_yaml_mapping(path, "rig config", ConfigError)
+            kind = (raw.get("backend") or {}).get("kind") if isinstance(raw.get("backend"), dict) else None
+            if kind != "dynamixel":  # checked before reading it as a trial: a sim naming a sim never loops
+                raise ValueError(f"backend.rig: {path} is not a dynamixel config (its backend is {kind!r})")
             rig = load_trial_config(path)
         except ConfigError as e:
             raise ValueError(f"backend.rig: {e}") from None
