@@ -115,3 +115,21 @@ def test_the_lab_excitation_plan_checks_out_and_excites_every_joint_with_room():
     excited = {prep.robot.joint_names[j] for _, _, j, _ in segs[1].trajectory.pieces}
     assert excited == set(prep.robot.joint_names) - {"d10"}  # the needle slide sits at its limit
     assert segs[1].trajectory.duration < 120.0
+
+
+def test_an_excitation_of_a_joint_that_cannot_move_is_refused_before_anything_moves(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import yaml
+
+    cfg = tmp_path / "stuck.yaml"
+    cfg.write_text(yaml.safe_dump({"name": "stuck", "robot": "arc-train",
+                                   "target": {"x_mm": 0.0, "y_mm": 88.2, "z_mm": 66.0, "depth_mm": 30.1,
+                                              "angle_deg": 47.0},
+                                   "excitation": {"joints": ["theta4", "d10"]}}))
+    out = subprocess.run([str(Path(sys.executable).with_name("hilbench")), "trial", str(cfg), "--out",
+                          str(tmp_path / "runs")], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and "d10 cannot move" in out.stderr
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())

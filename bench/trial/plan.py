@@ -139,6 +139,10 @@ def excitation_of(prep: PreparedTrial, limits: Limits) -> Excitation:
         joints = [j for j in range(len(names)) if room[j] > 0]
     else:
         joints = [names.index(n) for n in ex.joints]
+        stuck = [names[j] for j in joints if not room[j] > 0]
+        if stuck:
+            raise TrajectoryError(f"excitation.joints: {', '.join(stuck)} cannot move around the entry pose "
+                                  f"(at a limit, less the interlocks' margin); leave them out")
     spec = ExcitationSpec(chirp_s=ex.chirp_s, f0_hz=ex.f0_hz, f1_hz=ex.f1_hz, multisine_s=ex.multisine_s,
                           multisine_period_s=ex.multisine_period_s, harmonics=ex.harmonics,
                           updown_s=ex.updown_s, pause_s=ex.pause_s)
