@@ -258,3 +258,52 @@ def test_a_current_based_servo_in_the_sim_is_capped_by_its_current_as_on_the_rig
     path.write_text(yaml.safe_dump(data))
     res = run_trial(load_trial_config(path), tmp_path / "runs", report=False)
     assert not res.completed and "theta5" in res.reason and "tracking" in res.reason
+
+
+def test_a_servo_model_file_with_the_rigs_physics_predicts_it_where_the_datasheet_cannot(tmp_path):
+    """The emulated rig gets physics the datasheet does not know (gearbox friction, a weaker θ5
+    motor); a servo model file holding those numbers (what identification is to find) brings
+    the sim's tracking gap to the rig down several-fold from the datasheet model's."""
+    import json
+    import subprocess
+    import sys
+
+    import yaml
+
+    physics = {"all": {"coulomb_nm": 0.05, "viscous_nms": 0.2}, "theta5": {"kt_scale": 0.8}}
+    rig = yaml.safe_load(LAB.read_text())
+    rig["emulator"]["servo_physics"] = physics
+    rig_path = tmp_path / "rig.yaml"
+    rig_path.write_text(yaml.safe_dump(rig))
+    model = tmp_path / "model.yaml"
+    model.write_text(yaml.safe_dump({"robot": "arc-train", "joints": physics, "notes": ["by hand"]}))
+    hilbench = str(Path(sys.executable).with_name("hilbench"))
+    ratio = {}
+    for name, sim_model in (("datasheet", "datasheet"), ("file", str(model))):
+        out = subprocess.run([hilbench, "compare", str(rig_path), "--emulate", "--repeats", "1",
+                              "--sim-model", sim_model, "--json", "--out", str(tmp_path / name)],
+                             capture_output=True, text=True, timeout=300)
+        assert out.returncode in (0, 1), out.stderr
+        ratio[name] = json.loads(out.stdout)["prediction"]["tracking_gap_ratio"]
+    assert ratio["file"] < 0.5 * ratio["datasheet"], ratio
+    assert ratio["file"] < 0.25, ratio
+
+
+def test_a_wrong_servo_model_file_is_refused_in_one_line(tmp_path):
+    import yaml
+
+    from bench.config.models import load_servo_model_file
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"robot": "arc-train", "joints": {"thetta5": {"coulomb_nm": 0.1}}}))
+    with pytest.raises(ConfigError, match=r"unknown joint\(s\) \['thetta5'\]"):
+        load_servo_model_file(bad)
+    bad.write_text(yaml.safe_dump({"robot": "arc-train", "joints": {"all": {"coulomb": 0.1}}}))
+    with pytest.raises(ConfigError, match="coulomb"):
+        load_servo_model_file(bad)
+    sim = yaml.safe_load((Path(__file__).resolve().parents[1] / "hil_configs" / "sim_target1.yaml").read_text())
+    sim["backend"]["servo_model"] = str(tmp_path / "nowhere.yaml")
+    cfg = tmp_path / "sim.yaml"
+    cfg.write_text(yaml.safe_dump(sim))
+    with pytest.raises(ConfigError, match="neither ideal, datasheet nor a servo model file"):
+        load_trial_config(cfg)

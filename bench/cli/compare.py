@@ -50,7 +50,7 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
             sim_model: Optional[str] = typer.Option(
                 None, "--sim-model", metavar="MODEL",
                 help="Also run the sim through the servo model ('datasheet': the servo table's models and "
-                     "gains) and report how well it predicts the rig."),
+                     "gains; or a servo model file) and report how well it predicts the rig."),
             as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Compare sim and real tracking: run a config's plan on both backends N times, or compare two runs."""
     if align not in ("motion", "xcorr"):
@@ -59,8 +59,18 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
         if second is not None:
             fail(f"{second}: a second argument only goes with a run as the first (got a config, {first})")
         if sim_model is not None and sim_model != "datasheet":
-            fail(f"--sim-model {sim_model!r}: the servo model is 'datasheet' (the servo table's models "
-                 f"and gains)")
+            from bench.config.models import (  # deferred: --help and completion stay fast
+                ConfigError,
+                load_servo_model_file,
+            )
+
+            if not Path(sim_model).is_file():
+                fail(f"--sim-model {sim_model!r}: neither 'datasheet' nor a servo model file (not found)")
+            try:
+                load_servo_model_file(sim_model)
+            except ConfigError as e:
+                fail(f"--sim-model: {e}")
+            sim_model = str(Path(sim_model).resolve())
         result, out_dir, predicted = _from_config(first, repeats, emulate, retries, align, out, sim_model)
     else:
         if second is None:

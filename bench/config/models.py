@@ -15,6 +15,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 from bench.config.calibration import check_calibration
+from bench.config.servo_model import ServoPhysics, load_servo_model_file
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot, trial_refusal
 from bench.paths import REPO_ROOT, robot_urdf
@@ -110,10 +111,23 @@ class PyBulletBackendConfig(Strict):
     safe_stop: SafeStop = Field(default="hold", description=SAFE_STOP_MEANING)
     joints: dict[str, JointOverride] = Field(default_factory=dict,
                                              description="per-joint limits that replace the model's")
-    servo_model: Literal["ideal", "datasheet"] = Field(
+    servo_model: str = Field(
         default="ideal", description="ideal: PyBullet's position motors; datasheet: the joints driven "
                                      "through the servo model (firmware PID, motor, gearbox) with the "
-                                     "servo table's models and gains")
+                                     "servo table's models and gains; or a servo model file (YAML: "
+                                     "per-joint physics over the datasheet, relative: to the project)")
+
+    @field_validator("servo_model")
+    @classmethod
+    def _known_servo_model(cls, v: str) -> str:
+        if v in ("ideal", "datasheet"):
+            return v
+        path = Path(v) if Path(v).is_absolute() else REPO_ROOT / v
+        if not path.is_file():
+            raise ValueError(f"servo_model {v!r} is neither ideal, datasheet nor a servo model file "
+                             f"(not found: {path})")
+        load_servo_model_file(path)  # refused here, with the file's own line, if it is wrong
+        return v
     servos: dict[str, ServoConfig] = Field(
         default_factory=dict, max_length=32,
         description="the servo table the servo model runs (as a dynamixel backend's; default: one "
@@ -203,22 +217,6 @@ class DynamixelBackendConfig(Strict):
         if dup:
             raise ValueError(f"servos: duplicate ID(s) {dup}")
         return self
-
-
-class ServoPhysics(Strict):
-    """Hidden physics of an emulated servo (unset: today's values), at its output shaft."""
-
-    coulomb_nm: Optional[float] = Field(default=None, ge=0, le=10, description="Coulomb friction (N·m)")
-    viscous_nms: Optional[float] = Field(default=None, ge=0, le=100,
-                                         description="viscous friction (N·m·s/rad)")
-    stribeck_nm: Optional[float] = Field(default=None, ge=0, le=10,
-                                         description="breakaway friction at rest, the Stribeck peak (N·m)")
-    stribeck_velocity_rads: Optional[float] = Field(default=None, gt=0, le=100,
-                                                    description="speed where the Stribeck peak fades (rad/s)")
-    armature_kgm2: Optional[float] = Field(default=None, gt=0, le=10,
-                                           description="reflected rotor inertia (kg·m²)")
-    kt_scale: Optional[float] = Field(default=None, gt=0, le=10,
-                                      description="factor on the motor constant (Kt and Ke)")
 
 
 class EmulatorConfig(Strict):

@@ -6,10 +6,13 @@ open a backend: a trial, a comparison, the lab tools.
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Sequence
+
 import numpy as np
 
 from bench.config.calibration import calibration_of
-from bench.config.models import ConfigError, ServoConfig, TrialConfig, model_number
+from bench.config.models import ConfigError, ServoConfig, TrialConfig, load_servo_model_file, model_number
 from bench.kinematics.arc_train import epsilon_from_d2, train_pose
 from bench.kinematics.transmission import servo_transmissions
 from drivers import Actuators, JointLimits
@@ -19,7 +22,7 @@ from drivers.pybullet.servo_sim import ServoSimActuators, ServoSimSettings, Trai
 from drivers.servo import ServoParams
 
 __all__ = ["backend_limits", "limits_of", "make_backend", "make_dynamixel_backend", "make_servo_sim",
-           "servo_params", "servo_table"]
+           "servo_params", "servo_table", "with_physics"]
 
 
 def limits_of(rows, overrides=None) -> JointLimits:
@@ -53,6 +56,19 @@ def servo_table(config: TrialConfig, robot) -> dict[str, ServoConfig]:
             for i, (row, r) in enumerate(zip(robot.chain.rows, ratios))}
 
 
+#: Servo physics keys (emulator.servo_physics, servo model files) -> ServoParams fields.
+PHYSICS_FIELDS = {"coulomb_nm": "coulomb", "viscous_nms": "viscous", "stribeck_nm": "stribeck",
+                  "stribeck_velocity_rads": "stribeck_velocity", "armature_kgm2": "armature"}
+
+
+def with_physics(params: ServoParams, per_joint: Sequence[dict]) -> ServoParams:
+    """``params`` with each joint's physics (keys of :data:`PHYSICS_FIELDS` and ``kt_scale``) set;
+    what a joint leaves unset keeps its value."""
+    changes = {field: [p.get(key, getattr(params, field)[j]) for j, p in enumerate(per_joint)]
+               for key, field in PHYSICS_FIELDS.items()}
+    return params.with_(**changes).with_motor_scale([p.get("kt_scale", 1.0) for p in per_joint])
+
+
 def servo_params(table: dict[str, ServoConfig], names) -> ServoParams:
     """The servo model's datasheet parameters for a servo table: models, gains, current limits."""
     models = [model_number(table[n].model) for n in names]
@@ -83,8 +99,14 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
     names = robot.joint_names
     table = servo_table(config, robot)
     limits = backend_limits(config, robot)
+    params = servo_params(table, names)
+    if b.servo_model != "datasheet":  # a servo model file: the rig's physics over the datasheet
+        model = load_servo_model_file(config.resolve(Path(b.servo_model)))
+        if model.robot != config.robot:
+            raise ConfigError(f"backend.servo_model: {b.servo_model} is for {model.robot}, not {config.robot}")
+        params = with_physics(params, [model.physics_of(n) for n in names])
     settings = ServoSimSettings(
-        robot_urdf=config.robot_urdf, joint_names=names, servos=servo_params(table, names),
+        robot_urdf=config.robot_urdf, joint_names=names, servos=params,
         ratio=[table[n].ratio for n in names], offset=[table[n].offset for n in names],
         max_velocity=limits.velocity, max_effort=limits.effort, physics_hz=b.physics_hz,
         control_period=config.control_period, initial_position=robot.chain.home,

@@ -28,6 +28,7 @@ import numpy as np
 from bench.config.models import DynamixelBackendConfig, EmulatorConfig, TrialConfig, model_number
 from bench.kinematics.arc_train import train_pose
 from bench.kinematics.registry import get_robot
+from bench.rig.backends import with_physics
 from drivers.dynamixel.units import BAUD_RATES, OPERATING_MODES
 from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
 from drivers.servo import ServoParams
@@ -58,18 +59,9 @@ class Planted:
     ultrasonic_scale: float = 1.0
 
 
-#: EmulatorConfig.servo_physics keys -> ServoParams fields.
-_PHYSICS_FIELDS = {"coulomb_nm": "coulomb", "viscous_nms": "viscous", "stribeck_nm": "stribeck",
-                   "stribeck_velocity_rads": "stribeck_velocity", "armature_kgm2": "armature"}
-
-
 def hidden_servo_params(emulator: EmulatorConfig, names: Sequence[str], models: Sequence[int]) -> ServoParams:
     """The emulated servos' physics: the datasheet's, with what ``emulator.servo_physics`` sets."""
-    params = ServoParams.datasheet(models)
-    per_joint = [emulator.physics_of(n) for n in names]
-    changes = {field: [p.get(key, getattr(params, field)[j]) for j, p in enumerate(per_joint)]
-               for key, field in _PHYSICS_FIELDS.items()}
-    return params.with_(**changes).with_motor_scale([p.get("kt_scale", 1.0) for p in per_joint])
+    return with_physics(ServoParams.datasheet(models), [emulator.physics_of(n) for n in names])
 
 
 class EmulatedRig:
