@@ -97,9 +97,9 @@ def sim_counterpart(config: TrialConfig, servo_model: str = "ideal") -> TrialCon
     """The same trial on the PyBullet backend with its default settings (validated); with a
     ``servo_model``, the sim runs the rig's servo table (models, gains, transmissions) through it."""
     data = json.loads(config.model_dump_json())
+    rig = data["backend"]
     data["backend"] = json.loads(PyBulletBackendConfig().model_dump_json())
     if servo_model != "ideal":
-        rig = json.loads(config.model_dump_json())["backend"]
         data["backend"].update(servo_model=servo_model, servos=rig.get("servos", {}),
                                ultrasonic=rig.get("ultrasonic"))
     try:

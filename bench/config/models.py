@@ -15,7 +15,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 from bench.config.calibration import check_calibration
-from bench.config.servo_model import ServoPhysics, load_servo_model_file
+from bench.config.servo_model import ServoPhysics, load_servo_model_file, physics_for
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot, trial_refusal
 from bench.paths import REPO_ROOT, robot_urdf
@@ -246,11 +246,7 @@ class EmulatorConfig(Strict):
 
     def physics_of(self, joint: str) -> dict[str, float]:
         """The hidden physics set for ``joint``: its own entry over ``all``, unset keys left out."""
-        out: dict[str, float] = {}
-        for key in ("all", joint):
-            if key in self.servo_physics:
-                out.update(self.servo_physics[key].model_dump(exclude_none=True))
-        return out
+        return physics_for(self.servo_physics, joint)
 
 
 class PlanConfig(Strict):

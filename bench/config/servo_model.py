@@ -4,14 +4,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Mapping, Optional
 
 from pydantic import Field, ValidationError
 
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 from bench.kinematics.registry import ROBOTS, get_robot
 
-__all__ = ["ServoModelFile", "ServoPhysics", "load_servo_model_file"]
+__all__ = ["ServoModelFile", "ServoPhysics", "load_servo_model_file", "physics_for"]
 
 
 class ServoPhysics(Strict):
@@ -30,6 +30,15 @@ class ServoPhysics(Strict):
                                       description="factor on the motor constant (Kt and Ke)")
 
 
+def physics_for(entries: Mapping[str, ServoPhysics], joint: str) -> dict[str, float]:
+    """The physics ``entries`` set for ``joint``: its own entry over ``all``, unset keys left out."""
+    out: dict[str, float] = {}
+    for key in ("all", joint):
+        if key in entries:
+            out.update(entries[key].model_dump(exclude_none=True))
+    return out
+
+
 class ServoModelFile(Strict):
     """A servo model file: the physics of a rig's servos over their datasheet, per joint or ``all``
     (a joint's own entry wins), in the units of ``emulator.servo_physics``."""
@@ -42,11 +51,7 @@ class ServoModelFile(Strict):
 
     def physics_of(self, joint: str) -> dict[str, float]:
         """The physics set for ``joint``: its own entry over ``all``, unset keys left out."""
-        out: dict[str, float] = {}
-        for key in ("all", joint):
-            if key in self.joints:
-                out.update(self.joints[key].model_dump(exclude_none=True))
-        return out
+        return physics_for(self.joints, joint)
 
 
 def load_servo_model_file(path: Path | str) -> ServoModelFile:

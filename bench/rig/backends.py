@@ -71,13 +71,9 @@ def with_physics(params: ServoParams, per_joint: Sequence[dict]) -> ServoParams:
 
 def servo_params(table: dict[str, ServoConfig], names) -> ServoParams:
     """The servo model's datasheet parameters for a servo table: models, gains, current limits."""
-    models = [model_number(table[n].model) for n in names]
-    defaults = ServoParams.datasheet(models)
-    gains = [tuple(int(v) if v is not None else int(d) for v, d in zip(
-                (table[n].position_p, table[n].position_i, table[n].position_d),
-                (defaults.position_p[j], defaults.position_i[j], defaults.position_d[j])))
-             for j, n in enumerate(names)]
-    return ServoParams.datasheet(models, gains=gains,
+    return ServoParams.datasheet([model_number(table[n].model) for n in names],
+                                 gains=[(table[n].position_p, table[n].position_i, table[n].position_d)
+                                        for n in names],
                                  current_limit_a=[table[n].current_limit_a for n in names])
 
 

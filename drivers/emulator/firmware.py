@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from drivers.dynamixel.units import (
     ACCEL_UNIT_RAD_S2,
     CENTER_TICK,
@@ -66,20 +64,12 @@ class ServoFirmware:
     def step(self, dt: float, position: float, velocity: float) -> float:
         """Run the firmware for ``dt`` s given the shaft state (rad, rad/s); return shaft torque (N·m).
 
-        A servo on a bus is stepped with the others (:meth:`begin_step`, the array, :meth:`end_step`)."""
+        A servo on a bus is stepped with the others by the bus (:meth:`begin_step`, the array,
+        :meth:`end_step`), never alone."""
+        if self._bank.params.n != 1:
+            raise RuntimeError(f"servo {self.id} is stepped by its bus, with the others")
         self.begin_step(dt, position, velocity)
-        if self._bank.params.n == 1:
-            self._bank.step_ticks(dt)
-        else:  # stepped alone while on a bus: the others' slots are left as they are
-            pid = self._bank.pid.copy()
-            others = np.ones_like(pid)
-            others[self._slot] = False
-            self._bank.pid = pid & ~others
-            keep = {k: getattr(self._bank, k).copy() for k in ("current", "pwm")}
-            self._bank.step_ticks(dt)
-            self._bank.pid = pid
-            for k, v in keep.items():
-                getattr(self._bank, k)[others] = v[others]
+        self._bank.step_ticks(dt)
         return self.end_step(dt)
 
     def begin_step(self, dt: float, position: float, velocity: float) -> None:

@@ -75,22 +75,24 @@ class ServoParams:
         return int(self.kt.shape[0])
 
     @classmethod
-    def datasheet(cls, models: Sequence[int], *, gains: Sequence[tuple[int, int, int]] | None = None,
+    def datasheet(cls, models: Sequence[int], *, gains: Sequence[tuple[int | None, int | None, int | None]] | None = None,
                   supply_voltage: float = 12.0, current_limit_a: Sequence[float | None] | None = None,
                   armature: float | Sequence[float] = 0.012, coulomb: float | Sequence[float] = 0.0,
                   viscous: float | Sequence[float] = 0.0, stribeck: float | Sequence[float] = 0.0,
                   stribeck_velocity: float | Sequence[float] = 0.1,
                   deadband_ticks: float | Sequence[float] = 0.0) -> "ServoParams":
         """Parameters from the control table's motor figures and factory registers, one per model
-        number; ``gains`` (P, I, D register values) and the current limits override the defaults."""
+        number; ``gains`` (P, I, D register values, None: factory) and the current limits override
+        the defaults."""
         specs = [model_spec(int(m)) for m in models]
         n = len(specs)
         table = [s.table for s in specs]
         reg = lambda name: np.array([float(t[name].default) if name in t else math.nan for t in table])  # noqa: E731
-        if gains is None:
-            gains = [(t["Position P Gain"].default, t["Position I Gain"].default, t["Position D Gain"].default)
-                     for t in table]
-        g = np.asarray(gains, dtype=float).reshape(n, 3)
+        factory = [(t["Position P Gain"].default, t["Position I Gain"].default, t["Position D Gain"].default)
+                   for t in table]
+        # a gain left None keeps the model's factory value
+        g = np.array([[f if v is None else v for v, f in zip(given, fac)]
+                      for given, fac in zip(gains or factory, factory)], dtype=float).reshape(n, 3)
         unit = np.array([s.current_unit or s.motor.stall_current / 1000.0 for s in specs])
         limit = np.where([s.senses_current for s in specs], reg("Current Limit") * unit, np.inf)
         if current_limit_a is not None:
