@@ -109,6 +109,20 @@ def test_signal_during_set_up_and_mid_run_on_the_sim(tmp_path, sig):
     assert "holding the measured position" in err
 
 
+def test_an_interrupted_trial_with_json_says_why_on_stdout(tmp_path):
+    """--json carries the reason whenever a run did not pass, a signal included."""
+    out = tmp_path / "run"
+    proc = _start(_slow_sim(tmp_path), out, "--json")
+    _wait_for(lambda: _journal_rows(out) > 10, what="samples in the journal", proc=proc)
+    proc.send_signal(signal.SIGTERM)
+    stdout, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    line = json.loads(stdout.strip().splitlines()[-1])
+    assert line["passed"] is False and line["completed"] is False
+    assert line["reason"] == "interrupted by SIGTERM" and line["exit_code"] == 128 + signal.SIGTERM
+    assert line["run_dir"] == str(_run_dir(out)) and line["safe_stop"] == "holding the measured position"
+
+
 def test_signal_before_the_trial_starts_moves_nothing_and_writes_nothing(tmp_path):
     proc = _start(SIM, tmp_path / "out")
     time.sleep(0.05)  # still importing

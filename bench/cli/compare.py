@@ -71,7 +71,8 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
             except ConfigError as e:
                 fail(f"--sim-model: {e}")
             sim_model = str(Path(sim_model).resolve())
-        result, out_dir, predicted = _from_config(first, repeats, emulate, retries, align, out, sim_model)
+        result, out_dir, predicted = _from_config(first, repeats, emulate, retries, align, out, sim_model,
+                                                   as_json)
     else:
         if second is None:
             fail(f"{first}: give two runs to compare (RUN_A RUN_B), or a trial config (.yaml)")
@@ -106,7 +107,7 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
 
 
 def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path,
-                 sim_model: Optional[str] = None):
+                 sim_model: Optional[str] = None, as_json: bool = False):
 
     from bench.compare.session import (  # deferred: --help and completion stay fast
         CompareError,
@@ -141,6 +142,10 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
                 err_console.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] compare stopped; "
                            f"the rig got its safe stop ({cfg.backend.safe_stop}); the runs so far "
                            f"are under {out}", highlight=False, soft_wrap=True)
+                if as_json:
+                    emit_json({"passed": False, "completed": False,
+                               "reason": f"interrupted by {signal_name(e.signum)}", "runs": str(out),
+                               "safe_stop": cfg.backend.safe_stop, "exit_code": e.exit_code})
                 raise typer.Exit(e.exit_code)
     return res.comparison, res.out_dir, res.prediction
 

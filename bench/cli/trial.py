@@ -73,7 +73,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
         try:
             res, name = _trial(config, out, gui, note, emulate, guard)
         except TrialInterrupted as e:
-            _interrupted(e)
+            _interrupted(e, as_json)
     if not res.passed:
         err_console.print(f"[bold red]trial failed:[/] {res.why_not}", highlight=False, soft_wrap=True)
     if as_json:
@@ -131,8 +131,9 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
                                   f"rehearsal", highlight=False, soft_wrap=True)
 
 
-def _interrupted(e) -> None:
-    """One line on stderr for a trial stopped by a signal, then exit 128 + N."""
+def _interrupted(e, as_json: bool = False) -> None:
+    """One line on stderr for a trial stopped by a signal (and with ``--json`` the result line
+    saying so), then exit 128 + N."""
     from bench.core.interrupts import signal_name  # deferred: --help and completion stay fast
 
     run_dir = getattr(e, "run_dir", None)
@@ -141,6 +142,10 @@ def _interrupted(e) -> None:
     what = f"; {stop}" if stop else ""
     err_console.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] trial stopped{what}; "
                       f"{where}", highlight=False, soft_wrap=True)
+    if as_json:
+        emit_json({"run_dir": str(run_dir) if run_dir else None, "passed": False, "completed": False,
+                   "reason": f"interrupted by {signal_name(e.signum)}", "safe_stop": stop,
+                   "exit_code": e.exit_code})
     raise typer.Exit(e.exit_code)
 
 
