@@ -28,6 +28,8 @@ def joint_display(robot, name: str, values: np.ndarray) -> tuple[np.ndarray, str
 
 #: Below this excursion (° or mm, as displayed) a joint did not move worth plotting.
 STILL_EXCURSION = 0.01
+#: A joint panel spans at least this (° or mm), so a joint that holds still is drawn as still.
+STILL_PANEL_SPAN = 1.0
 
 
 def largest_excursion(log: TrialLog, robot) -> float:
@@ -64,6 +66,11 @@ def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Pa
         ax.set_title(label)
         ax.set_ylabel(unit)
         ax.ticklabel_format(axis="y", useOffset=False)  # values as read, not as offsets
+        both = np.concatenate([cmd, meas])
+        both = both[np.isfinite(both)]
+        if both.size and np.ptp(both) < STILL_PANEL_SPAN:  # a joint that holds: encoder-tick dither
+            mid = 0.5 * (both.max() + both.min())       # is a thin band, not a panel of colour
+            ax.set_ylim(mid - STILL_PANEL_SPAN / 2, mid + STILL_PANEL_SPAN / 2)
         ax.grid(alpha=0.3)
     for ax in axes.flat[len(names):]:
         ax.axis("off")
