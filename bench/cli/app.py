@@ -23,6 +23,7 @@ from bench.cli.common import console, emit_json, fail
 from bench.cli.compare import compare
 from bench.cli.contact import contact_protocol
 from bench.cli.files import schema, urdf_build
+from bench.cli.identify import identify
 from bench.cli.lab import calibrate, doctor, jog, scan
 from bench.cli.trial import check, emulate, report, runs, trial
 
@@ -196,7 +197,7 @@ for command in (accuracy, workspace):
     app.command()(command)
 app.command("contact-protocol")(contact_protocol)
 app.add_typer(campaign_app, name="campaign")
-for command in (scan, doctor, calibrate, jog, compare):
+for command in (scan, doctor, calibrate, jog, compare, identify):
     app.command()(command)
 
 

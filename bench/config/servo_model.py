@@ -11,7 +11,7 @@ from pydantic import Field, ValidationError
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 from bench.kinematics.registry import ROBOTS, get_robot
 
-__all__ = ["ServoModelFile", "ServoPhysics", "load_servo_model_file", "physics_for"]
+__all__ = ["LogSource", "ServoModelFile", "ServoPhysics", "load_servo_model_file", "physics_for"]
 
 
 class ServoPhysics(Strict):
@@ -39,13 +39,29 @@ def physics_for(entries: Mapping[str, ServoPhysics], joint: str) -> dict[str, fl
     return out
 
 
+class LogSource(Strict):
+    """One trial log a model was identified from."""
+
+    run: str = Field(max_length=4096, description="the run directory")
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="SHA-256 of its trial.npz")
+
+
 class ServoModelFile(Strict):
     """A servo model file: the physics of a rig's servos over their datasheet, per joint or ``all``
-    (a joint's own entry wins), in the units of ``emulator.servo_physics``."""
+    (a joint's own entry wins), in the units of ``emulator.servo_physics``. An identified file
+    also carries each value's standard error, what the logs could not tell, and the logs."""
 
     robot: str = Field(description="the robot whose servos these are")
     joints: dict[str, ServoPhysics] = Field(default_factory=dict, max_length=32,
                                             description="physics by joint name or all")
+    uncertainty: dict[str, dict[str, float]] = Field(
+        default_factory=dict, max_length=32,
+        description="one standard error per joint and key, in the key's unit (identified files)")
+    unobservable: dict[str, list[str]] = Field(
+        default_factory=dict, max_length=32,
+        description="per joint, the keys the logs could not tell (kept at the datasheet's value)")
+    sources: list[LogSource] = Field(default_factory=list, max_length=1000,
+                                     description="the trial logs the model was identified from")
     notes: list[str] = Field(default_factory=list, max_length=100,
                              description="where the numbers came from (logs, fit, by hand)")
 

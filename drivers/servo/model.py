@@ -229,6 +229,25 @@ class ServoArray:
         pwm = np.asarray(torque, dtype=float) / p.kt * p.resistance / np.maximum(self.supply, 1e-6)
         self.integral = np.clip(pwm * PWM_FULL_SCALE, -self.pwm_limit, self.pwm_limit)
 
+    def resume(self, position: np.ndarray, velocity: np.ndarray, goal: np.ndarray, current: np.ndarray) -> None:
+        """Torque on mid-motion, as a log found the servo: trajectory at ``goal`` (rad, no profile
+        under way), the derivative primed with the present error, and the integrator holding what
+        the PID must add to the proportional term to drive ``current`` (A) at ``velocity`` (rad/s)."""
+        present = self.ticks(position)
+        goal_ticks = np.round(np.asarray(goal, dtype=float) / RAD_PER_TICK)
+        self.reset_slot(slice(None), goal_ticks)
+        self.goal[:] = goal_ticks
+        error = goal_ticks - present
+        self.prev_error = error.astype(float)
+        self.has_prev[:] = True
+        p = self.params
+        vin = np.maximum(self.supply, 1e-6)
+        pwm = (np.asarray(current, dtype=float) * p.resistance + p.ke * np.asarray(velocity, dtype=float)) / vin
+        self.integral = np.clip(pwm * PWM_FULL_SCALE - (self.gains[:, 0] / 128.0) * error,
+                                -self.pwm_limit, self.pwm_limit)
+        self.current = np.asarray(current, dtype=float).copy()
+        self.pwm = pwm * PWM_FULL_SCALE
+
     def set_goal(self, goal: np.ndarray) -> None:
         """New goal positions (rad): ticks as the bus writes them, with the profile planned."""
         goal_ticks = np.round(np.asarray(goal, dtype=float) / RAD_PER_TICK)

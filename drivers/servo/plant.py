@@ -113,6 +113,16 @@ class PyBulletPlant:
                                                  physicsClientId=c))
         return g * self._ratio
 
+    def dynamics(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The mass matrix M(q) and the bias torques h(q, q̇) = C q̇ + g at a joint state
+        (joint units), from the URDF: what identification puts around each joint."""
+        pb, c = self._pb, self._c
+        ql = np.asarray(q, dtype=float).tolist()
+        M = np.array(pb.calculateMassMatrix(self.body, ql, physicsClientId=c))
+        h = np.array(pb.calculateInverseDynamics(self.body, ql, np.asarray(qd, dtype=float).tolist(),
+                                                 self._zeros, physicsClientId=c))
+        return M, h
+
     def step(self, dt: float, torque: np.ndarray) -> None:
         if abs(dt - self._dt) > 1e-12:
             raise ValueError(f"plant steps {self._dt} s, asked for {dt} s")

@@ -1,0 +1,64 @@
+"""``hilbench identify``: the rig's servo physics from its trial logs, as a servo model file.
+
+Kept in its own module; ``bench/cli/app.py`` registers :func:`identify`.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import typer
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from bench.cli.common import console, emit_json, err_console, fail
+
+__all__ = ["identify"]
+
+
+def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR...",
+                                                   help="Trial run directories of the rig (real or --emulate): "
+                                                        "excitation runs (hil_configs/identify.yaml) or any trials."),
+             out: Path = typer.Option(..., "--out", help="The servo model file to write (.yaml); its report "
+                                                         "goes beside it (.html, .md)."),
+             workers: int = typer.Option(0, "--workers", min=0, max=64,
+                                         help="Processes for the simulations (0: one per core)."),
+             iterations: int = typer.Option(8, "--iterations", min=1, max=50,
+                                            help="Most fitting iterations."),
+             as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
+    """Fit each joint's servo physics (motor constant, armature, friction) to the rig's logs."""
+    from bench.identify.errors import IdentifyError  # deferred: --help and completion stay fast
+    from bench.identify.run import identify as run_identify  # deferred: --help and completion stay fast
+    from bench.identify.run import joint_rows  # deferred: --help and completion stay fast
+
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                  TimeElapsedColumn(), console=err_console, transient=True) as bar:
+        task = bar.add_task("reading logs", total=1.0)
+
+        def progress(what: str, fraction: float) -> None:
+            bar.update(task, description=what, completed=fraction)
+
+        try:
+            result = run_identify(run_dirs, out, workers=workers, max_iterations=iterations, progress=progress)
+        except IdentifyError as e:
+            bar.stop()
+            fail(str(e))
+    if as_json:
+        emit_json(result.as_dict())
+        return
+    t = Table(title=f"identified servos ({len(result.runs)} log(s), {result.seconds:.0f} s)")
+    for col in ("joint", "position MAE before", "after", "current MAE before (A)", "after (A)", "not observable"):
+        t.add_column(col)
+    for name, jf in joint_rows(result):
+        k = result.setup.joint_names.index(name)
+        scale, unit = (math.degrees(1.0), "°") if result.setup.kinds[k] == "revolute" else (1e3, "mm")
+        t.add_row(name, f"{jf.mae_before * scale:.3f} {unit}", f"{jf.mae_after * scale:.3f} {unit}",
+                  f"{jf.current_mae_before:.3f}", f"{jf.current_mae_after:.3f}",
+                  ", ".join(result.model.unobservable.get(name, [])) or "—")
+    console.print(t)
+    for name, why in result.fit.skipped.items():
+        console.print(f"{name}: not fitted ({why}); datasheet values kept", highlight=False)
+    console.print(f"model: {result.model_path}", highlight=False)
+    if result.report_path:
+        console.print(f"report: {result.report_path}", highlight=False)

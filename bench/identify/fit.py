@@ -1,0 +1,361 @@
+"""Fitting each joint's servo physics to its logs: an inverse-dynamics regression for a start,
+CMA-ES on the simulation error (:mod:`bench.identify.search`), then a few Levenberg–Marquardt
+steps, all joints at once (their problems are independent, their simulations share one batch).
+
+The residual of a joint is its simulated minus logged position and current over every log, each
+channel divided by its own scale (how far the joint's logged position strays from its goals, how
+much its current varies), plus a weak pull toward the datasheet so that what the logs cannot
+tell stays where the datasheet put it. The Jacobian is a central difference with steps of a tenth
+of each value: the firmware reads an integer encoder, so the error is a staircase at finer scale.
+
+A parameter is *observable* when its standard error — the cost's curvature at the optimum, inflated
+by how far the other parameters can stand in for it, and at least the cluster-robust (per window)
+error — is within :data:`OBSERVABLE_FRACTION` of its value (or under its absolute floor where the
+value is near zero). The others are written as fitted (the prior held them near the datasheet)
+and listed as not observable.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from bench.identify.logs import LoggedRun, RigSetup
+from bench.identify.search import cma_search
+from bench.identify.simulate import PHYSICS, SlotPhysics, file_values, simulate_run, windows_of
+from drivers.dynamixel.units import RAD_PER_TICK
+
+__all__ = ["FitResult", "JointFit", "fit_servos", "initial_physics"]
+
+#: Typical size of each parameter (its unit for steps and for the pull to the datasheet).
+SCALE = np.array([1.0, 0.01, 0.1, 0.05, 0.2, 0.1])
+LOWER = np.array([0.2, 1e-4, 0.0, 0.0, 0.0, 0.005])
+UPPER = np.array([5.0, 1.0, 5.0, 2.0, 1.0, 10.0])
+#: The rise of the fit's cost (a fraction) that defines a parameter's uncertainty: the step that
+#: costs this much is one "standard error". The simulation error has no independent samples (the
+#: encoder's steps make it a staircase in the parameters), so the noise floor is empirical: a few
+#: percent of the cost is what parameters the logs cannot tell move it by.
+UNCERTAINTY_RISE = 0.05
+#: Standard error below which a parameter counts as observable: this fraction of its value (two
+#: standard errors within 10 %, leaving room for the bias a model mismatch adds) ...
+OBSERVABLE_FRACTION = 0.05
+#: ... or this much in absolute terms (for values near zero).
+OBSERVABLE_FLOOR = {"kt_scale": 0.005, "armature_kgm2": 2e-4, "viscous_nms": 0.002, "coulomb_nm": 0.002,
+                    "stribeck_nm": 0.002, "stribeck_velocity_rads": 0.005}
+PRIOR_WEIGHT = 0.02
+FD_FRACTION = 0.1  # difference steps: this fraction of the value ...
+FD_FLOOR = np.array([0.02, 0.001, 0.02, 0.005, 0.05, 0.02])  # ... at least this
+LAMBDAS = (0.25, 1.0, 4.0)  # damping factors tried together at each iteration
+
+Progress = Callable[[int, int], None]  # (iterations done, at most)
+
+
+@dataclass
+class JointFit:
+    """One joint's fit, in the keys of a servo model file (:data:`~bench.identify.simulate.FILE_KEYS`)."""
+
+    name: str
+    values: dict[str, float]
+    stderr: dict[str, float]  # one standard error (inf: the logs do not bound it)
+    observable: dict[str, bool]  # the logs tell this value on its own (standard error within 5 %)
+    mae_before: float  # position MAE over the logs (rad or m), datasheet
+    mae_after: float
+    current_mae_before: float  # A
+    current_mae_after: float
+    iterations: int = 0
+
+
+@dataclass
+class FitResult:
+    joints: dict[str, JointFit]
+    skipped: dict[str, str] = field(default_factory=dict)  # joint: why it was not fitted
+    simulated_before: list = field(default_factory=list)  # per run: (q, current) (K, F), datasheet
+    simulated_after: list = field(default_factory=list)  # per run: (q, current) (K, F), fitted
+
+
+def initial_physics(setup: RigSetup) -> np.ndarray:
+    """The datasheet's physics per joint, (n, len(PHYSICS)): no Stribeck peak (all Coulomb)."""
+    d = setup.datasheet
+    peak = np.maximum(np.where(d.stribeck > 0, d.stribeck, d.coulomb), d.coulomb)
+    fraction = np.divide(d.coulomb, peak, out=np.ones(d.n), where=peak > 0)
+    return np.stack([np.ones(d.n), d.armature, d.viscous, peak, fraction, d.stribeck_velocity], axis=1)
+
+
+class _Problem:
+    """The residuals of the fitted joints for batches of parameter sets."""
+
+    def __init__(self, setup: RigSetup, runs: Sequence[LoggedRun], joints: np.ndarray,
+                 pool: Executor | None, workers: int = 1) -> None:
+        self.setup, self.runs, self.joints, self.pool = setup, list(runs), joints, pool
+        self.workers = max(1, workers)
+        q_err = np.concatenate([(r.q - r.goal)[:, joints] for r in runs])
+        current = np.concatenate([r.current[:, joints] for r in runs])
+        tick = np.abs(setup.ratio[joints]) * RAD_PER_TICK
+        self.q_scale = np.maximum(np.sqrt(np.mean(q_err ** 2, axis=0)), 2 * tick)
+        # the window each residual belongs to (the columns of :meth:`residuals`): windows are
+        # simulated apart, so they are the independent clusters of the fit's error
+        ids, offset = [], 0
+        for r in runs:
+            cluster = np.empty(len(r.time), dtype=int)
+            wins = windows_of(r.time)
+            for w, (a, b) in enumerate(wins):
+                cluster[a:b] = offset + w
+            cluster[:wins[0][0]] = offset
+            cluster[wins[-1][1]:] = offset + len(wins) - 1
+            ids += [cluster, cluster]
+            offset += len(wins)
+        self.clusters = np.concatenate(ids)
+        self.i_scale = np.maximum(current.std(axis=0), 0.01)
+        self.rows = sum(len(r.time) for r in runs)
+
+    def simulate(self, physics: np.ndarray, which: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per run, (q, current) of slots ``which`` (indices into the fitted joints) with ``physics``.
+        With a pool, each run's slots go out in one chunk per worker, so the workers stay busy
+        whatever the number of runs."""
+        slots = SlotPhysics(joint=self.joints[which], values=physics)
+        if self.pool is None:
+            return [simulate_run(self.setup, r, slots) for r in self.runs]
+        chunks = np.array_split(np.arange(len(which)), min(self.workers, len(which)))
+        futures = [[self.pool.submit(simulate_run, self.setup, r,
+                                     SlotPhysics(joint=slots.joint[c], values=slots.values[c])) for c in chunks]
+                   for r in self.runs]
+        out = []
+        for per_run in futures:
+            parts = [f.result() for f in per_run]
+            out.append((np.concatenate([p[0] for p in parts], axis=1), np.concatenate([p[1] for p in parts], axis=1)))
+        return out
+
+    def residuals(self, sims, which: np.ndarray) -> np.ndarray:
+        """(S, m) residual rows of the slots (data only)."""
+        parts = []
+        for run, (q, cur) in zip(self.runs, sims):
+            j = self.joints[which]
+            parts.append(((q - run.q[:, j]) / self.q_scale[which]).T)
+            parts.append(((cur - run.current[:, j]) / self.i_scale[which]).T)
+        return np.concatenate(parts, axis=1) / np.sqrt(2 * self.rows)
+
+    def mae(self, sims, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        j = self.joints[which]
+        q = np.concatenate([np.abs(s[0] - r.q[:, j]) for r, s in zip(self.runs, sims)])
+        c = np.concatenate([np.abs(s[1] - r.current[:, j]) for r, s in zip(self.runs, sims)])
+        return q.mean(axis=0), c.mean(axis=0)
+
+
+#: Stribeck velocities (rad/s at the shaft) the regression tries; the best fit wins.
+STRIBECK_GRID = (0.05, 0.1, 0.2, 0.3, 0.5, 0.8, 1.2)
+
+
+def regression_guess(setup: RigSetup, runs: Sequence[LoggedRun], joints: np.ndarray) -> np.ndarray:
+    """A first estimate from the equation of motion, linear in the unknowns but for the Stribeck
+    velocity (the inverse-dynamics least squares of robot identification): per joint, over the
+    logged rows where it moves,
+
+        s·Kt·I/r = (M_jj + J_a/r²)·q̈ + load + (b/r²)·q̇ + (c + e·exp(−(ω/ω_s)²))·sign(q̇)/r
+
+    for the motor scale s, armature J_a, viscous b, Coulomb c and Stribeck excess e, solved for
+    each ω_s of :data:`STRIBECK_GRID` and the best kept. Rows at rest are left out: static
+    friction there can be anything up to the breakaway, and says nothing of the others. q̈ comes
+    from the logged velocity (noisy), so this is a start for the simulation fit, not its answer."""
+    from scipy.optimize import lsq_linear  # deferred: scipy loads in ~0.3 s, only fitting needs it
+
+    x = initial_physics(setup)[joints]
+    # unknowns (s, J_a, b, c, e): c and e within the peak's bounds
+    lower, upper = np.r_[LOWER[:4], LOWER[3]], np.r_[UPPER[:4], UPPER[3]]
+    for f, k in enumerate(joints):
+        r = setup.ratio[k]
+        torque, qdd, qd, y = [], [], [], []
+        for run in runs:
+            t, v = run.time, run.qd[:, k]
+            acc = np.gradient(v, t) if len(t) > 2 else np.zeros_like(v)
+            acc = np.convolve(acc, np.ones(5) / 5, mode="same")
+            moving = np.abs(v) > max(0.05 * np.abs(v).max(), 2 * abs(r) * 0.024)
+            torque.append(setup.kt_datasheet[k] * run.current[moving, k] / r)
+            qdd.append(acc[moving])
+            qd.append(v[moving])
+            y.append(run.inertia[moving, k] * acc[moving] + run.load[moving, k])
+        tq, a_, v_, y_ = (np.concatenate(c) for c in (torque, qdd, qd, y))
+        if len(tq) < 20:
+            continue
+        sign, w = np.sign(v_), np.abs(v_ / r)
+        best = None
+        for ws in STRIBECK_GRID:
+            A = np.stack([tq, -a_ / r ** 2, -v_ / r ** 2, -sign / r, -sign * np.exp(-(w / ws) ** 2) / r], axis=1)
+            norm = np.maximum(np.abs(A).max(axis=0), 1e-12)
+            sol = lsq_linear(A / norm, y_, bounds=(lower * norm, upper * norm))
+            if best is None or sol.cost < best[0]:
+                best = (sol.cost, sol.x / norm, ws)
+        _, theta, ws = best
+        # a value on its bound is the regression giving up on it (too little signal): datasheet
+        inside = ((theta > lower * 1.01) & (theta < upper * 0.99)) | (lower == 0)
+        theta = np.where(inside, np.clip(theta, lower, upper), np.r_[x[f, :3], x[f, 3] * x[f, 4], 0.0])
+        peak = theta[3] + theta[4]
+        x[f, :4] = [theta[0], theta[1], theta[2], peak]
+        x[f, 4] = theta[3] / peak if peak > 0 else 1.0
+        x[f, 5] = ws
+    return x
+
+
+def _prior(x: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    return PRIOR_WEIGHT * (x - x0) / SCALE
+
+
+def _prior_costs(r_lo, r0, r_hi, lo, x, hi, x0):
+    """Costs (data and prior) at the points below, at and above x: (F, P), (F,), (F, P)."""
+    P = x.shape[1]
+    eye = np.eye(P)
+    prior = lambda pts: np.sum(_prior(pts, x0[:, None, :]) ** 2, axis=2)  # noqa: E731
+    at = lambda v: x[:, None, :] * (1 - eye) + eye * v[:, None, :]  # noqa: E731
+    c0 = np.sum(r0 ** 2, axis=1) + np.sum(_prior(x, x0) ** 2, axis=1)
+    return (np.sum(r_lo ** 2, axis=2) + prior(at(lo)), c0, np.sum(r_hi ** 2, axis=2) + prior(at(hi)))
+
+
+def _curvature(lo, x, hi, c_lo, c0, c_hi) -> np.ndarray:
+    """Second derivative of the parabola through three (unevenly spaced) points, per parameter."""
+    a, b = x - lo, hi - x
+    with np.errstate(divide="ignore", invalid="ignore"):
+        curv = 2 * ((c_hi - c0[:, None]) / b + (c_lo - c0[:, None]) / a) / (a + b)
+    return np.where((a > 0) & (b > 0), curv, np.nan)
+
+
+def _parabola_vertex(lo, x, hi, c_lo, c0, c_hi) -> np.ndarray:
+    """Each parameter moved to the bottom of its parabola (at most twice its step), in bounds."""
+    a, b = x - lo, hi - x
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = ((c_hi - c0[:, None]) * a / b - (c_lo - c0[:, None]) * b / a) / (a + b)
+        curv = _curvature(lo, x, hi, c_lo, c0, c_hi)
+        step = np.where(curv > 0, -slope / curv, np.where(slope > 0, -a, b))
+    step = np.nan_to_num(np.clip(step, -2 * np.maximum(a, 1e-12), 2 * np.maximum(b, 1e-12)))
+    return np.clip(x + step, LOWER, UPPER)
+
+
+def _central_steps(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points below and above x for each parameter (F, P) each: a tenth of the value or the floor,
+    kept inside the bounds (one-sided at a bound)."""
+    h = np.maximum(FD_FRACTION * np.abs(x), FD_FLOOR)
+    lo = np.maximum(x - h, LOWER)
+    hi = np.minimum(x + h, UPPER)
+    return lo, hi
+
+
+def cluster_robust_stderr(J: np.ndarray, r: np.ndarray, D: np.ndarray, clusters: np.ndarray) -> np.ndarray:
+    """Per joint and parameter, the sandwich (cluster-robust) standard error H⁻¹BH⁻¹ with the
+    simulation windows as clusters: how far the estimate would move were the windows another
+    sample of the same motion. Where the model misses something, windows pull a parameter
+    different ways, and this says so where the cost's curvature alone would not."""
+    H = np.einsum("fmp,fmq->fpq", J, J) + D.T @ D
+    n_clusters = int(clusters.max()) + 1
+    g = np.zeros((J.shape[0], n_clusters, J.shape[2]))
+    contrib = J * r[:, :, None]  # (F, m, P)
+    for c in range(n_clusters):
+        g[:, c, :] = contrib[:, clusters == c, :].sum(axis=1)
+    B = np.einsum("fcp,fcq->fpq", g, g) * (n_clusters / max(n_clusters - 1, 1))
+    inv = np.linalg.pinv(H)
+    cov = inv @ B @ inv
+    return np.sqrt(np.maximum(np.einsum("fpp->fp", cov), 0.0))
+
+
+def variance_inflation(J: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """Per joint and parameter, H_ii·(H⁻¹)_ii for H = JᵀJ + DᵀD (the prior keeps H invertible):
+    1 for a parameter nothing else can mimic, large for one the others can stand in for."""
+    H = np.einsum("fmp,fmq->fpq", J, J) + D.T @ D
+    inv = np.linalg.pinv(H)
+    return np.maximum(np.einsum("fpp->fp", H) * np.einsum("fpp->fp", inv), 1.0)
+
+
+def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: int = 4, generations: int = 40,
+               pool: Executor | None = None, workers: int = 1, progress: Progress | None = None) -> FitResult:
+    """Fit the physics of every joint the logs excite; the rest keep the datasheet's."""
+    excited = np.any([r.excited for r in runs], axis=0)
+    names = setup.joint_names
+    skipped = {names[k]: "its goals never moved it by 0.5° or 0.5 mm" for k in np.flatnonzero(~excited)}
+    joints = np.flatnonzero(excited)
+    F, P = len(joints), len(PHYSICS)
+    if F == 0:
+        return FitResult({}, skipped)
+    prob = _Problem(setup, runs, joints, pool, workers)
+    x0 = initial_physics(setup)[joints]
+    x = regression_guess(setup, runs, joints)
+    every = np.arange(F)
+    eye = np.eye(P)
+    D = np.diag(np.full(P, PRIOR_WEIGHT)) / SCALE  # the prior's Jacobian
+    before = prob.simulate(x0, every)
+    total = generations + max_iterations + 1
+    if progress:
+        progress(0, total)
+
+    def cost(values: np.ndarray, which: np.ndarray) -> np.ndarray:
+        res = prob.residuals(prob.simulate(values, which), which)
+        return np.sum(res ** 2, axis=1) + np.sum(_prior(values, x0[which]) ** 2, axis=1)
+
+    if generations > 0:
+        x, _ = cma_search(cost, x, SCALE, LOWER, UPPER, generations=generations,
+                          progress=(lambda g, _n: progress(g, total)) if progress else None)
+    lam = np.full(F, 1e-2)
+    done = np.zeros(F, dtype=bool)
+    iterations = np.zeros(F, dtype=int)
+    for it in range(max_iterations + 1):
+        # Central differences at x for every joint at once: the base, then each parameter
+        # below and above it (secants over a tenth of the value see through the encoder's steps).
+        lo, hi = _central_steps(x)
+        below = np.repeat(x[:, None, :], P, axis=1) * (1 - eye) + eye * lo[:, None, :]
+        above = np.repeat(x[:, None, :], P, axis=1) * (1 - eye) + eye * hi[:, None, :]
+        which = np.concatenate([every, np.repeat(every, P), np.repeat(every, P)])
+        sims = prob.simulate(np.concatenate([x, below.reshape(-1, P), above.reshape(-1, P)]), which)
+        res = prob.residuals(sims, which)
+        r0, r_lo, r_hi = res[:F], res[F:F + F * P].reshape(F, P, -1), res[F + F * P:].reshape(F, P, -1)
+        base_sims = [(q[:, :F], c[:, :F]) for q, c in sims]
+        J = np.transpose((r_hi - r_lo) / (hi - lo)[:, :, None], (0, 2, 1))  # (F, m, P)
+        data_cost = np.sum(r0 ** 2, axis=1)
+        cost = data_cost + np.sum(_prior(x, x0) ** 2, axis=1)
+        if progress:
+            progress(generations + it + 1, total)
+        if it == max_iterations or done.all():
+            break
+        # Damped Gauss-Newton steps, three dampings per joint tried in one batch.
+        JtJ = np.einsum("fmp,fmq->fpq", J, J) + D.T @ D
+        g = np.einsum("fmp,fm->fp", J, r0) + _prior(x, x0) @ D
+        diag = np.einsum("fpp->fp", JtJ)
+        trials = []
+        for factor in LAMBDAS:
+            A = JtJ + (lam * factor)[:, None, None] * diag[:, :, None] * eye
+            trials.append(np.clip(x - np.linalg.solve(A, g[:, :, None])[:, :, 0], LOWER, UPPER))
+        # ... and each parameter to the bottom of the parabola through its own three costs
+        # (robust where the cost is a staircase the Jacobian misreads), whole and half way.
+        vertex = _parabola_vertex(lo, x, hi, *_prior_costs(r_lo, r0, r_hi, lo, x, hi, x0))
+        trials += [vertex, (x + vertex) / 2]
+        cand = np.concatenate(trials)
+        which_c = np.tile(every, len(trials))
+        res_c = prob.residuals(prob.simulate(cand, which_c), which_c)
+        cost_c = (np.sum(res_c ** 2, axis=1) + np.sum(_prior(cand, np.tile(x0, (len(trials), 1))) ** 2, axis=1)
+                  ).reshape(len(trials), F)
+        best = np.argmin(cost_c, axis=0)
+        best_cost = cost_c[best, every]
+        better = (best_cost < cost) & ~done
+        gain = np.where(better, (cost - best_cost) / np.maximum(cost, 1e-30), 0.0)
+        x = np.where(better[:, None], np.stack(trials)[best, every], x)
+        factors = np.r_[LAMBDAS, 1.0, 1.0]
+        lam = np.where(better, lam * factors[best] / 2.0, lam * 8.0)
+        iterations += ~done
+        done |= (better & (gain < 1e-3)) | ~better & (lam > 1e4)
+    # Uncertainty: how far each parameter may move, the others free to make up for it, before the
+    # fit's cost rises by UNCERTAINTY_RISE: the parabola through its own three costs at the optimum
+    # (robust on the staircase), inflated by how much the others can stand in for it (the
+    # variance inflation factor H_ii·(H⁻¹)_ii of the Gauss-Newton Hessian).
+    mae_b, mae_a = prob.mae(before, every), prob.mae(base_sims, every)
+    c_lo, c0, c_hi = _prior_costs(r_lo, r0, r_hi, lo, x, hi, x0)
+    curvature = _curvature(lo, x, hi, c_lo, c0, c_hi)  # d²cost/dx² (F, P)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        se = np.where(curvature > 0, np.sqrt(2 * UNCERTAINTY_RISE * c0[:, None] / curvature), np.inf)
+        se = np.maximum(se * np.sqrt(variance_inflation(J, D)), cluster_robust_stderr(J, r0, D, prob.clusters))
+    joints_fit: dict[str, JointFit] = {}
+    for f, k in enumerate(joints):
+        values, errors = file_values(x[f], se[f])
+        observable = {key: bool(errors[key] <= max(OBSERVABLE_FRACTION * abs(values[key]), OBSERVABLE_FLOOR[key]))
+                      for key in values}
+        joints_fit[names[k]] = JointFit(names[k], values, errors, observable, float(mae_b[0][f]),
+                                        float(mae_a[0][f]), float(mae_b[1][f]), float(mae_a[1][f]),
+                                        int(iterations[f]))
+    return FitResult(joints_fit, skipped, before, base_sims)

@@ -1,0 +1,136 @@
+"""``identify``: trial logs in, a servo model file and its report out.
+
+The model file speaks the schema of ``emulator.servo_physics`` (so a sim config or
+``compare --sim-model`` takes it as it is), with each value's standard error, the values the
+logs could not tell (kept at the datasheet's) and the logs it came from.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+import yaml
+
+from bench.config.servo_model import LogSource, ServoModelFile, ServoPhysics
+from bench.identify.errors import IdentifyError
+from bench.identify.fit import FitResult, JointFit, fit_servos
+from bench.identify.logs import LoggedRun, RigSetup, load_runs
+from bench.identify.report import write_report
+
+__all__ = ["IdentifyResult", "identify", "model_file_of"]
+
+#: Phases reported to ``progress(what, fraction)``.
+Progress = Callable[[str, float], None]
+
+
+@dataclass
+class IdentifyResult:
+    """What ``identify`` found and where it wrote it."""
+
+    setup: RigSetup
+    runs: list[LoggedRun]
+    fit: FitResult
+    model: ServoModelFile
+    model_path: Path
+    report_path: Optional[Path]
+    seconds: float
+
+    def mae(self, which: str) -> float:
+        """Position MAE over every fitted joint (rad for revolute, m for slides: each in its unit,
+        averaged as the issue's JSON asks, SI)."""
+        values = [getattr(j, which) for j in self.fit.joints.values()]
+        return float(np.mean(values)) if values else math.nan
+
+    def as_dict(self) -> dict:
+        joints = {name: {"mae_before": j.mae_before, "mae_after": j.mae_after,
+                         "current_mae_before": j.current_mae_before, "current_mae_after": j.current_mae_after,
+                         "unobservable": self.model.unobservable.get(name, [])}
+                  for name, j in self.fit.joints.items()}
+        return {"model": str(self.model_path), "report": str(self.report_path) if self.report_path else None,
+                "joints": joints, "skipped": self.fit.skipped,
+                "mae_before": self.mae("mae_before"), "mae_after": self.mae("mae_after"),
+                "logs": [str(r.run_dir) for r in self.runs], "seconds": round(self.seconds, 3)}
+
+
+def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) -> ServoModelFile:
+    """The servo model file of a fit: every value as fitted (what the logs cannot tell on its own
+    was held near the datasheet's by the fit's prior, and its combination with the others is what
+    the logs do tell), each with its standard error, the ones the logs cannot tell listed."""
+    joints: dict[str, ServoPhysics] = {}
+    uncertainty: dict[str, dict[str, float]] = {}
+    unobservable: dict[str, list[str]] = {}
+    for name, jf in fit.joints.items():
+        joints[name] = ServoPhysics(**{k: max(v, 0.0) if k in ("coulomb_nm", "stribeck_nm", "viscous_nms")
+                                       else v for k, v in jf.values.items()})
+        uncertainty[name] = {k: v for k, v in jf.stderr.items() if math.isfinite(v)}
+        hidden = [key for key, ok in jf.observable.items() if not ok]
+        if hidden:
+            unobservable[name] = hidden
+    notes = [f"identified from {len(runs)} log(s) by hilbench identify: each joint's servo simulated "
+             f"along its logged motion, position and current fitted (CMA-ES, then Levenberg-Marquardt)"]
+    notes += [f"{name}: not fitted, {why}; datasheet values" for name, why in fit.skipped.items()]
+    return ServoModelFile(robot=setup.robot, joints=joints, uncertainty=uncertainty, unobservable=unobservable,
+                          sources=[LogSource(run=str(r.run_dir), sha256=r.sha256) for r in runs], notes=notes)
+
+
+def write_model_file(model: ServoModelFile, path: Path) -> None:
+    """The model as commented YAML (written whole, then moved into place)."""
+    header = ("# Servo model identified from the rig's trial logs (hilbench identify).\n"
+              "# Physics over the datasheet at each output shaft: N·m, N·m·s/rad, rad/s, kg·m²; kt_scale\n"
+              "# is a factor on the motor constant. Use it as backend.servo_model: THIS_FILE in a sim\n"
+              "# config, or hilbench compare CONFIG --sim-model THIS_FILE.\n")
+    data = model.model_dump(mode="json", exclude_defaults=False)
+    text = header + yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=100)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def identify(run_dirs: Sequence[Path], out: Path, *, workers: int = 0, max_iterations: int = 8,
+             report: bool = True, progress: Progress | None = None) -> IdentifyResult:
+    """Fit the servos of the logs' rig and write ``out`` (the model file) and its HTML report
+    beside it (``out`` with ``.html``). ``workers``: processes for the simulations (0: one per
+    core, 1: none)."""
+    started = time.perf_counter()
+    out = Path(out)
+    if out.suffix.lower() not in (".yaml", ".yml"):
+        raise IdentifyError(f"--out {out}: a servo model file ends in .yaml or .yml")
+    if out.exists() and out.is_dir():
+        raise IdentifyError(f"--out {out}: is a directory; give the model file's path")
+    if progress:
+        progress("reading logs", 0.0)
+    setup, runs = load_runs(run_dirs)
+    n_workers = (os.cpu_count() or 1) if workers == 0 else max(1, workers)
+    pool = ProcessPoolExecutor(n_workers) if n_workers > 1 else None
+    try:
+        fit = fit_servos(setup, runs, max_iterations=max_iterations, pool=pool, workers=n_workers,
+                         progress=(lambda done, total: progress("fitting", done / total)) if progress else None)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    if not fit.joints:
+        raise IdentifyError("no joint moved enough in these logs to identify (goals spanning at least "
+                            "0.5° or 0.5 mm); run the excitation (hil_configs/identify.yaml) first")
+    model = model_file_of(setup, runs, fit)
+    write_model_file(model, out)
+    report_path = None
+    if report:
+        if progress:
+            progress("report", 0.95)
+        report_path = write_report(setup, runs, fit, model, out.with_suffix(".html"))
+    if progress:
+        progress("done", 1.0)
+    return IdentifyResult(setup, runs, fit, model, out, report_path, time.perf_counter() - started)
+
+
+def joint_rows(result: IdentifyResult) -> list[tuple[str, JointFit]]:
+    """The fitted joints in the robot's order."""
+    return [(n, result.fit.joints[n]) for n in result.setup.joint_names if n in result.fit.joints]

@@ -1,0 +1,155 @@
+"""Each joint's servo simulated on its own along a logged trial, many parameter sets at once.
+
+A *slot* is one joint under one set of physics; all slots step together through the shared
+:class:`~drivers.servo.model.ServoArray` (firmware and motor) and the joint's own equation
+
+    (M_jj + J_a/r² + dt·B/r²) Δq̇ = dt · (τ/r + B_emf q̇ − B q̇ − load − τ_f(q̇/r)/r)
+
+integrated as :class:`~drivers.servo.plant.PyBulletPlant` integrates the whole robot, with
+``M_jj`` and ``load`` (gravity, Coriolis, the other joints' accelerations) taken from the log.
+The goals arrive at the logged cycle times; position and current are sampled where the driver
+read them, just before each goal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.identify.logs import LoggedRun, RigSetup
+from drivers.servo import ServoArray, ServoParams
+from drivers.servo.model import FIRMWARE_PERIOD_S, FRICTION_SMOOTHING_RAD_S
+
+__all__ = ["FILE_KEYS", "PHYSICS", "SlotPhysics", "file_values", "WINDOW_S", "simulate_run", "windows_of"]
+
+#: The length of the windows a log is simulated in, each from its logged start (s).
+WINDOW_S = 5.0
+
+#: The physics identification fits, in this order: the motor constant's factor, the armature
+#: (kg·m²), viscous friction (N·m·s/rad), the Stribeck peak, i.e. the friction at rest (N·m), the
+#: Coulomb level as a fraction of that peak (so it is never above it), the Stribeck velocity (rad/s).
+PHYSICS = ("kt_scale", "armature_kgm2", "viscous_nms", "stribeck_nm", "coulomb_fraction",
+           "stribeck_velocity_rads")
+#: The keys of a servo model file (``emulator.servo_physics``), in the order of the report.
+FILE_KEYS = ("kt_scale", "armature_kgm2", "viscous_nms", "coulomb_nm", "stribeck_nm", "stribeck_velocity_rads")
+
+
+def file_values(values: np.ndarray, stderr: np.ndarray) -> tuple[dict[str, float], dict[str, float]]:
+    """A fit's parameters and standard errors (in :data:`PHYSICS`) in the file's keys: the Coulomb
+    level is the fraction times the peak, its error propagated from both."""
+    v = dict(zip(PHYSICS, map(float, values)))
+    e = dict(zip(PHYSICS, map(float, stderr)))
+    peak, frac = v["stribeck_nm"], v["coulomb_fraction"]
+    out = {k: v[k] for k in FILE_KEYS if k in v}
+    err = {k: e[k] for k in FILE_KEYS if k in e}
+    out["coulomb_nm"] = frac * peak
+    err["coulomb_nm"] = float(np.hypot(peak * e["coulomb_fraction"], frac * e["stribeck_nm"]))
+    return {k: out[k] for k in FILE_KEYS}, {k: err[k] for k in FILE_KEYS}
+
+
+@dataclass(frozen=True)
+class SlotPhysics:
+    """The physics of each slot (arrays of S) and the joint each slot simulates."""
+
+    joint: np.ndarray  # (S,) int
+    values: np.ndarray  # (S, len(PHYSICS)) in the order of PHYSICS
+
+    def params(self, datasheet: ServoParams) -> ServoParams:
+        """The servo parameters of every slot: its joint's datasheet with the slot's physics."""
+        j = self.joint
+        base = ServoParams(**{f: getattr(datasheet, f)[j] for f in ServoParams.__dataclass_fields__})
+        v = self.values
+        return base.with_(armature=v[:, 1], viscous=v[:, 2], coulomb=v[:, 3] * v[:, 4],
+                          stribeck=v[:, 3], stribeck_velocity=v[:, 5]).with_motor_scale(v[:, 0])
+
+
+def windows_of(time: np.ndarray, window_s: float = WINDOW_S) -> list[tuple[int, int]]:
+    """The log's rows cut into windows of about ``window_s`` (row ranges [start, stop))."""
+    n = len(time)
+    count = max(1, int(round((time[-1] - time[0]) / window_s))) if n > 1 else 1
+    edges = np.searchsorted(time, time[0] + np.arange(1, count) * (time[-1] - time[0]) / count)
+    bounds = [0, *[int(e) for e in edges if 0 < e < n], n]
+    return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= 2]
+
+
+def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float = FIRMWARE_PERIOD_S,
+                 window_s: float = WINDOW_S) -> tuple[np.ndarray, np.ndarray]:
+    """Position (joint units) and motor current (A) of every slot at the log's rows, (K, S) each.
+
+    The log is cut into windows of about ``window_s``, each started from the logged state (position,
+    velocity, and the integrator that gives the logged current), and all windows of all slots
+    step together in one servo array: a long log costs the steps of one window, and a model's
+    error cannot pile up over minutes (multiple shooting)."""
+    wins = windows_of(run.time, window_s)
+    W, S, n = len(wins), len(slots.joint), len(setup.joint_names)
+    # one simulated servo per (window, slot): window-major
+    win = np.repeat(np.arange(W), S)
+    j = np.tile(slots.joint, W)
+    p = SlotPhysics(joint=j, values=np.tile(slots.values, (W, 1))).params(setup.datasheet)
+    r = setup.ratio[j]
+    inv_r = 1.0 / r
+    off = setup.offset[j]
+    lower, upper = setup.lower[j], setup.upper[j]
+    b_emf = p.back_emf_damping * inv_r ** 2
+    b = b_emf + p.viscous * inv_r ** 2
+    ja = p.armature * inv_r ** 2
+    coulomb, peak = p.coulomb, np.where(p.stribeck > 0, p.stribeck, p.coulomb)
+    ws = np.maximum(p.stribeck_velocity, 1e-9)
+
+    # each window's rows on its own step grid, and the robot around the joint along it
+    t = run.time
+    steps = [np.maximum.accumulate(np.rint((t[a:z] - t[a]) / dt).astype(np.int64)) for a, z in wins]
+    n_steps = int(max(st[-1] for st in steps)) + 1
+    grid = np.arange(n_steps) * dt
+    inertia = np.empty((n_steps, W, n))
+    load = np.empty((n_steps, W, n))
+    for w, (start, stop) in enumerate(wins):
+        tw = t[start:stop] - t[start]
+        for k in range(n):
+            inertia[:, w, k] = np.interp(grid, tw, run.inertia[start:stop, k])
+            load[:, w, k] = np.interp(grid, tw, run.load[start:stop, k])
+    flat = win * n + j  # slot -> (window, joint) in a step's (W·n) row
+    inertia = inertia.reshape(n_steps, W * n)
+    load = load.reshape(n_steps, W * n)
+    extra = ja + dt * b
+    # the rows read and the goals written, per step: (row, window) events
+    events: dict[int, list[tuple[int, int]]] = {}
+    for w, ((a, _), st) in enumerate(zip(wins, steps)):
+        for i, s_ in enumerate(st):
+            events.setdefault(int(s_), []).append((a + i, w))
+    columns = np.arange(S)
+
+    servo = ServoArray(p)
+    first = np.array([a for a, _ in wins])
+    q = run.q[first][:, slots.joint].reshape(-1).astype(float)
+    qd = run.qd[first][:, slots.joint].reshape(-1).astype(float)
+    # each window's servos as the log found them: at the goal of the cycle before, the integrator
+    # giving the current they reported
+    before = np.maximum(first - 1, 0)
+    goal = (run.goal[before][:, slots.joint].reshape(-1) - off) * inv_r
+    servo.resume((q - off) * inv_r, qd * inv_r, goal, run.current[first][:, slots.joint].reshape(-1))
+    q_out = np.empty((len(t), S))
+    i_out = np.empty((len(t), S))
+    smoothing = 1.0 / FRICTION_SMOOTHING_RAD_S
+    for s in range(n_steps):
+        ev = events.get(s)
+        if ev is not None:  # the driver reads, then writes this cycle's goal
+            rows = np.array([e[0] for e in ev])
+            idx = (np.array([e[1] for e in ev])[:, None] * S + columns[None, :])
+            q_out[rows] = q[idx]
+            i_out[rows] = servo.current[idx]
+            goal[idx] = (run.goal[rows[:, None], slots.joint[None, :]] - off[idx]) * inv_r[idx]
+            servo.set_goal(goal)
+        w_ = qd * inv_r
+        tau = servo.step(dt, (q - off) * inv_r, w_)
+        level = coulomb + (peak - coulomb) * np.exp(-(w_ / ws) ** 2)
+        friction = level * np.tanh(w_ * smoothing) * inv_r
+        qd = qd + dt * (tau * inv_r + (b_emf - b) * qd - load[s].take(flat) - friction) / (
+            inertia[s].take(flat) + extra)
+        q = q + dt * qd
+        if (q < lower).any() or (q > upper).any():  # hard stops
+            stop = (q < lower) | (q > upper)
+            q = np.clip(q, lower, upper)
+            qd = np.where(stop, 0.0, qd)
+    return q_out, i_out
