@@ -65,14 +65,25 @@ class SensedDistance:
     distance: Callable[[], float]  # the true distance now (m)
     rate_hz: float
     median_window: int = 5
+    #: Gaussian reading noise (m, 1σ) before the sensor rounds to whole millimetres: a still
+    #: train's readings dither across the millimetre steps, and the host loop that steers by
+    #: them averages them, as on the rig.
+    noise_std_m: float = 0.0
+    seed: int = 0
     _window: deque = field(default_factory=deque)
     _next_sample: float = 0.0
+    _rng: np.random.Generator | None = None
 
     def update(self, now: float) -> None:
         """Take the readings due by ``now`` (s)."""
         period = 1.0 / self.rate_hz
         while self._next_sample <= now + 1e-12:
-            self._window.append(sensor_millimetres(self.distance()) * 1e-3)
+            d = self.distance()
+            if self.noise_std_m > 0:
+                if self._rng is None:
+                    self._rng = np.random.default_rng(self.seed)
+                d += float(self._rng.normal(0.0, self.noise_std_m))
+            self._window.append(sensor_millimetres(d) * 1e-3)
             while len(self._window) > self.median_window:
                 self._window.popleft()
             self._next_sample += period

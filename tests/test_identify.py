@@ -112,6 +112,11 @@ def test_identify_recovers_the_hidden_physics_where_the_logs_tell_it(identified)
     assert "kt_scale" not in model.unobservable.get("theta4", [])
     assert model.joints["theta4"].kt_scale == pytest.approx(0.85, rel=0.05)
     assert told >= 8
+    # the needle slide never moves around the entry pose: it takes its fitted peers' median
+    fitted = [j for j in model.joints if j not in ("d10",)]
+    assert "d10" in d["skipped"] and set(model.unobservable["d10"]) == set(DATASHEET)
+    assert model.joints["d10"].stribeck_nm == pytest.approx(
+        float(np.median([model.joints[j].stribeck_nm for j in fitted])))
     # the report says which values the logs could not tell, joint by joint
     html = Path(d["report"]).read_text()
     assert "not observable" in html and html.count("<img") == len(model.joints)

@@ -307,3 +307,19 @@ def test_a_wrong_servo_model_file_is_refused_in_one_line(tmp_path):
     cfg.write_text(yaml.safe_dump(sim))
     with pytest.raises(ConfigError, match="neither ideal, datasheet nor a servo model file"):
         load_trial_config(cfg)
+
+
+def test_the_simulated_train_sensor_dithers_across_its_millimetres_when_noisy():
+    """Whole millimetres hide 0.4 mm of a still train; with the sensor's noise the readings
+    dither across the steps and their mean finds it again, as the host loop on the rig sees."""
+    from drivers.train_loop import SensedDistance
+
+    quiet = SensedDistance(lambda: 0.3504, rate_hz=50.0, median_window=1)
+    noisy = SensedDistance(lambda: 0.3504, rate_hz=50.0, median_window=1, noise_std_m=1e-3, seed=3)
+    q, n = [], []
+    for k in range(2000):
+        for s, out in ((quiet, q), (noisy, n)):
+            s.update(k / 50.0)
+            out.append(s.read())
+    assert np.allclose(q, 0.350)
+    assert len(set(n)) > 3 and abs(np.mean(n) - 0.3504) < 0.05e-3

@@ -238,8 +238,39 @@ def write_worst_reports(campaign_dir: Path, rows: Sequence[dict], pos: float, an
     return written
 
 
+def _beside_markdown(done: Sequence[dict], counts: dict, others: Sequence[tuple[str, list[dict], dict]]) -> list[str]:
+    """This campaign's placement scatter and bias beside other campaigns' (e.g. the same faults on
+    PyBullet's ideal motors and on the identified servo model) and beside Table 3."""
+    names = ["this campaign"] + [name for name, _, _ in others]
+    sets = [(done, counts)] + [(rows, c) for _, rows, c in others]
+    lines = ["## Beside other campaigns", "",
+             "Bias (mean) ± scatter (standard deviation) of each deviation, campaign by campaign, and "
+             "the paper's five repeats at Target 1 (Table 3). A sim that knows the rig's servos shows "
+             "the rig's bias (gravity sag, friction) and scatter; PyBullet's ideal motors show only the "
+             "faults'.", "",
+             "| | " + " | ".join(names) + " | Table 3 |", "|---|" + "---:|" * (len(names) + 1)]
+    rates = []
+    for rows, c in sets:
+        n = sum(1 for r in rows)
+        rates.append(f"{c['passed']}/{n} ({_fmt(100.0 * c['passed'] / n, 1) if n else '—'} %)")
+    lines.append("| passed | " + " | ".join(rates) + " | 5/5 |")
+    tables = [deviation_table(rows) for rows, _ in sets]
+    for k, (_, label, unit, _key) in enumerate(AXES):
+        cells = [f"{_fmt(t[k]['mean'], 2)} ± {_fmt(t[k]['std'], 2)}" for t in tables]
+        paper = tables[0][k]
+        ref = f"{_fmt(paper['paper_mean'], 2)} ± {_fmt(paper['paper_std'], 2)}" if math.isfinite(
+            paper["paper_mean"]) else "—"
+        lines.append(f"| {label} ({unit}) | " + " | ".join(cells) + f" | {ref} |")
+    return lines + [""]
+
+
+def _load(campaign_dir: Path) -> tuple[dict, list[dict], dict]:
+    with CampaignStore(campaign_dir / "campaign.db") as store:
+        return store.meta(), store.trials(), store.counts()
+
+
 def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[str, str],
-                    campaign_dir: Path) -> str:
+                    campaign_dir: Path, beside: Sequence[tuple[str, list[dict], dict]] = ()) -> str:
     done = [r for r in rows if r["status"] == "done"]
     acc = meta.get("acceptance", {})
     pos, ang = float(acc.get("position_mm", 5.0)), float(acc.get("angle_deg", 1.0))
@@ -277,6 +308,8 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
                      f"{_fmt(t['max_abs'])} | {_fmt(t['paper_mean'])} | {_fmt(t['paper_std'])} | "
                      f"{_fmt(t['paper_max_abs'])} |")
     lines += ["", f"![deviation distributions]({figures['hist']})", ""]
+    if beside:
+        lines += _beside_markdown(done, counts, beside)
     axes_meta = meta.get("axes", [])
     if axes_meta:
         lines += ["## Pass rate against fault magnitude", ""]
@@ -312,12 +345,17 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
     return "\n".join(lines) + "\n"
 
 
-def write_campaign_report(campaign_dir: Path | str) -> dict[str, Path]:
-    """``report.md``, ``report.html`` (figures embedded) and ``figures/`` in the campaign directory."""
+def write_campaign_report(campaign_dir: Path | str, beside: Sequence[Path] = ()) -> dict[str, Path]:
+    """``report.md``, ``report.html`` (figures embedded) and ``figures/`` in the campaign directory;
+    ``beside``: other campaigns' directories whose deviations are tabled beside this one's."""
 
     campaign_dir = Path(campaign_dir)
-    with CampaignStore(campaign_dir / "campaign.db") as store:
-        meta, rows, counts = store.meta(), store.trials(), store.counts()
+    meta, rows, counts = _load(campaign_dir)
+    others = []
+    for other in map(Path, beside):
+        o_meta, o_rows, o_counts = _load(other)
+        o_done = [r for r in o_rows if r["status"] == "done"]
+        others.append((o_meta.get("name", other.name), o_done, o_counts))
     fig_dir = campaign_dir / "figures"
     fig_dir.mkdir(exist_ok=True)
     done = [r for r in rows if r["status"] == "done"]
@@ -334,7 +372,7 @@ def write_campaign_report(campaign_dir: Path | str) -> dict[str, Path]:
             plot_heatmap(done, grid[0], grid[1], fig_dir / "heatmap.png")
             figures["heat0"] = "figures/heatmap.png"
     write_worst_reports(campaign_dir, rows, *limits)
-    md = render_markdown(meta, rows, counts, figures, campaign_dir)
+    md = render_markdown(meta, rows, counts, figures, campaign_dir, others)
     (campaign_dir / "report.md").write_text(md)
     html = markdown_to_html(md, {v: campaign_dir / v for v in figures.values()},
                             f"Campaign {meta.get('name', '')}")

@@ -168,16 +168,20 @@ def export(campaign_dir: Path = typer.Argument(...),
 
 @campaign_app.command("report")
 def report_cmd(campaign_dir: Path = typer.Argument(...),
+               beside: list[Path] = typer.Option([], "--beside", metavar="DIR",
+                                                 help="Another campaign to table beside this one "
+                                                      "(bias and scatter per axis); repeatable."),
                as_json: bool = typer.Option(False, "--json", help='Print {"markdown", "html"}: the paths.')) -> None:
     """Write report.md and report.html from the database as it stands."""
     from bench.campaign.report import write_campaign_report  # deferred: --help and completion stay fast
     from bench.campaign.run import CampaignError, open_store  # deferred: --help and completion stay fast
 
     try:
-        open_store(campaign_dir).close()
+        for d in (campaign_dir, *beside):
+            open_store(d).close()
     except CampaignError as e:
         fail(str(e))
-    paths = write_campaign_report(campaign_dir)
+    paths = write_campaign_report(campaign_dir, beside)
     if as_json:
         emit_json({k: str(v) for k, v in paths.items()})
     else:

@@ -17,15 +17,18 @@ from bench.cli.common import console, emit_json, err_console, fail
 __all__ = ["identify"]
 
 
-def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR...",
-                                                   help="Trial run directories of the rig (real or --emulate): "
-                                                        "excitation runs (hil_configs/identify.yaml) or any trials."),
+def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR",
+                                                   help="Trial run directories of the rig (real or "
+                                                        "--emulate): excitation runs (hil_configs/identify.yaml) "
+                                                        "or any trials."),
              out: Path = typer.Option(..., "--out", help="The servo model file to write (.yaml); its report "
                                                          "goes beside it (.html, .md)."),
              workers: int = typer.Option(0, "--workers", min=0, max=64,
                                          help="Processes for the simulations (0: one per core)."),
+             generations: int = typer.Option(40, "--generations", min=0, max=500,
+                                             help="CMA-ES generations of the search (0: none)."),
              iterations: int = typer.Option(8, "--iterations", min=1, max=50,
-                                            help="Most fitting iterations."),
+                                            help="Most Levenberg-Marquardt steps that polish the search's best."),
              as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Fit each joint's servo physics (motor constant, armature, friction) to the rig's logs."""
     from bench.identify.errors import IdentifyError  # deferred: --help and completion stay fast
@@ -40,7 +43,8 @@ def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR...",
             bar.update(task, description=what, completed=fraction)
 
         try:
-            result = run_identify(run_dirs, out, workers=workers, max_iterations=iterations, progress=progress)
+            result = run_identify(run_dirs, out, workers=workers, generations=generations,
+                                  max_iterations=iterations, progress=progress)
         except IdentifyError as e:
             bar.stop()
             fail(str(e))
@@ -57,8 +61,8 @@ def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR...",
                   f"{jf.current_mae_before:.3f}", f"{jf.current_mae_after:.3f}",
                   ", ".join(result.model.unobservable.get(name, [])) or "—")
     console.print(t)
-    for name, why in result.fit.skipped.items():
-        console.print(f"{name}: not fitted ({why}); datasheet values kept", highlight=False)
+    for note in result.model.notes[1:]:  # the joints the logs never moved, and what they took instead
+        console.print(note, highlight=False)
     console.print(f"model: {result.model_path}", highlight=False)
     if result.report_path:
         console.print(f"report: {result.report_path}", highlight=False)

@@ -171,6 +171,10 @@ class UltrasonicConfig(Strict):
                               description="the sensor's no-target code (5000, or 9999 on 10 m models)")
     stale_after_s: Optional[float] = Field(default=None, gt=0, le=10,
                                            description="default: 3 periods of rate_hz + 50 ms")
+    noise_mm: float = Field(default=0.0, ge=0, le=100,
+                            description="the sensor's reading noise (1σ, mm), which a simulator of this rig "
+                                        "adds to its readings (the driver ignores it); measure it as the "
+                                        "spread of a still train's raw readings")
 
     def sensor_options(self) -> dict:
         """Keyword arguments for drivers.ultrasonic.UltrasonicSensor (SI units)."""

@@ -125,7 +125,7 @@ class _Problem:
         out = []
         for per_run in futures:
             parts = [f.result() for f in per_run]
-            out.append((np.concatenate([p[0] for p in parts], axis=1), np.concatenate([p[1] for p in parts], axis=1)))
+            out.append(tuple(np.concatenate([p[i] for p in parts], axis=1) for i in (0, 1)))
         return out
 
     def residuals(self, sims, which: np.ndarray) -> np.ndarray:

@@ -40,6 +40,7 @@ class RigSetup:
     robot: str
     joint_names: tuple[str, ...]
     kinds: tuple[str, ...]
+    models: tuple[int, ...]  # each joint's servo model number
     ratio: np.ndarray
     offset: np.ndarray
     lower: np.ndarray
@@ -98,7 +99,7 @@ def _setup(config: TrialConfig) -> RigSetup:
     u = getattr(config.backend, "ultrasonic", None)
     return RigSetup(
         robot=config.robot, joint_names=names,
-        kinds=tuple(r.kind for r in rows),
+        kinds=tuple(r.kind for r in rows), models=tuple(models),
         ratio=np.array([table[n].ratio for n in names]), offset=np.array([table[n].offset for n in names]),
         lower=np.array([r.lower for r in rows]), upper=np.array([r.upper for r in rows]),
         datasheet=servo_params(table, names), kt_datasheet=np.array([model_spec(m).motor.kt for m in models]),

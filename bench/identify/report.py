@@ -83,7 +83,7 @@ def plot_joint(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult, name:
 
 
 def _fmt(value: float) -> str:
-    return "—" if not np.isfinite(value) else f"{value:.4g}"
+    return "—" if not np.isfinite(value) else f"{value:.3g}"
 
 
 def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
@@ -104,8 +104,9 @@ def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
         lines.append(f"| {name} | {_mae_text(setup, k, jf.mae_before)} | {_mae_text(setup, k, jf.mae_after)} | "
                      f"{jf.current_mae_before:.3f} | {jf.current_mae_after:.3f} |")
     if fit.skipped:
-        lines += ["", "Not fitted (datasheet values kept): " +
-                  "; ".join(f"{n}: {why}" for n, why in fit.skipped.items()) + "."]
+        lines += ["", "Not fitted: " + "; ".join(f"{n}: {why}" for n, why in fit.skipped.items()) + ". "
+                  "Each takes the median of the fitted joints with its servo model (the same motor and "
+                  "gearbox), or the datasheet's values when none was fitted; the model file's notes say which."]
     lines += ["", "## Identified physics", "",
               "| joint | " + " | ".join(f"{k} ({UNITS[k]})" if UNITS[k] else k for k in FILE_KEYS) + " |",
               "| --- | " + " | ".join("---:" for _ in FILE_KEYS) + " |"]
@@ -113,11 +114,11 @@ def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
         cells = []
         for key in FILE_KEYS:
             cell = f"{_fmt(jf.values[key])} ± {_fmt(jf.stderr[key])}"
-            cells.append(cell if jf.observable[key] else f"{cell} (not observable)")
+            cells.append(cell if jf.observable[key] else f"{cell} *")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += ["", "± is one standard error: how far the value can move, the others free to make up for it, "
-              "before the fit's cost rises by 5 %. A value **not observable** (standard error over 5 % "
-              "of it) is one the logs cannot tell on its own: the fit held it near the datasheet, and what "
+              "before the fit's cost rises by 5 %. * marks a value **not observable** (standard error over 5 % "
+              "of it): one the logs cannot tell on its own; the fit held it near the datasheet, and what "
               "the logs do tell is its combination with the others (e.g. the friction at the speeds the "
               "joint moved at, not how it splits into Coulomb, Stribeck and viscous parts). Excite the "
               "joint faster or longer to resolve it. The Stribeck peak is the friction at rest; Coulomb "

@@ -75,9 +75,30 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
             unobservable[name] = hidden
     notes = [f"identified from {len(runs)} log(s) by hilbench identify: each joint's servo simulated "
              f"along its logged motion, position and current fitted (CMA-ES, then Levenberg-Marquardt)"]
-    notes += [f"{name}: not fitted, {why}; datasheet values" for name, why in fit.skipped.items()]
+    for name, why in fit.skipped.items():
+        pooled = pooled_physics(setup, fit, name)
+        if pooled is None:
+            notes.append(f"{name}: not fitted, {why}; datasheet values")
+            continue
+        physics, peers = pooled
+        joints[name] = ServoPhysics(**physics)
+        unobservable[name] = list(physics)
+        notes.append(f"{name}: not fitted, {why}; the median of the fitted joints with its servo model "
+                     f"({', '.join(peers)})")
     return ServoModelFile(robot=setup.robot, joints=joints, uncertainty=uncertainty, unobservable=unobservable,
                           sources=[LogSource(run=str(r.run_dir), sha256=r.sha256) for r in runs], notes=notes)
+
+
+def pooled_physics(setup: RigSetup, fit: FitResult, joint: str) -> tuple[dict[str, float], list[str]] | None:
+    """For a joint the logs never moved: the median physics of the fitted joints with the same
+    servo model (the same motor and gearbox, so closer than the datasheet's bare values); None
+    when no such joint was fitted."""
+    model = setup.models[setup.joint_names.index(joint)]
+    peers = [n for n in fit.joints if setup.models[setup.joint_names.index(n)] == model]
+    if not peers:
+        return None
+    keys = list(fit.joints[peers[0]].values)
+    return {k: float(np.median([fit.joints[n].values[k] for n in peers])) for k in keys}, peers
 
 
 def write_model_file(model: ServoModelFile, path: Path) -> None:
@@ -94,8 +115,8 @@ def write_model_file(model: ServoModelFile, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def identify(run_dirs: Sequence[Path], out: Path, *, workers: int = 0, max_iterations: int = 8,
-             report: bool = True, progress: Progress | None = None) -> IdentifyResult:
+def identify(run_dirs: Sequence[Path], out: Path, *, workers: int = 0, generations: int = 40,
+             max_iterations: int = 8, report: bool = True, progress: Progress | None = None) -> IdentifyResult:
     """Fit the servos of the logs' rig and write ``out`` (the model file) and its HTML report
     beside it (``out`` with ``.html``). ``workers``: processes for the simulations (0: one per
     core, 1: none)."""
@@ -111,7 +132,8 @@ def identify(run_dirs: Sequence[Path], out: Path, *, workers: int = 0, max_itera
     n_workers = (os.cpu_count() or 1) if workers == 0 else max(1, workers)
     pool = ProcessPoolExecutor(n_workers) if n_workers > 1 else None
     try:
-        fit = fit_servos(setup, runs, max_iterations=max_iterations, pool=pool, workers=n_workers,
+        fit = fit_servos(setup, runs, max_iterations=max_iterations, generations=generations, pool=pool,
+                         workers=n_workers,
                          progress=(lambda done, total: progress("fitting", done / total)) if progress else None)
     finally:
         if pool is not None:

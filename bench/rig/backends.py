@@ -86,7 +86,8 @@ def _train_sensor(config: TrialConfig, robot) -> TrainSensor | None:
     return TrainSensor(joint=list(robot.joint_names).index(u.joint),
                        to_distance=lambda q: standoff + float(train_pose(q, params).d2),
                        to_joint=lambda d: float(epsilon_from_d2(d - standoff, params)),
-                       rate_hz=u.rate_hz, median_window=u.median_window)
+                       rate_hz=u.rate_hz, median_window=u.median_window, noise_std_m=u.noise_mm * 1e-3,
+                       seed=config.seed)
 
 
 def make_servo_sim(config: TrialConfig, robot) -> Actuators:

@@ -44,6 +44,8 @@ class TrainSensor:
     to_joint: Callable[[float], float]  # reading (m) -> joint value, as the driver maps it
     rate_hz: float
     median_window: int = 5
+    noise_std_m: float = 0.0  # reading noise (1σ, m), before the sensor's whole millimetres
+    seed: int = 0
 
 
 @dataclass
@@ -110,7 +112,7 @@ class ServoSimActuators(SteppedActuators):
         if s.train_sensor is not None:
             ts = s.train_sensor
             self._sensed = SensedDistance(lambda: ts.to_distance(float(self.plant.joint_position()[ts.joint])),
-                                          ts.rate_hz, ts.median_window)
+                                          ts.rate_hz, ts.median_window, ts.noise_std_m, ts.seed)
             self._sensed.update(0.0)
             self._train_loop = TrainLoop(ts.joint)
         if s.start_holding:
