@@ -102,3 +102,31 @@ def test_safe_stop_hold_keeps_position(arc_train):
         before = sim.read().position
         sim.wait_until(1.2)
         assert np.max(np.abs(sim.read().position - before)) < 2e-3
+
+
+@pytest.mark.parametrize("servo_model", ["ideal", "datasheet"])
+def test_a_sim_starts_where_backend_start_says_and_refuses_an_unknown_joint(servo_model):
+    """compare starts each sim repeat where the rig's started: both simulators take backend.start."""
+    import yaml
+
+    from bench.config.models import TrialConfig
+    from bench.kinematics.registry import get_robot
+    from bench.paths import REPO_ROOT
+    from bench.rig.backends import make_backend
+
+    data = yaml.safe_load((REPO_ROOT / "hil_configs" / "sim_target1.yaml").read_text())
+    data["backend"] = {"kind": "pybullet", "servo_model": servo_model, "start": {"theta4": 0.1, "d9": 0.06}}
+    robot = get_robot("arc-train")
+    act = make_backend(TrialConfig.model_validate(data), robot)
+    try:
+        q = act.read().position
+    finally:
+        act.close()
+    names = list(robot.joint_names)
+    tick = 2 * np.pi / 4096
+    assert q[names.index("theta4")] == pytest.approx(0.1, abs=tick)
+    assert q[names.index("d9")] == pytest.approx(0.06, abs=1e-4)
+    assert q[names.index("theta5")] == pytest.approx(robot.chain.home[names.index("theta5")], abs=tick)
+    data["backend"]["start"] = {"theta99": 0.1}
+    with pytest.raises(ValueError, match=r"backend.start: unknown joint\(s\) \['theta99'\]"):
+        TrialConfig.model_validate(data)

@@ -202,6 +202,18 @@ def _hold_until_home(act: Actuators, home: np.ndarray, tol: np.ndarray, period: 
     return float("nan")
 
 
+def _start_of(log: TrialLog) -> dict[str, float]:
+    """The joints where a rig repeat started (its first reading), for the sim to start there too."""
+    if not len(log):
+        return {}
+    return {n: float(v) for n, v in zip(log.joint_names, log.q[0]) if np.isfinite(v)}
+
+
+def _starting_at(config: TrialConfig, start: dict[str, float]) -> TrialConfig:
+    """A sim config that starts at ``start`` (``backend.start``)."""
+    return config.model_copy(update={"backend": config.backend.model_copy(update={"start": dict(start)})})
+
+
 def _safe_stop(config: TrialConfig) -> None:
     """Apply the config's own safe stop to the rig (best effort: the bus may be gone)."""
 
@@ -293,6 +305,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
             rig.close()
 
     n_sim = len(real_runs)
+    starts = [_start_of(TrialLog.load(p / "trial.npz")) for p in real_runs]
     sides = [("sim", sim_cfg, sim_dir)] + ([("model sim", model_cfg, out_dir / "model")] if model_cfg else [])
     runs: dict[str, list[Path]] = {}
     for k, (label, cfg, where) in enumerate(sides):
@@ -300,7 +313,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
         share = w_sim / len(sides)
         for i in range(n_sim):
             what = f"{label} repeat {i + 1}/{n_sim}"
-            res_s = run_trial(cfg, where, report=False, note=f"compare repeat {i + 1}",
+            res_s = run_trial(_starting_at(cfg, starts[i]), where, report=False, note=f"compare repeat {i + 1}",
                               progress=lambda f, i=i, k=k, what=what: progress(
                                   what, 0.88 + 0.12 * k / len(sides) + share * (i + f)),
                               interrupts=interrupts)
@@ -325,7 +338,8 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     head = ["The sim side is the same config with its backend replaced by the PyBullet defaults (same "
             "name, robot, target, plan, control rate and acceptance limits)"
             + (", running the rig's servo table through the servo model" if model_cfg is not None else "")
-            + "; the sim has no noise, so its repeats are identical."]
+            + "; each sim repeat starts where the rig's repeat started (its first reading), so a "
+            "homing that left a joint a tick off home is no difference between them."]
     if emulate:
         head.append(f"The rig is the bench's emulator (`hilbench emulate`, one process for all repeats) "
                     f"on this host; the driver retries each bus transaction up to {EMULATED_RETRIES} "

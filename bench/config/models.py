@@ -111,6 +111,10 @@ class PyBulletBackendConfig(Strict):
     safe_stop: SafeStop = Field(default="hold", description=SAFE_STOP_MEANING)
     joints: dict[str, JointOverride] = Field(default_factory=dict,
                                              description="per-joint limits that replace the model's")
+    start: dict[str, float] = Field(
+        default_factory=dict, max_length=32,
+        description="joint values (rad or m) the simulation starts at instead of home, e.g. where a "
+                    "rig's repeat started (`compare` sets it); joints not named start at home")
     servo_model: str = Field(
         default="ideal", description="ideal: PyBullet's position motors; datasheet: the joints driven "
                                      "through the servo model (firmware PID, motor, gearbox) with the "
@@ -397,9 +401,10 @@ class TrialConfig(Strict):
     @model_validator(mode="after")
     def _joint_names_known(self) -> "TrialConfig":
         names = get_robot(self.robot).joint_names
-        unknown = sorted(set(getattr(self.backend, "joints", {})) - set(names))
-        if unknown:
-            raise ValueError(f"backend.joints: unknown joint(s) {unknown}; {self.robot} has {names}")
+        for where in ("joints", "start"):
+            unknown = sorted(set(getattr(self.backend, where, {})) - set(names))
+            if unknown:
+                raise ValueError(f"backend.{where}: unknown joint(s) {unknown}; {self.robot} has {names}")
         ex = self.excitation
         if ex is not None and ex.joints != "all":
             unknown = sorted(set(ex.joints) - set(names))

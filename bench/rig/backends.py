@@ -90,6 +90,18 @@ def _train_sensor(config: TrialConfig, robot) -> TrainSensor | None:
                        seed=config.seed)
 
 
+def start_pose(config: TrialConfig, robot) -> np.ndarray:
+    """Where a simulator starts: home, with the joints ``backend.start`` names moved (clipped to
+    the limits); an unknown joint is refused."""
+    q = robot.chain.home.copy()
+    names = list(robot.joint_names)
+    for name, value in getattr(config.backend, "start", {}).items():
+        if name not in names:
+            raise ConfigError(f"backend.start: unknown joint {name!r}; {config.robot} has {names}")
+        q[names.index(name)] = value
+    return np.clip(q, robot.chain.lower, robot.chain.upper)
+
+
 def make_servo_sim(config: TrialConfig, robot) -> Actuators:
     """The simulator driving the joints through the servo model (``backend.servo_model``)."""
     b = config.backend
@@ -106,7 +118,7 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
         robot_urdf=config.robot_urdf, joint_names=names, servos=params,
         ratio=[table[n].ratio for n in names], offset=[table[n].offset for n in names],
         max_velocity=limits.velocity, max_effort=limits.effort, physics_hz=b.physics_hz,
-        control_period=config.control_period, initial_position=robot.chain.home,
+        control_period=config.control_period, initial_position=start_pose(config, robot),
         transport_delay_s=b.transport_delay_ms * 1e-3, safe_stop=b.safe_stop, start_holding=True,
         train_sensor=_train_sensor(config, robot),
         current_based=[table[n].mode == "current_based_position" for n in names])
@@ -134,7 +146,7 @@ def make_backend(config: TrialConfig, robot, gui: bool = False) -> Actuators:
             robot_urdf=cfg.robot_urdf, joint_names=robot.joint_names, scene=scene,
             physics_hz=b.physics_hz, control_period=cfg.control_period, max_effort=effort,
             max_velocity=velocity, position_gain=b.position_gain, velocity_gain=b.velocity_gain,
-            initial_position=chain.home, gui=gui, safe_stop=b.safe_stop,
+            initial_position=start_pose(cfg, robot), gui=gui, safe_stop=b.safe_stop,
             solver_iterations=b.solver_iterations)
         return PyBulletActuators(settings)
     if cfg.backend.kind == "dynamixel":
