@@ -257,6 +257,34 @@ def test_same_campaign_same_numbers_on_a_dask_cluster(local_campaign, tmp_path):
     check_consistent(d)
 
 
+def test_a_report_tables_other_campaigns_beside_its_own(local_campaign, tmp_path):
+    """`campaign report DIR --beside OTHER`: each axis's bias ± scatter, campaign by campaign,
+    with Table 3's; the numbers are the campaigns' own."""
+    import numpy as np
+
+    d, _ = local_campaign
+    other = create_campaign(write_spec(tmp_path, samples=1, repeats=1), tmp_path / "other")
+    run_campaign(other, workers=2)
+    out = subprocess.run([HILBENCH, "campaign", "report", str(d), "--beside", str(other), "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    md = (d / "report.md").read_text()
+    section = md.split("## Beside other campaigns")[1]
+    header = [ln for ln in section.splitlines() if ln.startswith("| |")][0]
+    assert "this campaign" in header and "Table 3" in header
+    mine = [r["entry_dx_mm"] for r in rows(d / "campaign.db")
+            if r["status"] == "done" and r["entry_dx_mm"] is not None]
+    theirs = [r["entry_dx_mm"] for r in rows(other / "campaign.db")
+              if r["status"] == "done" and r["entry_dx_mm"] is not None]
+    line = [ln for ln in section.splitlines() if ln.startswith("| entry X")][0]
+    assert f"{np.mean(mine):.2f} ± {np.std(mine, ddof=1):.2f}" in line
+    assert f"{np.mean(theirs):.2f} ± {np.std(theirs, ddof=1):.2f}" in line
+    assert "1.32 ± 0.07" in line  # Table 3's X
+    bad = subprocess.run([HILBENCH, "campaign", "report", str(d), "--beside", str(tmp_path / "none")],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "no campaign in" in bad.stderr
+
+
 def test_json_output_shape(tmp_path):
     spec = write_spec(tmp_path, samples=1, repeats=1)
     out = subprocess.run([HILBENCH, "campaign", "run", str(spec), "--out", str(tmp_path / "c"),

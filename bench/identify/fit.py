@@ -267,7 +267,7 @@ def variance_inflation(J: np.ndarray, D: np.ndarray) -> np.ndarray:
 
 def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: int = 4, generations: int = 40,
                pool: Executor | None = None, workers: int = 1, progress: Progress | None = None) -> FitResult:
-    """Fit the physics of every joint the logs excite; the rest keep the datasheet's."""
+    """Fit the physics of every joint the logs excite (the others are listed in ``skipped``)."""
     excited = np.any([r.excited for r in runs], axis=0)
     names = setup.joint_names
     skipped = {names[k]: "its goals never moved it by 0.5° or 0.5 mm" for k in np.flatnonzero(~excited)}
