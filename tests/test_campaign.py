@@ -263,7 +263,7 @@ def test_a_report_tables_other_campaigns_beside_its_own(local_campaign, tmp_path
     import numpy as np
 
     d, _ = local_campaign
-    other = create_campaign(write_spec(tmp_path, samples=1, repeats=1), tmp_path / "other")
+    other = create_campaign(write_spec(tmp_path, samples=2, repeats=1), tmp_path / "other")
     run_campaign(other, workers=2)
     out = subprocess.run([HILBENCH, "campaign", "report", str(d), "--beside", str(other), "--json"],
                          capture_output=True, text=True, timeout=300)

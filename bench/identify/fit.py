@@ -25,7 +25,7 @@ import numpy as np
 
 from bench.identify.logs import LoggedRun, RigSetup
 from bench.identify.search import cma_search
-from bench.identify.simulate import PHYSICS, SlotPhysics, file_values, simulate_run, windows_of
+from bench.identify.simulate import PHYSICS, SlotPhysics, file_values, merge_runs, simulate_run
 from drivers.dynamixel.units import RAD_PER_TICK
 
 __all__ = ["FitResult", "JointFit", "fit_servos", "initial_physics"]
@@ -95,38 +95,31 @@ class _Problem:
         current = np.concatenate([r.current[:, joints] for r in runs])
         tick = np.abs(setup.ratio[joints]) * RAD_PER_TICK
         self.q_scale = np.maximum(np.sqrt(np.mean(q_err ** 2, axis=0)), 2 * tick)
-        # the window each residual belongs to (the columns of :meth:`residuals`): windows are
-        # simulated apart, so they are the independent clusters of the fit's error
-        ids, offset = [], 0
-        for r in runs:
-            cluster = np.empty(len(r.time), dtype=int)
-            wins = windows_of(r.time)
-            for w, (a, b) in enumerate(wins):
-                cluster[a:b] = offset + w
-            cluster[:wins[0][0]] = offset
-            cluster[wins[-1][1]:] = offset + len(wins) - 1
-            ids += [cluster, cluster]
-            offset += len(wins)
-        self.clusters = np.concatenate(ids)
+        # all logs as one, each cut in windows; the window each residual belongs to (the columns of
+        # :meth:`residuals`): windows are simulated apart, so they are the fit's independent clusters
+        self.merged, self.windows, self.slices = merge_runs(self.runs)
+        self.starts = [sl.start for sl in self.slices]
+        window_of_row = np.empty(len(self.merged.time), dtype=int)
+        for w, (a, b) in enumerate(self.windows):
+            window_of_row[a:b] = w
+        self.clusters = np.concatenate([c for sl in self.slices for c in (window_of_row[sl], window_of_row[sl])])
         self.i_scale = np.maximum(current.std(axis=0), 0.01)
         self.rows = sum(len(r.time) for r in runs)
 
     def simulate(self, physics: np.ndarray, which: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per run, (q, current) of slots ``which`` (indices into the fitted joints) with ``physics``.
-        With a pool, each run's slots go out in one chunk per worker, so the workers stay busy
-        whatever the number of runs."""
+        Every log's windows step together; with a pool, the slots go out in one chunk per worker."""
         slots = SlotPhysics(joint=self.joints[which], values=physics)
-        if self.pool is None:
-            return [simulate_run(self.setup, r, slots) for r in self.runs]
-        chunks = np.array_split(np.arange(len(which)), min(self.workers, len(which)))
-        futures = [[self.pool.submit(simulate_run, self.setup, r,
-                                     SlotPhysics(joint=slots.joint[c], values=slots.values[c])) for c in chunks]
-                   for r in self.runs]
-        out = []
-        for per_run in futures:
-            parts = [f.result() for f in per_run]
-            out.append(tuple(np.concatenate([p[i] for p in parts], axis=1) for i in (0, 1)))
-        return out
+        chunks = np.array_split(np.arange(len(which)), min(self.workers, len(which))) if self.pool else []
+        if len(chunks) > 1:
+            futures = [self.pool.submit(simulate_run, self.setup, self.merged,
+                                        SlotPhysics(joint=slots.joint[c], values=slots.values[c]),
+                                        windows=self.windows, log_starts=self.starts) for c in chunks]
+            parts = [f.result() for f in futures]
+            q, cur = (np.concatenate([p[i] for p in parts], axis=1) for i in (0, 1))
+        else:
+            q, cur = simulate_run(self.setup, self.merged, slots, windows=self.windows, log_starts=self.starts)
+        return [(q[sl], cur[sl]) for sl in self.slices]
 
     def residuals(self, sims, which: np.ndarray) -> np.ndarray:
         """(S, m) residual rows of the slots (data only)."""

@@ -14,6 +14,7 @@ read them, just before each goal.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from bench.identify.logs import LoggedRun, RigSetup
 from drivers.servo import ServoArray, ServoParams
 from drivers.servo.model import FIRMWARE_PERIOD_S, FRICTION_SMOOTHING_RAD_S
 
-__all__ = ["FILE_KEYS", "PHYSICS", "SlotPhysics", "file_values", "WINDOW_S", "simulate_run", "windows_of"]
+__all__ = ["FILE_KEYS", "PHYSICS", "SlotPhysics", "file_values", "merge_runs", "WINDOW_S", "simulate_run", "windows_of"]
 
 #: The length of the windows a log is simulated in, each from its logged start (s).
 WINDOW_S = 5.0
@@ -65,23 +66,53 @@ class SlotPhysics:
 
 
 def windows_of(time: np.ndarray, window_s: float = WINDOW_S) -> list[tuple[int, int]]:
-    """The log's rows cut into windows of about ``window_s`` (row ranges [start, stop))."""
+    """The log's rows cut into windows of about ``window_s`` (row ranges [start, stop) covering
+    every row, each at least two rows long)."""
     n = len(time)
     count = max(1, int(round((time[-1] - time[0]) / window_s))) if n > 1 else 1
     edges = np.searchsorted(time, time[0] + np.arange(1, count) * (time[-1] - time[0]) / count)
-    bounds = [0, *[int(e) for e in edges if 0 < e < n], n]
-    return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= 2]
+    bounds = [0]
+    for e in (int(e) for e in edges):
+        if e - bounds[-1] >= 2 and n - e >= 2:
+            bounds.append(e)
+    bounds.append(n)
+    return list(zip(bounds[:-1], bounds[1:]))
+
+
+def merge_runs(runs: Sequence[LoggedRun], window_s: float = WINDOW_S
+               ) -> tuple[LoggedRun, list[tuple[int, int]], list[slice]]:
+    """Several logs as one for :func:`simulate_run`: rows end to end (times apart by a second),
+    the windows of each log (never one across two logs), and each log's rows in the whole."""
+    if len(runs) == 1:
+        return runs[0], windows_of(runs[0].time, window_s), [slice(0, len(runs[0].time))]
+    parts, windows, rows, offset, t0 = [], [], [], 0, 0.0
+    for r in runs:
+        parts.append(r)
+        windows += [(a + offset, b + offset) for a, b in windows_of(r.time, window_s)]
+        rows.append(slice(offset, offset + len(r.time)))
+        offset += len(r.time)
+    times, t0 = [], 0.0
+    for r in runs:
+        times.append(r.time - r.time[0] + t0)
+        t0 = times[-1][-1] + 1.0
+    cat = lambda name: np.concatenate([getattr(r, name) for r in runs])  # noqa: E731
+    merged = LoggedRun(run_dir=runs[0].run_dir, sha256="", time=np.concatenate(times), goal=cat("goal"), q=cat("q"),
+                       qd=cat("qd"), current=cat("current"), inertia=cat("inertia"), load=cat("load"),
+                       excited=np.any([r.excited for r in runs], axis=0))
+    return merged, windows, rows
 
 
 def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float = FIRMWARE_PERIOD_S,
-                 window_s: float = WINDOW_S) -> tuple[np.ndarray, np.ndarray]:
+                 window_s: float = WINDOW_S, windows: Sequence[tuple[int, int]] | None = None,
+                 log_starts: Sequence[int] = (0,)) -> tuple[np.ndarray, np.ndarray]:
     """Position (joint units) and motor current (A) of every slot at the log's rows, (K, S) each.
 
     The log is cut into windows of about ``window_s``, each started from the logged state (position,
     velocity, and the integrator that gives the logged current), and all windows of all slots
     step together in one servo array: a long log costs the steps of one window, and a model's
-    error cannot pile up over minutes (multiple shooting)."""
-    wins = windows_of(run.time, window_s)
+    error cannot pile up over minutes (multiple shooting). ``windows``: the row ranges to use
+    instead (several logs merged by :func:`merge_runs`, ``log_starts`` the rows where each begins)."""
+    wins = list(windows) if windows is not None else windows_of(run.time, window_s)
     W, S, n = len(wins), len(slots.joint), len(setup.joint_names)
     # one simulated servo per (window, slot): window-major
     win = np.repeat(np.arange(W), S)
@@ -126,7 +157,7 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     qd = run.qd[first][:, slots.joint].reshape(-1).astype(float)
     # each window's servos as the log found them: at the goal of the cycle before, the integrator
     # giving the current they reported
-    before = np.maximum(first - 1, 0)
+    before = np.where(np.isin(first, list(log_starts)), first, first - 1)  # a log's first row: its own goal
     goal = (run.goal[before][:, slots.joint].reshape(-1) - off) * inv_r
     servo.resume((q - off) * inv_r, qd * inv_r, goal, run.current[first][:, slots.joint].reshape(-1))
     q_out = np.empty((len(t), S))
