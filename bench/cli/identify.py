@@ -35,6 +35,7 @@ def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR",
     from bench.identify.run import identify as run_identify  # deferred: --help and completion stay fast
     from bench.identify.run import joint_rows  # deferred: --help and completion stay fast
 
+    refused: IdentifyError | None = None
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeElapsedColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task("reading logs", total=1.0)
@@ -46,8 +47,9 @@ def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR",
             result = run_identify(run_dirs, out, workers=workers, generations=generations,
                                   max_iterations=iterations, progress=progress)
         except IdentifyError as e:
-            bar.stop()
-            fail(str(e))
+            refused = e
+    if refused is not None:
+        fail(str(refused))
     if as_json:
         emit_json(result.as_dict())
         return

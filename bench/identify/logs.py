@@ -147,7 +147,7 @@ def load_runs(run_dirs: Sequence[Path]) -> tuple[RigSetup, list[LoggedRun]]:
             try:
                 log, prep = load_record(run_dir)
             except Exception as e:  # TrialError, a missing or unreadable record
-                raise IdentifyError(f"{run_dir}: {e}") from None
+                raise IdentifyError(str(e) if str(run_dir) in str(e) else f"{run_dir}: {e}") from None
             config = prep.config
             if config.backend.kind != "dynamixel":
                 raise IdentifyError(f"{run_dir}: a {config.backend.kind} trial; identification reads the "
