@@ -149,7 +149,10 @@ def test_the_identified_sim_predicts_the_rig_on_a_motion_it_never_saw(rigs, iden
     assert res.returncode in (0, 1), res.stderr
     d = json.loads(res.stdout)
     pred = d["prediction"]
-    assert pred["tracking_gap_ratio"] <= 0.25
-    # the ideal sim misses the rig's sag: its tip is millimetres off the rig's
+    print(pred)
+    assert pred["tracking_gap_ratio"] <= 0.2, pred  # 80 % of the ideal sim's gap closed
+    # the ideal sim misses the rig's sag: its tip is millimetres off the rig's; the identified
+    # sim's lies within 0.3 mm of it
     ideal_tip = np.asarray(d["tip_deviation_mm"]["mean"])
-    assert pred["tip_error_mm"]["mean"] < 0.5 * float(np.linalg.norm(ideal_tip))
+    assert float(np.linalg.norm(ideal_tip)) > 1.0
+    assert pred["tip_error_mm"]["mean"] <= 0.3, pred

@@ -150,7 +150,7 @@ def _sim_with(tmp_path, servo_model: str, lab_servos: bool):
     data["backend"]["servo_model"] = servo_model
     if lab_servos:
         data["backend"]["servos"] = yaml.safe_load(LAB.read_text())["backend"]["servos"]
-    path = tmp_path / f"sim-{servo_model}-{lab_servos}.yaml"
+    path = tmp_path / f"sim-{Path(servo_model).stem}-{lab_servos}.yaml"
     path.write_text(yaml.safe_dump(data))
     return load_trial_config(path)
 
@@ -323,3 +323,34 @@ def test_the_simulated_train_sensor_dithers_across_its_millimetres_when_noisy():
             out.append(s.read())
     assert np.allclose(q, 0.350)
     assert len(set(n)) > 3 and abs(np.mean(n) - 0.3504) < 0.05e-3
+
+
+def test_the_sim_reports_a_weak_motors_current_as_the_rigs_driver_does(tmp_path):
+    """The driver converts current to torque with the datasheet's motor constant: a θ5 motor at
+    Kt × 0.8 draws 1/0.8 of the current to hold the wrist, and the sim reports that as 1/0.8 of
+    the torque, as the rig would; an effort limit becomes the current the driver would write."""
+    import yaml
+
+    from bench.kinematics.registry import get_robot
+    from bench.rig.backends import make_backend
+
+    model = tmp_path / "weak.yaml"
+    model.write_text(yaml.safe_dump({"robot": "arc-train", "joints": {"theta5": {"kt_scale": 0.8}}}))
+    efforts, acts = {}, {}
+    for name, servo_model in (("datasheet", "datasheet"), ("weak", str(model))):
+        cfg = _sim_with(tmp_path, servo_model, lab_servos=True)
+        act = acts[name] = make_backend(cfg, get_robot(cfg.robot))
+        j = list(act.joint_names).index("theta5")
+        act.enable()
+        q = act.read().position
+        act.command(q)
+        act.wait_until(act.now() + 1.0)  # holding still: the current carries the wrist's weight
+        efforts[name] = act.read().effort[j]
+    assert abs(efforts["datasheet"]) > 0.1  # holding the wrist against gravity
+    assert efforts["weak"] == pytest.approx(efforts["datasheet"] / 0.8, rel=0.02)
+    weak = acts["weak"]
+    weak.set_effort_limit(j, 1.0)
+    datasheet_kt = acts["datasheet"].servos.params.kt[j]
+    assert weak.servos.current_limit[j] == pytest.approx(abs(weak._ratio[j]) / datasheet_kt)
+    for act in acts.values():
+        act.close()

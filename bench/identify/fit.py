@@ -104,7 +104,10 @@ class _Problem:
             window_of_row[a:b] = w
         self.clusters = np.concatenate([c for sl in self.slices for c in (window_of_row[sl], window_of_row[sl])])
         self.i_scale = np.maximum(current.std(axis=0), 0.01)
-        self.rows = sum(len(r.time) for r in runs)
+        # per run, the rows each joint learns from (1) or not (0), and each joint's count of them
+        self.weights = [learning_rows(setup, r, joints).astype(float) for r in runs]
+        counts = np.sum([w.sum(axis=0) for w in self.weights], axis=0)
+        self.norm = 1.0 / np.sqrt(2 * np.maximum(counts, 1.0))
 
     def simulate(self, physics: np.ndarray, which: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per run, (q, current) of slots ``which`` (indices into the fitted joints) with ``physics``.
@@ -124,17 +127,46 @@ class _Problem:
     def residuals(self, sims, which: np.ndarray) -> np.ndarray:
         """(S, m) residual rows of the slots (data only)."""
         parts = []
-        for run, (q, cur) in zip(self.runs, sims):
-            j = self.joints[which]
-            parts.append(((q - run.q[:, j]) / self.q_scale[which]).T)
-            parts.append(((cur - run.current[:, j]) / self.i_scale[which]).T)
-        return np.concatenate(parts, axis=1) / np.sqrt(2 * self.rows)
+        for run, (q, cur), w in zip(self.runs, sims, self.weights):
+            j, wk = self.joints[which], w[:, which]
+            parts.append((wk * (q - run.q[:, j]) / self.q_scale[which]).T)
+            parts.append((wk * (cur - run.current[:, j]) / self.i_scale[which]).T)
+        return np.concatenate(parts, axis=1) * self.norm[which][:, None]
 
     def mae(self, sims, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         j = self.joints[which]
         q = np.concatenate([np.abs(s[0] - r.q[:, j]) for r, s in zip(self.runs, sims)])
         c = np.concatenate([np.abs(s[1] - r.current[:, j]) for r, s in zip(self.runs, sims)])
         return q.mean(axis=0), c.mean(axis=0)
+
+
+#: Goal speed above which a joint counts as commanded to move (rad/s or m/s): a degree or a
+#: millimetre a second, above the host loop's slow nudges of the train's goal.
+MOVING_GOAL = {"revolute": np.radians(1.0), "prismatic": 1e-3}
+#: After another joint's goal stops, its motion still shakes this joint for this long (s).
+COUPLING_SETTLE_S = 0.5
+
+
+def learning_rows(setup: RigSetup, run: LoggedRun, joints: np.ndarray) -> np.ndarray:
+    """(K, F) bool: the rows each fitted joint is fitted on. A joint learns from its own motion and
+    from rest, but not from the time another joint moves while it holds (nor the
+    :data:`COUPLING_SETTLE_S` after): there its load is mostly the other joint's acceleration times
+    their coupling inertia, differentiated from a velocity the servos report in steps of 0.23 rpm,
+    and a tick's difference in where its friction holds it would be fitted into its friction."""
+    t = run.time
+    if len(t) < 2:
+        return np.ones((len(t), len(joints)), dtype=bool)
+    speed = np.abs(np.gradient(run.goal, t, axis=0))
+    moving = speed > np.array([MOVING_GOAL[k] for k in setup.kinds])
+    # each row: when any joint's goal last moved, ignoring the joint itself
+    last_move = np.where(moving, t[:, None], -np.inf)
+    last_move = np.maximum.accumulate(last_move, axis=0)
+    out = np.empty((len(t), len(joints)), dtype=bool)
+    for f, k in enumerate(joints):
+        others = np.delete(last_move, k, axis=1).max(axis=1) if last_move.shape[1] > 1 else np.full(len(t), -np.inf)
+        shaken = t - others <= COUPLING_SETTLE_S
+        out[:, f] = moving[:, k] | ~shaken
+    return out
 
 
 #: Stribeck velocities (rad/s at the shaft) the regression tries; the best fit wins.

@@ -109,6 +109,7 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
     table = servo_table(config, robot)
     limits = backend_limits(config, robot)
     params = servo_params(table, names)
+    datasheet_kt = params.kt.copy()
     if b.servo_model != "datasheet":  # a servo model file: the rig's physics over the datasheet
         model = load_servo_model_file(config.resolve(Path(b.servo_model)))
         if model.robot != config.robot:
@@ -121,7 +122,7 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
         control_period=config.control_period, initial_position=start_pose(config, robot),
         transport_delay_s=b.transport_delay_ms * 1e-3, safe_stop=b.safe_stop, start_holding=True,
         train_sensor=_train_sensor(config, robot),
-        current_based=[table[n].mode == "current_based_position" for n in names])
+        current_based=[table[n].mode == "current_based_position" for n in names], reported_kt=datasheet_kt)
     return ServoSimActuators(settings)
 
 
@@ -136,7 +137,6 @@ def make_backend(config: TrialConfig, robot, gui: bool = False) -> Actuators:
     if cfg.backend.kind == "pybullet":
 
         b = cfg.backend
-        chain = robot.chain
         limits = backend_limits(cfg, robot)
         effort, velocity = limits.effort.tolist(), limits.velocity.tolist()
         d = cfg.resolve(cfg.urdf_dir)

@@ -73,6 +73,11 @@ class ServoSimSettings:
     #: Per joint: the servo in current-based position mode (its PID drives a current, capped at
     #: the current limit, as Goal Current is on the rig).
     current_based: Sequence[bool] | None = None
+    #: Per joint: the motor constant (N·m/A) the rig's driver converts current with, its servo's
+    #: datasheet value; None: the model's own. A model whose motor is weaker than the datasheet
+    #: (kt_scale < 1) draws more current for a torque, and the driver reports that current as more
+    #: torque, as it does on the rig.
+    reported_kt: Sequence[float] | None = None
 
 
 class ServoSimActuators(SteppedActuators):
@@ -101,6 +106,8 @@ class ServoSimActuators(SteppedActuators):
         self._limits = JointLimits(lower, upper, np.asarray(s.max_velocity, dtype=float),
                                    np.asarray(s.max_effort, dtype=float))
         self._kinds = list(self.plant.kinds)
+        self._reported_kt = (s.servos.kt.copy() if s.reported_kt is None
+                             else np.asarray(s.reported_kt, dtype=float))
         self._torque_on = False
         self._pending: deque[tuple[int, np.ndarray]] = deque()
         self._delay_steps = int(round(s.transport_delay_s / self._dt))
@@ -126,7 +133,7 @@ class ServoSimActuators(SteppedActuators):
         shaft = self.plant.position()
         ticks = np.floor(shaft / RAD_PER_TICK + 0.5)
         velocity = np.round(self.plant.velocity() / VELOCITY_UNIT_RAD_S) * VELOCITY_UNIT_RAD_S
-        effort = (self.servos.params.kt * self.servos.current / self._ratio if self._torque_on
+        effort = (self._reported_kt * self.servos.current / self._ratio if self._torque_on
                   else np.zeros_like(shaft))
         position = self._offset + self._ratio * ticks * RAD_PER_TICK
         if self._sensed is not None:
@@ -191,7 +198,7 @@ class ServoSimActuators(SteppedActuators):
     # -- extras ----------------------------------------------------------------
     def set_effort_limit(self, joint: int, effort: float) -> None:
         """Lower a joint's available torque/force: its servo's current limit, through the transmission."""
-        self.servos.current_limit[joint] = effort * abs(self._ratio[joint]) / self.servos.params.kt[joint]
+        self.servos.current_limit[joint] = effort * abs(self._ratio[joint]) / self._reported_kt[joint]
         eff = self._limits.effort.copy()
         eff[joint] = effort
         self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)
