@@ -70,7 +70,7 @@ def placement_windows(log: TrialLog, sensed: str | None = None) -> np.ndarray | 
         before = log.time <= windows[j, 1]
         changed = np.flatnonzero(np.abs(np.diff(log.q_cmd[before, j])) > 0)
         still_from = log.time[changed[-1] + 1] + SENSED_SETTLE_S if changed.size else log.time[0]
-        windows[j, 0] = min(max(still_from, log.time[0]), windows[j, 0])
+        windows[j, 0] = min(still_from, windows[j, 0])
     return windows
 
 
