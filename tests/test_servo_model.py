@@ -86,6 +86,7 @@ def test_friction_has_a_stribeck_peak_above_coulomb_and_grows_viscously():
 from pathlib import Path  # noqa: E402
 
 from bench.config.models import ConfigError, load_trial_config  # noqa: E402
+from bench.core.log import TrialLog  # noqa: E402
 from bench.rig.emulated import EmulatedRig, hidden_servo_params  # noqa: E402
 
 LAB = Path(__file__).resolve().parents[1] / "hil_configs" / "lab_real.yaml"
@@ -180,7 +181,6 @@ def test_a_datasheet_sim_trial_shows_the_rigs_gravity_sag_where_the_ideal_sim_ha
     ideal_tip = np.linalg.norm(ideal.outcome.tip_deviation_mm)
     servo_tip = np.linalg.norm(servo.outcome.tip_deviation_mm)
     assert ideal_tip < 0.2 and 0.5 < servo_tip < 5.0, (ideal_tip, servo_tip)
-    from bench.core.log import TrialLog
 
     q = TrialLog.load(servo.log_path).q[:, 1:7]  # servo-driven revolute joints: whole ticks
     assert np.allclose(q / RAD_PER_TICK, np.round(q / RAD_PER_TICK), atol=1e-6)
@@ -200,14 +200,47 @@ def test_compare_with_the_datasheet_model_predicts_the_emulated_rig_better_than_
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     pred = json.loads(out.stdout)["prediction"]
-    assert pred["tracking_gap_ratio"] < 0.35, pred  # the ideal sim's gap is 3x larger and more
-    assert pred["tip_error_mm"]["mean"] < 1.0, pred
+    # 0.10-0.13 measured over 3 repeats; two runs of this very sim that differ only in what the
+    # rig's readings cannot tell (where in its tick a shaft starts, the sensor's 1 mm of noise)
+    # score 0.10 between them (benchmarks/prediction_floor.py)
+    assert pred["tracking_gap_ratio"] < 0.16, pred
+    assert pred["tip_error_mm"]["mean"] < 0.3, pred
     assert len(pred["tip_error_mm"]["per_repeat"]) == 2
     run = Path(json.loads(out.stdout)["report"]).parent
+    rig, model = (sorted((run / side).iterdir()) for side in ("real", "model"))
+    for r, m in zip(rig, model):  # each sim repeat ran the rig repeat's very plan
+        np.testing.assert_allclose(TrialLog.load(m / "trial.npz").q_cmd[0], TrialLog.load(r / "trial.npz").q_cmd[0])
     assert len(list((run / "model").iterdir())) == 2 and len(list((run / "sim").iterdir())) == 2
     md = (run / "report.md").read_text()
     assert "## Prediction of the rig" in md and "prediction.png" in md
     assert json.loads((run / "summary.json").read_text())["prediction"] == pred
+
+
+def _homing(reached: float, rows: list[list[float]], period: float = 0.01) -> TrialLog:
+    log = TrialLog(["a", "b"], metadata={"home_reached_s": reached})
+    for k, q in enumerate(rows):
+        log.append(k * period, 0, [0.0, 0.0], [0.0, 0.0], q, [0.0, 0.0], [0.0, 0.0])
+    return log
+
+
+def test_a_sim_repeat_starts_where_the_rigs_homing_placed_each_shaft_within_its_tick():
+    """A holding servo hunts across the tick boundary nearest its shaft: a quarter of its readings
+    on the upper tick put the shaft a quarter of a tick up. The sim starts there, not at the
+    first reading's tick; a homing that timed out says nothing, and the first reading is used."""
+    from bench.compare.session import HOME_STILL_S, _plan_start_of, _start_of
+
+    tick = RAD_PER_TICK
+    still = int(HOME_STILL_S / 0.01) + 1
+    early = [[0.3, 5 * tick]] * 50  # before the stillness window: not averaged
+    hunt = [[0.0, (k % 4 == 0) * tick] for k in range(still)]
+    trial = TrialLog(["a", "b"])
+    trial.append(0.0, 0, [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0])
+    start = _start_of(trial, _homing(2.0, early + hunt))
+    assert start["a"] == 0.0 and start["b"] == pytest.approx(tick * np.mean([k % 4 == 0 for k in range(still)]))
+    assert 0.2 * tick < start["b"] < 0.3 * tick
+    assert _start_of(trial, _homing(float("nan"), early + hunt)) == {"a": 0.0, "b": 0.0}
+    assert _start_of(trial) == {"a": 0.0, "b": 0.0}
+    np.testing.assert_array_equal(_plan_start_of(trial), [0.0, 0.0])
 
 
 def test_a_sim_naming_its_rig_runs_the_rigs_servo_table_in_trials_and_campaigns(tmp_path):

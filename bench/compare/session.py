@@ -58,10 +58,15 @@ __all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "
 EMULATED_RETRIES = 20
 
 HOME_TOLERANCE_RAD = np.radians(0.2)  #: at home: every revolute joint within this (rad) ...
+#: ... a revolute joint whose servo integrates (Position I Gain > 0) within this: about one encoder
+#: tick, the hunt of a holding servo. Its integrator takes the sag out over seconds; a repeat that
+#: starts before it has is planned from a pose the servo is still leaving, and its first command
+#: meets an integrator charged for home, a kick no sim started at rest can show ...
+HOME_INTEGRATING_RAD = np.radians(0.1)
 HOME_TOLERANCE_M = 0.2e-3  #: ... and every slide within this (m) ...
 HOME_SENSED_RAD = np.radians(0.5)  #: ... a joint read by the ultrasonic sensor (1 mm of d2) within this ...
 HOME_STILL_S = 0.5  #: ... for this long (s) ...
-HOME_TIMEOUT_S = 5.0  #: ... or at most this long after the homing move (s)
+HOME_TIMEOUT_S = 15.0  #: ... or at most this long after the homing move (s)
 
 ProgressFn = Callable[[str, float], None]  # (what is running, fraction of the whole session)
 
@@ -159,8 +164,8 @@ def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
         segs = [Segment("withdraw", LSPB(q0, withdrawn, vmax, amax), 0.0),
                 Segment("home", LSPB(withdrawn, home, vmax, amax), 0.0)]
         Runner(act, config.control_period).run(segs, log)
-        tol = np.array([HOME_TOLERANCE_RAD if r.kind == "revolute" else HOME_TOLERANCE_M
-                        for r in robot.chain.rows])
+        tol = np.array([_home_tolerance(config, name, row.kind)
+                        for name, row in zip(robot.joint_names, robot.chain.rows)])
         u = getattr(config.backend, "ultrasonic", None)
         if u is not None:
             tol[list(robot.joint_names).index(u.joint)] = HOME_SENSED_RAD
@@ -172,6 +177,14 @@ def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
         if log_path is not None:
             log.save(log_path)
     return act
+
+
+def _home_tolerance(config: TrialConfig, joint: str, kind: str) -> float:
+    """How close to home a joint must stay (rad or m): see HOME_TOLERANCE_RAD and what follows it."""
+    if kind != "revolute":
+        return HOME_TOLERANCE_M
+    servo = (getattr(config.backend, "servos", None) or {}).get(joint)
+    return HOME_INTEGRATING_RAD if servo is not None and (servo.position_i or 0) > 0 else HOME_TOLERANCE_RAD
 
 
 def _hold_until_home(act: Actuators, home: np.ndarray, tol: np.ndarray, period: float,
@@ -202,11 +215,30 @@ def _hold_until_home(act: Actuators, home: np.ndarray, tol: np.ndarray, period: 
     return float("nan")
 
 
-def _start_of(log: TrialLog) -> dict[str, float]:
-    """The joints where a rig repeat started (its first reading), for the sim to start there too."""
+def _start_of(log: TrialLog, homing: Optional[TrialLog] = None) -> dict[str, float]:
+    """The joints where a rig repeat started, for the sim to start there too: the mean reading
+    over the homing's last HOME_STILL_S when it reached home (a holding servo hunts across the
+    tick it sits at, and how often it reads each side says where in the tick its shaft is; the
+    train's ultrasonic noise averages out the same way), else the repeat's first reading."""
     if not len(log):
         return {}
-    return {n: float(v) for n, v in zip(log.joint_names, log.q[0]) if np.isfinite(v)}
+    q = np.asarray(log.q[0], dtype=float)
+    reached = homing.metadata.get("home_reached_s") if homing is not None else None
+    if homing is not None and len(homing) and reached is not None and np.isfinite(reached):
+        t = np.asarray(homing.time, dtype=float)
+        still = t >= t[-1] - HOME_STILL_S
+        mean = np.nanmean(np.asarray(homing.q, dtype=float)[still], axis=0)
+        q = np.where(np.isfinite(mean), mean, q)
+    return {n: float(v) for n, v in zip(log.joint_names, q) if np.isfinite(v)}
+
+
+def _plan_start_of(log: TrialLog) -> Optional[np.ndarray]:
+    """The pose a rig repeat planned from (its first command), for the sim to run the very same
+    plan: planned from the sim's own first reading, a start a tick or a millimetre of ultrasonic
+    noise apart gives segments of another length, and every later one starts out of step."""
+    if not len(log) or not np.all(np.isfinite(log.q_cmd[0])):
+        return None
+    return np.asarray(log.q_cmd[0], dtype=float)
 
 
 def _starting_at(config: TrialConfig, start: dict[str, float]) -> TrialConfig:
@@ -263,6 +295,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     w_real, w_sim = 0.88 / repeats, 0.12 / repeats
     lost: list[LostAttempt] = []
     real_runs: list[Path] = []
+    homings: list[Path] = []
     notes: list[str] = []
     rig = None
     base_cfg = config
@@ -286,9 +319,10 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
         hold_cfg = _with_safe_stop(base_cfg, "hold")
         touched = True
         for i in range(repeats):
-            res = _rig_repeat(i, repeats, base_cfg, hold_cfg, real_dir, home_dir, retries, lost,
-                              lambda what, f, i=i: progress(what, w_real * (i + f)), interrupts)
+            res, homing = _rig_repeat(i, repeats, base_cfg, hold_cfg, real_dir, home_dir, retries, lost,
+                                      lambda what, f, i=i: progress(what, w_real * (i + f)), interrupts)
             real_runs.append(res.run_dir)
+            homings.append(homing)
             if not res.completed:
                 notes.append(f"rig repeat {i + 1} stopped early: {res.reason}; the session ended there")
                 break
@@ -305,7 +339,9 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
             rig.close()
 
     n_sim = len(real_runs)
-    starts = [_start_of(TrialLog.load(p / "trial.npz")) for p in real_runs]
+    plan_starts = [_plan_start_of(TrialLog.load(p / "trial.npz")) for p in real_runs]
+    starts = [_start_of(TrialLog.load(p / "trial.npz"), TrialLog.load(h) if h.exists() else None)
+              for p, h in zip(real_runs, homings)]
     sides = [("sim", sim_cfg, sim_dir)] + ([("model sim", model_cfg, out_dir / "model")] if model_cfg else [])
     runs: dict[str, list[Path]] = {}
     for k, (label, cfg, where) in enumerate(sides):
@@ -314,6 +350,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
         for i in range(n_sim):
             what = f"{label} repeat {i + 1}/{n_sim}"
             res_s = run_trial(_starting_at(cfg, starts[i]), where, report=False, note=f"compare repeat {i + 1}",
+                              plan_start=plan_starts[i],
                               progress=lambda f, i=i, k=k, what=what: progress(
                                   what, 0.88 + 0.12 * k / len(sides) + share * (i + f)),
                               interrupts=interrupts)
@@ -338,14 +375,16 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     head = ["The sim side is the same config with its backend replaced by the PyBullet defaults (same "
             "name, robot, target, plan, control rate and acceptance limits)"
             + (", running the rig's servo table through the servo model" if model_cfg is not None else "")
-            + "; each sim repeat starts where the rig's repeat started (its first reading), so a "
+            + "; each sim repeat starts where the rig's repeat started (its mean reading over the "
+            "homing's last stillness, which places a servo within its tick by how it hunts), so a "
             "homing that left a joint a tick off home is no difference between them."]
     if emulate:
         head.append(f"The rig is the bench's emulator (`hilbench emulate`, one process for all repeats) "
                     f"on this host; the driver retries each bus transaction up to {EMULATED_RETRIES} "
                     f"times against it, so that the host's pauses do not end a repeat.")
     head.append("Every rig repeat starts from home: the needle is withdrawn and the arm brought home at "
-                f"the plan's speed and held until every joint is within {np.degrees(HOME_TOLERANCE_RAD):g}° / "
+                f"the plan's speed and held until every joint is within {np.degrees(HOME_TOLERANCE_RAD):g}° "
+                f"({np.degrees(HOME_INTEGRATING_RAD):g}° where its servo integrates) / "
                 f"{HOME_TOLERANCE_M * 1e3:g} mm of home (the sensed train {np.degrees(HOME_SENSED_RAD):g}°) "
                 f"for {HOME_STILL_S:g} s"
                 + (f" ({late} homing(s) timed out after {HOME_TIMEOUT_S:g} s and went on)" if late else "")
@@ -369,7 +408,8 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
 def _rig_repeat(i: int, repeats: int, base_cfg: TrialConfig, hold_cfg: TrialConfig, real_dir: Path,
                 home_dir: Path, retries: int, lost: list[LostAttempt], progress: ProgressFn,
                 interrupts: Interruptible = NO_SIGNALS):
-    """Home, then one trial (the last with the config's safe stop); a lost bus is retried."""
+    """Home, then one trial (the last with the config's safe stop); a lost bus is retried.
+    Returns the trial's result and the log of the homing before it."""
 
     cfg = base_cfg if i == repeats - 1 else hold_cfg
     attempt = 0
@@ -395,7 +435,7 @@ def _rig_repeat(i: int, repeats: int, base_cfg: TrialConfig, hold_cfg: TrialConf
         except ActuatorError as e:
             raise CompareError(f"rig repeat {i + 1}: {type(e).__name__}: {e}") from None
         if res.completed or attempt >= retries or not _lost_to_the_host(res.reason):
-            return res
+            return res, home_log
         lost.append(LostAttempt(i + 1, str(res.run_dir.relative_to(real_dir.parent)), res.reason))
         attempt += 1
 

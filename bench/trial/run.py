@@ -36,7 +36,8 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
               wrap: Optional[Callable[[Actuators], Actuators]] = None,
               note: str = "", report: bool = True,
               interrupts: Interruptible = NO_SIGNALS,
-              phase: Optional[Callable[[str], None]] = None) -> TrialResult:
+              phase: Optional[Callable[[str], None]] = None,
+              plan_start: Optional[np.ndarray] = None) -> TrialResult:
     """Run one trial and write its run directory; the log is saved on every exit path.
 
     ``phase`` hears what the trial is doing ("connecting", "planning", each segment's
@@ -45,6 +46,8 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
     ``report=False`` writes only the log and ``result.json`` (no figures), for campaigns.
     ``interrupts`` (a :class:`bench.core.interrupts.SignalGuard`) turns stop signals into
     :class:`TrialInterrupted`, raised once the actuators are safe and the record written.
+    ``plan_start``: plan from this pose instead of the first reading, so that a comparison runs
+    the rig's very plan on the sim.
     """
     tell = phase or (lambda _: None)
     prep = prepare(config)
@@ -86,7 +89,7 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
             if getattr(getattr(backend, "settings", None), "warnings", None):
                 log.metadata["warnings"] = list(backend.settings.warnings)
             tell("planning")
-            q_start = act.read().position
+            q_start = act.read().position if plan_start is None else np.asarray(plan_start, dtype=float)
             segments = plan(prep, q_start, act.limits.velocity)
             interlocks = interlocks_for(prep, act)  # built (and imported) before anything moves
             interrupts.check()  # a signal swallowed during the set-up still stops here
