@@ -12,7 +12,10 @@ A parameter is *observable* when its standard error — the cost's curvature at 
 by how far the other parameters can stand in for it, and at least the cluster-robust (per window)
 error — is within :data:`OBSERVABLE_FRACTION` of its value (or under its absolute floor where the
 value is near zero). The others are written as fitted (the prior held them near the datasheet)
-and listed as not observable.
+and listed as not observable. A value the fit drove to the edge of its range is not observable
+either, whatever its error: the logs pushed it out of what the servo can be (a train read through
+its noisy ultrasonic sensor, barely moved, took a 2 N·m friction peak), and the model file takes
+its peers' value instead (:attr:`JointFit.at_bound`).
 """
 
 from __future__ import annotations
@@ -66,6 +69,8 @@ class JointFit:
     current_mae_before: float  # A
     current_mae_after: float
     iterations: int = 0
+    #: File keys the fit ran to the edge of their range (:func:`at_bound_keys`).
+    at_bound: tuple[str, ...] = ()
 
 
 @dataclass
@@ -74,6 +79,28 @@ class FitResult:
     skipped: dict[str, str] = field(default_factory=dict)  # joint: why it was not fitted
     simulated_before: list = field(default_factory=list)  # per run: (q, current) (K, F), datasheet
     simulated_after: list = field(default_factory=list)  # per run: (q, current) (K, F), fitted
+
+
+#: Where a fitted parameter (in the order of PHYSICS) counts as at the edge of its range: within
+#: this fraction of a bound. The Coulomb fraction's bounds (0: all Stribeck, 1: no peak) and a
+#: zero viscous friction are physical answers, not edges.
+AT_BOUND = 0.01
+_EDGES = {"kt_scale": (True, True), "armature_kgm2": (True, True), "viscous_nms": (False, True),
+          "stribeck_nm": (False, True), "coulomb_fraction": (False, False), "stribeck_velocity_rads": (True, True)}
+#: The file keys a parameter at an edge takes with it: a friction peak goes with its level and shape.
+_TAKES = {"kt_scale": ("kt_scale",), "armature_kgm2": ("armature_kgm2",), "viscous_nms": ("viscous_nms",),
+          "stribeck_nm": ("stribeck_nm", "coulomb_nm", "stribeck_velocity_rads"), "coulomb_fraction": (),
+          "stribeck_velocity_rads": ("stribeck_velocity_rads",)}
+
+
+def at_bound_keys(x: np.ndarray) -> tuple[str, ...]:
+    """The file keys of one joint's fit (x in the order of PHYSICS) that ran to an edge of their range."""
+    keys: list[str] = []
+    for i, name in enumerate(PHYSICS):
+        low, high = _EDGES[name]
+        if (low and x[i] <= LOWER[i] * (1 + AT_BOUND)) or (high and x[i] >= UPPER[i] * (1 - AT_BOUND)):
+            keys += [k for k in _TAKES[name] if k not in keys]
+    return tuple(keys)
 
 
 def initial_physics(setup: RigSetup) -> np.ndarray:
@@ -378,9 +405,10 @@ def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: in
     joints_fit: dict[str, JointFit] = {}
     for f, k in enumerate(joints):
         values, errors = file_values(x[f], se[f])
+        edge = at_bound_keys(x[f])
         observable = {key: bool(errors[key] <= max(OBSERVABLE_FRACTION * abs(values[key]), OBSERVABLE_FLOOR[key]))
-                      for key in values}
+                      and key not in edge for key in values}
         joints_fit[names[k]] = JointFit(names[k], values, errors, observable, float(mae_b[0][f]),
                                         float(mae_a[0][f]), float(mae_b[1][f]), float(mae_a[1][f]),
-                                        int(iterations[f]))
+                                        int(iterations[f]), edge)
     return FitResult(joints_fit, skipped, before, base_sims)

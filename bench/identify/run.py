@@ -66,15 +66,28 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
     joints: dict[str, ServoPhysics] = {}
     uncertainty: dict[str, dict[str, float]] = {}
     unobservable: dict[str, list[str]] = {}
+    notes_at_bound: list[str] = []
     for name, jf in fit.joints.items():
+        values = dict(jf.values)
+        if jf.at_bound:
+            peers = peer_values(setup, fit, name, jf.at_bound)
+            if peers is not None:
+                values.update(peers[0])
+                notes_at_bound.append(f"{name}: {', '.join(jf.at_bound)} ran to the edge of the fit's range "
+                                      f"(the logs cannot tell them); the median of "
+                                      f"{', '.join(peers[1])} instead")
+            else:
+                notes_at_bound.append(f"{name}: {', '.join(jf.at_bound)} ran to the edge of the fit's range "
+                                      f"(the logs cannot tell them) and no joint with its servo model has them")
         joints[name] = ServoPhysics(**{k: max(v, 0.0) if k in ("coulomb_nm", "stribeck_nm", "viscous_nms")
-                                       else v for k, v in jf.values.items()})
+                                       else v for k, v in values.items()})
         uncertainty[name] = {k: v for k, v in jf.stderr.items() if math.isfinite(v)}
         hidden = [key for key, ok in jf.observable.items() if not ok]
         if hidden:
             unobservable[name] = hidden
     notes = [f"identified from {len(runs)} log(s) by hilbench identify: each joint's servo simulated "
              f"along its logged motion, position and current fitted (CMA-ES, then Levenberg-Marquardt)"]
+    notes += notes_at_bound
     for name, why in fit.skipped.items():
         pooled = pooled_physics(setup, fit, name)
         if pooled is None:
@@ -87,6 +100,18 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
                      f"({', '.join(peers)})")
     return ServoModelFile(robot=setup.robot, joints=joints, uncertainty=uncertainty, unobservable=unobservable,
                           sources=[LogSource(run=str(r.run_dir), sha256=r.sha256) for r in runs], notes=notes)
+
+
+def peer_values(setup: RigSetup, fit: FitResult, joint: str,
+                keys: Sequence[str]) -> tuple[dict[str, float], list[str]] | None:
+    """For values a joint's fit ran to the edge of their range: the median of the fitted joints
+    with the same servo model whose own fit kept them inside it; None when there is none."""
+    model = setup.models[setup.joint_names.index(joint)]
+    peers = [n for n, jf in fit.joints.items() if n != joint
+             and setup.models[setup.joint_names.index(n)] == model and not set(keys) & set(jf.at_bound)]
+    if not peers:
+        return None
+    return {k: float(np.median([fit.joints[n].values[k] for n in peers])) for k in keys}, peers
 
 
 def pooled_physics(setup: RigSetup, fit: FitResult, joint: str) -> tuple[dict[str, float], list[str]] | None:
