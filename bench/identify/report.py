@@ -113,9 +113,18 @@ def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
     for name, jf in fit.joints.items():
         cells = []
         for key in FILE_KEYS:
+            if key in jf.at_bound:  # the file holds its peers' value, not this one
+                cells.append(f"edge ({_fmt(jf.values[key])}) → {_fmt(getattr(model.joints[name], key))} *")
+                continue
             cell = f"{_fmt(jf.values[key])} ± {_fmt(jf.stderr[key])}"
             cells.append(cell if jf.observable[key] else f"{cell} *")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    edges = [n for n in model.notes if "edge of the fit's range" in n]
+    if edges:
+        lines += ["", "**edge (fitted) → written**: the fit drove the value (or the friction peak it goes "
+                  "with) to the edge of its range, so the logs cannot tell it and the model file holds the "
+                  "value after the arrow: "
+                  + "; ".join(edges) + "."]
     lines += ["", "± is one standard error: how far the value can move, the others free to make up for it, "
               "before the fit's cost rises by 5 %. * marks a value **not observable** (standard error over 5 % "
               "of it): one the logs cannot tell on its own; the fit held it near the datasheet, and what "
