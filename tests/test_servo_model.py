@@ -170,6 +170,37 @@ def test_the_servo_simulator_keeps_the_actuators_contract(tmp_path):
     check_actuators(act)
 
 
+def test_a_sim_started_holding_the_rigs_effort_reports_it_and_moves_off_it(tmp_path):
+    """backend.start_effort: the servo holds what the rig's held (its integrator charged for it),
+    not just gravity: the first read reports that effort, and a θ5 that held 0.4 N·m more than its
+    load needs starts to climb once the pose no longer holds it (no friction in the datasheet)."""
+    from bench.config.models import ConfigError
+    from bench.kinematics.registry import get_robot
+    from bench.rig.backends import make_backend
+
+    cfg = _sim_with(tmp_path, "datasheet", lab_servos=True)
+    robot = get_robot(cfg.robot)
+    j = list(robot.joint_names).index("theta5")
+    gravity = make_backend(cfg, robot)
+    try:
+        held = gravity.read().effort[j]
+    finally:
+        gravity.close()
+    start = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"start_effort": {"theta5": held + 0.4}})})
+    act = make_backend(start, robot)
+    try:
+        first = act.read()
+        assert first.effort[j] == pytest.approx(held + 0.4, abs=1e-9)
+        act.enable()
+        act.wait_until(0.3)
+        assert act.read().position[j] - first.position[j] > 2 * RAD_PER_TICK  # pushed off its pose
+    finally:
+        act.close()
+    bad = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"start_effort": {"theta9": 1.0}})})
+    with pytest.raises(ConfigError, match="start_effort: unknown joint 'theta9'"):
+        make_backend(bad, robot)
+
+
 def test_a_datasheet_sim_trial_shows_the_rigs_gravity_sag_where_the_ideal_sim_has_none(tmp_path):
     """Target 1 with the lab's servo table: the tip lands mm away (seed 000 reports 1.5 mm-class
     errors on the rig), where PyBullet's ideal motors land within 0.2 mm; a read is a tick."""

@@ -215,6 +215,23 @@ def _hold_until_home(act: Actuators, home: np.ndarray, tol: np.ndarray, period: 
     return float("nan")
 
 
+def _homing_stillness(homing: Optional[TrialLog]) -> Optional[np.ndarray]:
+    """The rows of a homing log's last HOME_STILL_S, when it reached home (None otherwise)."""
+    reached = homing.metadata.get("home_reached_s") if homing is not None else None
+    if homing is None or not len(homing) or reached is None or not np.isfinite(reached):
+        return None
+    t = np.asarray(homing.time, dtype=float)
+    return t >= t[-1] - HOME_STILL_S
+
+
+def _mean_over(values: np.ndarray, rows: Optional[np.ndarray], fallback: np.ndarray) -> np.ndarray:
+    if rows is None or not rows.any():
+        return fallback
+    with np.errstate(all="ignore"):
+        mean = np.nanmean(np.asarray(values, dtype=float)[rows], axis=0)
+    return np.where(np.isfinite(mean), mean, fallback)
+
+
 def _start_of(log: TrialLog, homing: Optional[TrialLog] = None) -> dict[str, float]:
     """The joints where a rig repeat started, for the sim to start there too: the mean reading
     over the homing's last HOME_STILL_S when it reached home (a holding servo hunts across the
@@ -222,14 +239,21 @@ def _start_of(log: TrialLog, homing: Optional[TrialLog] = None) -> dict[str, flo
     train's ultrasonic noise averages out the same way), else the repeat's first reading."""
     if not len(log):
         return {}
-    q = np.asarray(log.q[0], dtype=float)
-    reached = homing.metadata.get("home_reached_s") if homing is not None else None
-    if homing is not None and len(homing) and reached is not None and np.isfinite(reached):
-        t = np.asarray(homing.time, dtype=float)
-        still = t >= t[-1] - HOME_STILL_S
-        mean = np.nanmean(np.asarray(homing.q, dtype=float)[still], axis=0)
-        q = np.where(np.isfinite(mean), mean, q)
+    q = _mean_over(homing.q if homing is not None else log.q, _homing_stillness(homing),
+                   np.asarray(log.q[0], dtype=float))
     return {n: float(v) for n, v in zip(log.joint_names, q) if np.isfinite(v)}
+
+
+def _start_effort_of(log: TrialLog, homing: Optional[TrialLog] = None) -> dict[str, float]:
+    """The efforts the rig's servos held as a repeat started, for the sim's servos to hold too: the
+    mean over the homing's stillness (its first reading without one). A servo that crept home
+    against friction holds more or less than gravity alone; its integrator carries that into
+    the repeat's first moves."""
+    if not len(log):
+        return {}
+    e = _mean_over(homing.effort if homing is not None else log.effort, _homing_stillness(homing),
+                   np.asarray(log.effort[0], dtype=float))
+    return {n: float(v) for n, v in zip(log.joint_names, e) if np.isfinite(v)}
 
 
 def _plan_start_of(log: TrialLog) -> Optional[np.ndarray]:
@@ -241,9 +265,14 @@ def _plan_start_of(log: TrialLog) -> Optional[np.ndarray]:
     return np.asarray(log.q_cmd[0], dtype=float)
 
 
-def _starting_at(config: TrialConfig, start: dict[str, float]) -> TrialConfig:
-    """A sim config that starts at ``start`` (``backend.start``)."""
-    return config.model_copy(update={"backend": config.backend.model_copy(update={"start": dict(start)})})
+def _starting_at(config: TrialConfig, start: dict[str, float],
+                 effort: Optional[dict[str, float]] = None) -> TrialConfig:
+    """A sim config that starts at ``start`` (``backend.start``), its servos holding ``effort``
+    (``backend.start_effort``, for a servo model)."""
+    update: dict = {"start": dict(start)}
+    if effort and config.backend.servo_model != "ideal":
+        update["start_effort"] = dict(effort)
+    return config.model_copy(update={"backend": config.backend.model_copy(update=update)})
 
 
 def _safe_stop(config: TrialConfig) -> None:
@@ -340,8 +369,10 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
 
     n_sim = len(real_runs)
     plan_starts = [_plan_start_of(TrialLog.load(p / "trial.npz")) for p in real_runs]
-    starts = [_start_of(TrialLog.load(p / "trial.npz"), TrialLog.load(h) if h.exists() else None)
-              for p, h in zip(real_runs, homings)]
+    found = [(TrialLog.load(p / "trial.npz"), TrialLog.load(h) if h.exists() else None)
+             for p, h in zip(real_runs, homings)]
+    starts = [_start_of(log, homing) for log, homing in found]
+    efforts = [_start_effort_of(log, homing) for log, homing in found]
     sides = [("sim", sim_cfg, sim_dir)] + ([("model sim", model_cfg, out_dir / "model")] if model_cfg else [])
     runs: dict[str, list[Path]] = {}
     for k, (label, cfg, where) in enumerate(sides):
@@ -349,7 +380,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
         share = w_sim / len(sides)
         for i in range(n_sim):
             what = f"{label} repeat {i + 1}/{n_sim}"
-            res_s = run_trial(_starting_at(cfg, starts[i]), where, report=False, note=f"compare repeat {i + 1}",
+            res_s = run_trial(_starting_at(cfg, starts[i], efforts[i]), where, report=False, note=f"compare repeat {i + 1}",
                               plan_start=plan_starts[i],
                               progress=lambda f, i=i, k=k, what=what: progress(
                                   what, 0.88 + 0.12 * k / len(sides) + share * (i + f)),

@@ -115,6 +115,11 @@ class PyBulletBackendConfig(Strict):
         default_factory=dict, max_length=32,
         description="joint values (rad or m) the simulation starts at instead of home, e.g. where a "
                     "rig's repeat started (`compare` sets it); joints not named start at home")
+    start_effort: dict[str, float] = Field(
+        default_factory=dict, max_length=32,
+        description="with a servo model: the effort (N·m or N, as the rig's driver reports it) each "
+                    "named joint's servo already holds at the start, e.g. what the rig held before a "
+                    "repeat (`compare` sets it); joints not named hold their pose against gravity")
     servo_model: str = Field(
         default="ideal", description="ideal: PyBullet's position motors; datasheet: the joints driven "
                                      "through the servo model (firmware PID, motor, gearbox) with the "

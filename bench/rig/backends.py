@@ -102,6 +102,18 @@ def start_pose(config: TrialConfig, robot) -> np.ndarray:
     return np.clip(q, robot.chain.lower, robot.chain.upper)
 
 
+def start_effort(config: TrialConfig, robot) -> np.ndarray:
+    """Per joint, the effort ``backend.start_effort`` says its servo holds at the start (NaN: not
+    named, it holds its pose against gravity); an unknown joint is refused."""
+    names = list(robot.joint_names)
+    out = np.full(len(names), np.nan)
+    for name, value in getattr(config.backend, "start_effort", {}).items():
+        if name not in names:
+            raise ConfigError(f"backend.start_effort: unknown joint {name!r}; {config.robot} has {names}")
+        out[names.index(name)] = value
+    return out
+
+
 def make_servo_sim(config: TrialConfig, robot) -> Actuators:
     """The simulator driving the joints through the servo model (``backend.servo_model``)."""
     b = config.backend
@@ -121,7 +133,7 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
         max_velocity=limits.velocity, max_effort=limits.effort, physics_hz=b.physics_hz,
         control_period=config.control_period, initial_position=start_pose(config, robot),
         transport_delay_s=b.transport_delay_ms * 1e-3, safe_stop=b.safe_stop, start_holding=True,
-        train_sensor=_train_sensor(config, robot),
+        initial_effort=start_effort(config, robot), train_sensor=_train_sensor(config, robot),
         current_based=[table[n].mode == "current_based_position" for n in names], reported_kt=datasheet_kt)
     return ServoSimActuators(settings)
 

@@ -68,6 +68,10 @@ class ServoSimSettings:
     #: Start as the lab keeps the rig: servos holding the initial pose with torque on, their
     #: integrators charged against gravity (False: torque off until enable()).
     start_holding: bool = False
+    #: With ``start_holding``: per joint, the effort (as reported, N·m or N) the servo holds at the
+    #: start; NaN: what holds the pose against gravity. A servo that crept to its pose against
+    #: friction holds more or less than gravity alone, and its integrator says by how much.
+    initial_effort: Sequence[float] | None = None
     #: The train read through its ultrasonic sensor and steered by the host loop, as on the rig.
     train_sensor: TrainSensor | None = None
     #: Per joint: the servo in current-based position mode (its PID drives a current, capped at
@@ -124,7 +128,13 @@ class ServoSimActuators(SteppedActuators):
             self._train_loop = TrainLoop(ts.joint)
         if s.start_holding:
             self._torque_on = True
-            self.servos.hold(self.plant.position(), self.plant.holding_torque())
+            torque = self.plant.holding_torque()
+            if s.initial_effort is not None:  # effort = reported Kt · current / ratio
+                effort = np.asarray(s.initial_effort, dtype=float)
+                held = effort * self._ratio / self._reported_kt * s.servos.kt
+                torque = np.where(np.isfinite(held), held, torque)
+            self.servos.hold(self.plant.position(), torque)
+            self.servos.current = torque / s.servos.kt
 
     # -- the Actuators interface ---------------------------------------------
 
