@@ -199,6 +199,14 @@ def test_a_sim_started_holding_the_rigs_effort_reports_it_and_moves_off_it(tmp_p
     bad = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"start_effort": {"theta9": 1.0}})})
     with pytest.raises(ConfigError, match="start_effort: unknown joint 'theta9'"):
         make_backend(bad, robot)
+    import yaml
+
+    data = yaml.safe_load(SIM.read_text())
+    data["backend"].update(servo_model="ideal", start_effort={"theta5": 1.0})
+    path = tmp_path / "ideal_effort.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="start_effort: an effort is held by a servo"):
+        load_trial_config(path)
 
 
 def test_a_datasheet_sim_trial_shows_the_rigs_gravity_sag_where_the_ideal_sim_has_none(tmp_path):

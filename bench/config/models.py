@@ -156,6 +156,14 @@ class PyBulletBackendConfig(Strict):
     def _old_off(cls, v: Any) -> Any:
         return "torque_off" if v == "off" else v  # the older spelling of the same stop
 
+    @model_validator(mode="after")
+    def _effort_needs_servos(self) -> "PyBulletBackendConfig":
+        if self.start_effort and self.servo_model == "ideal":
+            raise ValueError("backend.start_effort: an effort is held by a servo, and PyBullet's ideal "
+                             "motors have none; set backend.servo_model: datasheet (or a model file), "
+                             "or drop start_effort")
+        return self
+
 
 class UltrasonicConfig(Strict):
     """The distance sensor that measures the train's d2 (MaxBotix-style 'R####' lines in mm)."""
