@@ -232,28 +232,20 @@ def _mean_over(values: np.ndarray, rows: Optional[np.ndarray], fallback: np.ndar
     return np.where(np.isfinite(mean), mean, fallback)
 
 
-def _start_of(log: TrialLog, homing: Optional[TrialLog] = None) -> dict[str, float]:
-    """The joints where a rig repeat started, for the sim to start there too: the mean reading
-    over the homing's last HOME_STILL_S when it reached home (a holding servo hunts across the
-    tick it sits at, and how often it reads each side says where in the tick its shaft is; the
-    train's ultrasonic noise averages out the same way), else the repeat's first reading."""
+def _start_of(log: TrialLog, homing: Optional[TrialLog] = None, channel: str = "q") -> dict[str, float]:
+    """How a rig repeat started, for the sim to start so too: per joint, the mean of ``channel``
+    over the homing's last HOME_STILL_S when it reached home, else the repeat's first row.
+
+    ``q``: where the shafts were (a holding servo hunts across the tick it sits at, and how often
+    it reads each side says where in the tick its shaft is; the train's ultrasonic noise averages
+    out the same way). ``effort``: what the servos held (a servo that crept home against friction
+    holds more or less than gravity alone; its integrator carries that into the first moves)."""
     if not len(log):
         return {}
-    q = _mean_over(homing.q if homing is not None else log.q, _homing_stillness(homing),
-                   np.asarray(log.q[0], dtype=float))
-    return {n: float(v) for n, v in zip(log.joint_names, q) if np.isfinite(v)}
-
-
-def _start_effort_of(log: TrialLog, homing: Optional[TrialLog] = None) -> dict[str, float]:
-    """The efforts the rig's servos held as a repeat started, for the sim's servos to hold too: the
-    mean over the homing's stillness (its first reading without one). A servo that crept home
-    against friction holds more or less than gravity alone; its integrator carries that into
-    the repeat's first moves."""
-    if not len(log):
-        return {}
-    e = _mean_over(homing.effort if homing is not None else log.effort, _homing_stillness(homing),
-                   np.asarray(log.effort[0], dtype=float))
-    return {n: float(v) for n, v in zip(log.joint_names, e) if np.isfinite(v)}
+    source = homing if homing is not None else log
+    values = _mean_over(getattr(source, channel), _homing_stillness(homing),
+                        np.asarray(getattr(log, channel)[0], dtype=float))
+    return {n: float(v) for n, v in zip(log.joint_names, values) if np.isfinite(v)}
 
 
 def _plan_start_of(log: TrialLog) -> Optional[np.ndarray]:
@@ -368,11 +360,11 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
             rig.close()
 
     n_sim = len(real_runs)
-    plan_starts = [_plan_start_of(TrialLog.load(p / "trial.npz")) for p in real_runs]
     found = [(TrialLog.load(p / "trial.npz"), TrialLog.load(h) if h.exists() else None)
              for p, h in zip(real_runs, homings)]
+    plan_starts = [_plan_start_of(log) for log, _ in found]
     starts = [_start_of(log, homing) for log, homing in found]
-    efforts = [_start_effort_of(log, homing) for log, homing in found]
+    efforts = [_start_of(log, homing, "effort") for log, homing in found]
     sides = [("sim", sim_cfg, sim_dir)] + ([("model sim", model_cfg, out_dir / "model")] if model_cfg else [])
     runs: dict[str, list[Path]] = {}
     for k, (label, cfg, where) in enumerate(sides):
@@ -387,7 +379,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
                               interrupts=interrupts)
             runs[label].append(res_s.run_dir)
     progress("comparing", 1.0)
-    real_logs = [TrialLog.load(p / "trial.npz") for p in real_runs]
+    real_logs = [log for log, _ in found]
     real_label = "emulated rig" if emulate else "real rig"
 
     def against_rig(label: str) -> Comparison:

@@ -90,27 +90,32 @@ def _train_sensor(config: TrialConfig, robot) -> TrainSensor | None:
                        seed=config.seed)
 
 
+def _named_joints(config: TrialConfig, robot, key: str) -> list[tuple[int, float]]:
+    """(joint index, value) for each joint ``backend.<key>`` names; an unknown joint is refused."""
+    names = list(robot.joint_names)
+    out = []
+    for name, value in getattr(config.backend, key, {}).items():
+        if name not in names:
+            raise ConfigError(f"backend.{key}: unknown joint {name!r}; {config.robot} has {names}")
+        out.append((names.index(name), value))
+    return out
+
+
 def start_pose(config: TrialConfig, robot) -> np.ndarray:
     """Where a simulator starts: home, with the joints ``backend.start`` names moved (clipped to
     the limits); an unknown joint is refused."""
     q = robot.chain.home.copy()
-    names = list(robot.joint_names)
-    for name, value in getattr(config.backend, "start", {}).items():
-        if name not in names:
-            raise ConfigError(f"backend.start: unknown joint {name!r}; {config.robot} has {names}")
-        q[names.index(name)] = value
+    for j, value in _named_joints(config, robot, "start"):
+        q[j] = value
     return np.clip(q, robot.chain.lower, robot.chain.upper)
 
 
 def start_effort(config: TrialConfig, robot) -> np.ndarray:
     """Per joint, the effort ``backend.start_effort`` says its servo holds at the start (NaN: not
     named, it holds its pose against gravity); an unknown joint is refused."""
-    names = list(robot.joint_names)
-    out = np.full(len(names), np.nan)
-    for name, value in getattr(config.backend, "start_effort", {}).items():
-        if name not in names:
-            raise ConfigError(f"backend.start_effort: unknown joint {name!r}; {config.robot} has {names}")
-        out[names.index(name)] = value
+    out = np.full(len(robot.joint_names), np.nan)
+    for j, value in _named_joints(config, robot, "start_effort"):
+        out[j] = value
     return out
 
 

@@ -134,7 +134,6 @@ class ServoSimActuators(SteppedActuators):
                 held = effort * self._ratio / self._reported_kt * s.servos.kt
                 torque = np.where(np.isfinite(held), held, torque)
             self.servos.hold(self.plant.position(), torque)
-            self.servos.current = torque / s.servos.kt
 
     # -- the Actuators interface ---------------------------------------------
 

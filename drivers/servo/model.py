@@ -228,6 +228,7 @@ class ServoArray:
         p = self.params
         pwm = np.asarray(torque, dtype=float) / p.kt * p.resistance / np.maximum(self.supply, 1e-6)
         self.integral = np.clip(pwm * PWM_FULL_SCALE, -self.pwm_limit, self.pwm_limit)
+        self.current = np.asarray(torque, dtype=float) / p.kt
 
     def resume(self, position: np.ndarray, velocity: np.ndarray, goal: np.ndarray, current: np.ndarray) -> None:
         """Torque on mid-motion, as a log found the servo: trajectory at ``goal`` (rad, no profile
