@@ -12,6 +12,10 @@ Lifecycle (after ros2_control's hardware interface): a backend starts
 becomes *active* on ``enable()`` and returns to inactive on ``disable()``.
 Leaving the context manager, normally or by exception, brings the hardware to
 a safe stop (torque off or hold, per configuration) and closes it.
+
+Beside the contract, as Gymnasium keeps ``Env`` and ``Wrapper`` together: the
+:class:`ActuatorsWrapper` every fault and recorder derives from, and, in
+:mod:`drivers.capabilities`, what a backend may offer beyond the contract.
 """
 
 from __future__ import annotations
@@ -23,9 +27,11 @@ from typing import Protocol, Sequence, runtime_checkable
 import numpy as np
 
 __all__ = [
+    "frozen_array",
     "validate_command",
     "Actuators",
     "ActuatorsBase",
+    "ActuatorsWrapper",
     "ActuatorError",
     "BenchError",
     "CommandError",
@@ -87,9 +93,28 @@ class JointLimits:
         return np.clip(position, self.lower, self.upper)
 
 
-@dataclass
+def frozen_array(values: object) -> np.ndarray:
+    """``values`` as a float array no one can write to, nor make writable again.
+
+    Its memory is an immutable ``bytes`` copy, so neither the caller who built it nor a
+    reader who sets ``flags.writeable`` can change it; an array already frozen is reused.
+    """
+    a = np.asarray(values, dtype=float)
+    if not a.flags.writeable and isinstance(a.base, bytes):
+        return a
+    out = np.frombuffer(a.tobytes(), dtype=float)
+    return out if a.ndim == 1 else out.reshape(a.shape)
+
+
+@dataclass(frozen=True, eq=False)
 class JointState:
-    """One sample of every joint: time (s) and SI arrays ordered like ``joint_names``."""
+    """One sample of every joint: time (s) and SI arrays ordered like ``joint_names``.
+
+    Immutable once built: the arrays are read-only copies (:func:`frozen_array`) and the fields
+    cannot be reassigned, so a backend may keep the reading it returned (the train's host loop
+    steers by it) and no wrapper or caller can change what the backend saw. A wrapper that
+    changes a value builds a new ``JointState``.
+    """
 
     time: float
     position: np.ndarray
@@ -98,10 +123,16 @@ class JointState:
     # Optional per-sample flags a backend may raise (e.g. "stale:train").
     flags: tuple[str, ...] = field(default_factory=tuple)
 
+    def __post_init__(self) -> None:
+        put = object.__setattr__
+        put(self, "position", frozen_array(self.position))
+        put(self, "velocity", frozen_array(self.velocity))
+        put(self, "effort", frozen_array(self.effort))
+        put(self, "flags", tuple(self.flags))
+
     def copy(self) -> "JointState":
-        return JointState(
-            self.time, self.position.copy(), self.velocity.copy(), self.effort.copy(), self.flags
-        )
+        """The reading itself: it is immutable, so a copy would be the same values."""
+        return self
 
 
 @runtime_checkable
@@ -248,3 +279,80 @@ class ActuatorsBase:
 
     def _close(self) -> None:
         raise NotImplementedError
+
+
+class ActuatorsWrapper:
+    """An ``Actuators`` around an ``Actuators`` (``gymnasium.Wrapper``): forwards the whole contract.
+
+    A subclass overrides the one call it changes (``read`` for a sensor fault, ``_command`` for
+    a servo fault, ``read`` again for a recorder), so wrappers stack in any order and run the same
+    on the simulator and on the real bus. Nothing beyond the contract is forwarded: a capability
+    (:mod:`drivers.capabilities`) is looked up through the stack where it is implemented, and a
+    typo never reaches the hardware (Gymnasium dropped ``__getattr__`` forwarding for that reason).
+    A wrapper never writes into the reading it received (it is immutable); it builds a new one.
+    """
+
+    def __init__(self, actuators: Actuators) -> None:
+        self.actuators = actuators
+
+    @property
+    def joint_names(self) -> Sequence[str]:
+        return self.actuators.joint_names
+
+    @property
+    def limits(self) -> JointLimits:
+        return self.actuators.limits
+
+    @property
+    def enabled(self) -> bool:
+        return self.actuators.enabled
+
+    def enable(self) -> None:
+        self.actuators.enable()
+
+    def disable(self) -> None:
+        self.actuators.disable()
+
+    def read(self) -> JointState:
+        return self.actuators.read()
+
+    def command(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
+        """Refuse a bad command as a backend would (CommandError), then hand it to :meth:`_command`."""
+        position, velocity = validate_command(position, velocity, len(self.joint_names))
+        self._command(position, velocity)
+
+    def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
+        """What this wrapper does to a valid command; the default passes it on."""
+        self.actuators.command(position, velocity)
+
+    def now(self) -> float:
+        return self.actuators.now()
+
+    def wait_until(self, t: float) -> None:
+        self.actuators.wait_until(t)
+
+    def close(self) -> None:
+        self.actuators.close()
+
+    def __enter__(self) -> "ActuatorsWrapper":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def unwrapped(self) -> Actuators:
+        """The backend under every wrapper."""
+        return self.actuators.unwrapped
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__}{self.actuators!r}>"
+
+    def _index(self, joints: Sequence[str]) -> np.ndarray:
+        """Indices of ``joints``; an unknown name is refused naming the joints there are."""
+        names = list(self.joint_names)
+        missing = [j for j in joints if j not in names]
+        if missing:
+            raise ConfigurationError(f"{type(self).__name__}: unknown joint(s) {missing}; "
+                                     f"the actuators have {names}")
+        return np.array([names.index(j) for j in joints], dtype=int)

@@ -2,19 +2,23 @@
 Protocols, declared by having the method (as ros2_control declares its interfaces).
 
 Callers look a capability up through the wrapper stack explicitly, outermost layer first
-(Gymnasium's ``get_wrapper_attr``): fault wrappers forward nothing implicitly, so a capability
-is found exactly where it is implemented, and a missing one is refused in one line naming it.
+(Gymnasium's ``get_wrapper_attr``), with :func:`find_capability` or :func:`require_capability`
+and nothing else (no ``getattr`` probing): wrappers (:class:`drivers.ActuatorsWrapper`) forward
+nothing implicitly and offer no capability of their own, so a capability is found exactly where
+it is implemented, and a missing one is refused in one line naming it. :data:`CAPABILITIES`
+lists them all; :mod:`drivers.checker` checks each one a backend offers.
 """
 
 from __future__ import annotations
 
-from typing import Any, Iterator, Protocol, TypeVar, runtime_checkable
+from typing import Any, Iterator, Protocol, Sequence, TypeVar, runtime_checkable
 
 import numpy as np
 
-from drivers import Actuators, ConfigurationError
+from drivers import Actuators, ConfigurationError, JointState
 
-__all__ = ["EffortLimited", "EmulatorHooks", "JointKinds", "LinkPoses", "PositionReset", "ServoInfo", "TruePosition",
+__all__ = ["CAPABILITIES", "BlockExecution", "EffortLimited", "EmulatorHooks", "HostLoop", "JointKinds",
+           "LinkPoses", "PositionReset", "SafeStopReport", "ServoInfo", "StartWarnings", "TruePosition",
            "find_capability", "layers", "members", "require_capability"]
 
 C = TypeVar("C")
@@ -69,6 +73,50 @@ class EmulatorHooks(Protocol):
     emulated rig only; real hardware and the simulator have none."""
 
     fault_hooks: Any
+
+
+@runtime_checkable
+class BlockExecution(Protocol):
+    """Many control cycles per call, and a rewind to any of them (the simulator): the runner's fast path.
+
+    ``execute_block`` runs row k as ``read(); command(position[k], velocity[k]); wait_until(ends[k])``
+    would and returns the states read (arrays with a row per cycle: ``time``, ``position``,
+    ``velocity``, ``effort``, read-only); ``rewind(k)`` puts the robot back as it was read at cycle
+    k. The runner uses it only when the outermost layer has it: a wrapper must see every cycle.
+    """
+
+    def execute_block(self, position: np.ndarray, velocity: np.ndarray, ends: np.ndarray) -> Any: ...
+
+    def rewind(self, cycle: int) -> JointState: ...
+
+
+@runtime_checkable
+class SafeStopReport(Protocol):
+    """How the backend left the joints at its last safe stop (read back where it can), for the log."""
+
+    @property
+    def safe_stop_report(self) -> str | None: ...
+
+
+@runtime_checkable
+class StartWarnings(Protocol):
+    """What the backend warned about while starting (a slow USB latency timer...), for the record."""
+
+    @property
+    def start_warnings(self) -> list[str]: ...
+
+
+@runtime_checkable
+class HostLoop(Protocol):
+    """A host loop closed on the backend's own readings (the train's, on its sensor), told when the
+    bench lost a status the backend read, so the loop holds instead of steering on it."""
+
+    def status_lost(self, joints: Sequence[str]) -> None: ...
+
+
+#: Every capability a backend may offer, as the checker goes through them.
+CAPABILITIES: tuple[type, ...] = (BlockExecution, EffortLimited, EmulatorHooks, HostLoop, JointKinds, LinkPoses,
+                                  PositionReset, SafeStopReport, ServoInfo, StartWarnings, TruePosition)
 
 
 def layers(actuators: Actuators) -> Iterator[Actuators]:

@@ -1,14 +1,16 @@
 """The contract every backend and every wrapper around one must keep, checked in one call
 (in the spirit of Gymnasium's ``utils.env_checker``): the same checks run on the PyBullet
-backend, the emulated Dynamixel backend and each fault wrapper, so a new backend or wrapper
-is held to the rules the bench relies on.
+backend, the servo-model simulator, the emulated Dynamixel backend and each fault wrapper, so
+a new backend or wrapper is held to the rules the bench relies on.
 
 :func:`check_actuators` moves the joints only to where they already are (a command of the
-present position), so it is safe on a rig that holds still.
+present position, an effort limit set to the value it has), so it is safe on a rig that holds
+still.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -23,12 +25,17 @@ from drivers import (
     NotEnabledError,
 )
 from drivers.capabilities import (
+    CAPABILITIES,
+    BlockExecution,
     EffortLimited,
     EmulatorHooks,
+    HostLoop,
     JointKinds,
     LinkPoses,
     PositionReset,
+    SafeStopReport,
     ServoInfo,
+    StartWarnings,
     TruePosition,
     find_capability,
     layers,
@@ -36,7 +43,8 @@ from drivers.capabilities import (
 
 __all__ = ["ContractViolation", "check_actuators"]
 
-CAPABILITIES = (EffortLimited, EmulatorHooks, JointKinds, LinkPoses, PositionReset, ServoInfo, TruePosition)
+#: An edit no reading could hold: if it shows up anywhere, the edit got through.
+EDIT = 1.0e3
 
 
 class ContractViolation(BenchError, AssertionError):
@@ -58,7 +66,15 @@ def _refuses(act: Actuators, error: type[BaseException], what: str, *args) -> No
     raise ContractViolation(f"{what}: accepted, expected {error.__name__}")
 
 
-def _check_state(st: object, n: int, when: str) -> JointState:
+def _read(act: Actuators, n: int, when: str) -> JointState:
+    """``act.read()``, checked; a read that fails other than as the bench reports failures is a finding
+    (a wrapper writing into the read-only reading it received fails here)."""
+    try:
+        st = act.read()
+    except BenchError:
+        raise
+    except Exception as e:  # noqa: BLE001 - the unexpected exception is the finding
+        raise ContractViolation(f"read() {when} raised {type(e).__name__}: {e}") from e
     _require(isinstance(st, JointState), f"read() {when} returned {type(st).__name__}, not JointState")
     assert isinstance(st, JointState)
     _require(isinstance(st.time, float) and math.isfinite(st.time), f"read() {when}: time {st.time!r}")
@@ -68,6 +84,49 @@ def _check_state(st: object, n: int, when: str) -> JointState:
                  f"{getattr(arr, 'shape', None)}, expected ({n},)")
     _require(bool(np.isfinite(st.position).all()), f"read() {when}: position not finite {st.position}")
     return st
+
+
+def _edit(st: JointState) -> list[str]:
+    """Try every way of editing a reading; the ways that got through."""
+    got_through = []
+    for name in ("position", "velocity", "effort"):
+        arr = getattr(st, name)
+        try:
+            arr[0] = arr[0] + EDIT
+            got_through.append(f"{name}[0] = …")
+        except ValueError:
+            pass
+        try:
+            arr.flags.writeable = True
+            arr[0] = arr[0] + EDIT
+            got_through.append(f"{name}.flags.writeable = True")
+        except ValueError:
+            pass
+        try:
+            setattr(st, name, arr + EDIT)
+            got_through.append(f"reading.{name} = …")
+        except (dataclasses.FrozenInstanceError, AttributeError):
+            pass
+    return got_through
+
+
+def _check_reading_is_immutable(act: Actuators, n: int, when: str) -> None:
+    """Editing a returned reading, or trying to, changes neither the next read() nor the backend."""
+    st = _read(act, n, when)
+    before = float(st.position[0])
+    got_through = _edit(st)
+    tried = ", ".join(got_through) or "every edit refused"
+    after = _read(act, n, f"after editing the reading read {when}")
+    _require(abs(after.position[0] - before) < EDIT / 2,
+             f"editing the reading read {when} ({tried}) changed the next read()")
+    truth = find_capability(act, TruePosition)
+    if truth is not None:
+        q = np.asarray(truth.true_position(), dtype=float)
+        _require(q.shape == (n,) and bool(np.isfinite(q).all()), f"true_position() is {q!r}")
+        _require(abs(q[0] - before) < EDIT / 2,
+                 f"editing the reading read {when} ({tried}) changed the backend's true_position()")
+    _require(not got_through, f"the reading read {when} can be edited ({', '.join(got_through)}): a "
+             "reading must be immutable once returned (build a new JointState instead)")
 
 
 def _check_static(act: Actuators) -> int:
@@ -87,11 +146,84 @@ def _check_static(act: Actuators) -> int:
     backend = act.unwrapped
     _require(getattr(backend, "actuators", None) is None, "unwrapped is itself a wrapper")
     _require(backend.unwrapped is backend, "the backend's unwrapped is not the backend")
-    _require(list(layers(act))[-1] is backend, "the wrapper stack does not end at unwrapped")
-    for cap in CAPABILITIES:  # no layer fakes or hides a capability: each is where it is implemented
-        found = find_capability(act, cap)
-        _require(found is None or isinstance(found, cap), f"{cap.__name__} found on a layer without it")
+    stack = list(layers(act))
+    _require(stack[-1] is backend, "the wrapper stack does not end at unwrapped")
+    for layer in stack[:-1]:  # a capability on a wrapper would let its call go around the layers beneath
+        offered = [cap.__name__ for cap in CAPABILITIES if isinstance(layer, cap)]
+        _require(not offered, f"the wrapper {type(layer).__name__} offers {', '.join(offered)}: wrappers "
+                 "offer no capability; it is found on the backend through the stack")
     return n
+
+
+def _check_idle_capabilities(act: Actuators, n: int) -> None:
+    """The capabilities the actuators offer, each used as the bench uses it, before enable()."""
+    names = list(act.joint_names)
+    kinds = find_capability(act, JointKinds)
+    if kinds is not None:
+        k = list(kinds.joint_kinds)
+        _require(len(k) == n and set(k) <= {"revolute", "prismatic"}, f"joint_kinds {k!r}")
+    servos = find_capability(act, ServoInfo)
+    if servos is not None:
+        info = servos.servo_info()
+        _require(isinstance(info, list) and all(isinstance(d, dict) and d.get("joint") in names for d in info),
+                 f"servo_info() must be a dict per servo naming its joint, got {info!r}")
+    warned = find_capability(act, StartWarnings)
+    if warned is not None:
+        w = warned.start_warnings
+        _require(isinstance(w, list) and all(isinstance(x, str) for x in w), f"start_warnings {w!r}")
+    hooks = find_capability(act, EmulatorHooks)
+    if hooks is not None:
+        _require(hooks.fault_hooks is not None, "fault_hooks is None: a backend without hooks has none")
+    poses = find_capability(act, LinkPoses)
+    if poses is not None:
+        try:
+            poses.link_pose("no such link")
+        except BenchError:
+            pass
+        else:
+            raise ContractViolation("link_pose() of an unknown link was accepted")
+    effort = find_capability(act, EffortLimited)
+    if effort is not None:
+        before = np.array(act.limits.effort, dtype=float)
+        try:
+            effort.set_effort_limit(0, float(before[0]))
+        except BenchError:
+            pass  # refused for this joint (its servo cannot limit current): one line says why
+        _require(np.array_equal(np.asarray(act.limits.effort, dtype=float), before),
+                 "set_effort_limit(0, its present limit) changed limits.effort")
+    reset = find_capability(act, PositionReset)
+    if reset is not None:
+        backend: Actuators = reset  # type: ignore[assignment] - the layer offering it: the backend
+        q = _read(backend, n, "before reset_position()").position  # its own reading, under any fault
+        reset.reset_position(q)
+        _require(bool(np.allclose(_read(backend, n, "after reset_position()").position, q, atol=1e-9)),
+                 "reset_position(present position) moved the joints")
+
+
+def _check_active_capabilities(act: Actuators, n: int, q: np.ndarray) -> None:
+    """The capabilities that need enabled actuators; none moves the joints."""
+    reset = find_capability(act, PositionReset)
+    if reset is not None:
+        try:
+            reset.reset_position(q)
+        except ActuatorError:
+            pass
+        else:
+            raise ContractViolation("reset_position() while enabled was accepted: the robot would jump")
+    loop = find_capability(act, HostLoop)
+    if loop is not None:
+        _require(loop.status_lost(list(act.joint_names)) is None, "status_lost() returned a value")
+    blocks = find_capability(act, BlockExecution)
+    if blocks is act:  # the runner's fast path: only ever on the outermost layer
+        states = blocks.execute_block(q[None, :], np.zeros((1, n)), np.array([act.now() + 0.002]))
+        _require(np.shape(states.position) == (1, n) and np.shape(states.time) == (1,),
+                 f"execute_block() of one cycle gave {np.shape(states.position)} positions")
+        _require(not np.asarray(states.position).flags.writeable, "execute_block() states are writable: a "
+                 "caller's edit would change what rewind() restores")
+        st = blocks.rewind(0)
+        _require(isinstance(st, JointState) and st.time == float(states.time[0])
+                 and np.array_equal(st.position, states.position[0]),
+                 "rewind(0) did not return the state read at the block's first cycle")
 
 
 def check_actuators(act: Actuators) -> None:
@@ -101,27 +233,34 @@ def check_actuators(act: Actuators) -> None:
     """
     n = _check_static(act)
     _require(not act.enabled, "enabled before enable()")
-    st = _check_state(act.read(), n, "before enable()")
+    st = _read(act, n, "before enable()")
+    _check_reading_is_immutable(act, n, "before enable()")
+    _check_idle_capabilities(act, n)
     _refuses(act, NotEnabledError, "command() before enable()", st.position)
     act.enable()
     _require(act.enabled, "enable() did not enable")
-    st = _check_state(act.read(), n, "after enable()")
+    st = _read(act, n, "after enable()")
     q = st.position.copy()
     _refuses(act, CommandError, "a command of the wrong length", np.zeros(n + 1))
     _refuses(act, CommandError, "a command with NaN", np.where(np.arange(n) == 0, np.nan, q))
     _refuses(act, CommandError, "a command with inf", np.where(np.arange(n) == n - 1, np.inf, q))
     _refuses(act, CommandError, "a velocity of the wrong length", q, np.zeros(n - 1 if n > 1 else 2))
-    for error in (CommandError, NotEnabledError):
-        _require(issubclass(error, ActuatorError), f"{error.__name__} is not an ActuatorError")
+    _check_active_capabilities(act, n, q)
     t0 = act.now()
     act.command(q, np.zeros(n))
     act.wait_until(t0 + 0.01)
     t1 = act.now()
     _require(t1 >= t0 + 0.01 - 1e-9, f"wait_until({t0 + 0.01:.4f}) returned at now() = {t1:.4f}")
-    st = _check_state(act.read(), n, "after a command")
+    st = _read(act, n, "after a command")
     _require(st.time >= t0 - 1e-9, f"read().time {st.time} went back before now() {t0}")
+    _check_reading_is_immutable(act, n, "while enabled")
     act.disable()
     _require(not act.enabled, "disable() left the actuators enabled")
+    report = find_capability(act, SafeStopReport)
+    if report is not None:
+        said = report.safe_stop_report
+        _require(isinstance(said, str) and bool(said), f"safe_stop_report after disable() is {said!r}: "
+                 "it must say how the joints were left")
     _refuses(act, NotEnabledError, "command() after disable()", q)
     act.close()
     act.close()  # idempotent

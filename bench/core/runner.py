@@ -8,7 +8,7 @@ next tick of the backend's clock. Trajectories are sampled vectorised, a chunk
 of cycles at a time (memory stays bounded whatever a segment lasts).
 
 A backend that can run a block of cycles in one call and rewind to any of
-them (the simulator: :class:`BlockExecution`) gets the blocks whole: the
+them (the simulator: :class:`drivers.capabilities.BlockExecution`) gets the blocks whole: the
 interlocks then scan each block after it ran (:meth:`Interlocks.scan`) and, on
 a trip, the backend is rewound to the tripping cycle, so the trial trips and
 holds exactly where checking every cycle would have — at the cost of a bare
@@ -26,6 +26,7 @@ import numpy as np
 from bench.core.interrupts import NO_SIGNALS
 from bench.core.log import TrialLog
 from drivers import Actuators, JointState
+from drivers.capabilities import BlockExecution, find_capability
 from trajectories import Trajectory
 
 #: Cycles sampled from a trajectory at once: bounds a segment's memory, amortises sampling.
@@ -47,25 +48,21 @@ class TripCheck(Protocol):
 
 
 @runtime_checkable
-class BlockExecution(Protocol):
-    """A backend that runs many control cycles per call and can rewind to any of them
-    (see drivers.pybullet.backend.PyBulletActuators.execute_block); :func:`runs_blocks`
-    decides whether the runner uses it."""
+class BlockScan(TripCheck, Protocol):
+    """Interlocks that can scan a whole block of cycles after it ran (see Interlocks.scan)."""
 
-    def execute_block(self, position: np.ndarray, velocity: np.ndarray, ends: np.ndarray): ...
-
-    def rewind(self, cycle: int) -> JointState: ...
+    def scan(self, time: np.ndarray, position: np.ndarray, velocity: np.ndarray, effort: np.ndarray,
+             commanded: np.ndarray): ...
 
 
 def runs_blocks(act: Actuators, interlocks: Optional[TripCheck]) -> bool:
     """True when the runner may hand ``act`` whole blocks of cycles.
 
-    Asked of the object's class, not through attribute forwarding, so a fault
-    wrapper (which must see every cycle) never lets the block path through.
+    Only when the outermost layer itself executes blocks: a wrapper (which must see every
+    cycle) offers no capability, so the block path never goes around one.
     """
-    cls = type(act)
-    return (callable(getattr(cls, "execute_block", None)) and callable(getattr(cls, "rewind", None))
-            and (interlocks is None or callable(getattr(interlocks, "scan", None))))
+    return (find_capability(act, BlockExecution) is act
+            and (interlocks is None or isinstance(interlocks, BlockScan)))
 
 
 def sample_chunks(trajectory: Trajectory, cycles: int, dt: float,

@@ -15,8 +15,7 @@ import numpy as np
 
 from bench.core.log import TrialLog
 from bench.core.outcome import SETTLED_WINDOW_S, NeedleOutcome, needle_outcome, segment_rows
-from bench.faults.base import FaultWrapper
-from drivers import Actuators, JointState
+from drivers import Actuators, ActuatorsWrapper, JointState
 from drivers.capabilities import TruePosition, find_capability
 
 __all__ = ["GroundTruth", "has_ground_truth", "settled_truth", "true_outcome"]
@@ -27,21 +26,22 @@ def has_ground_truth(actuators: Actuators) -> bool:
     return find_capability(actuators.unwrapped, TruePosition) is not None
 
 
-class GroundTruth(FaultWrapper):
-    """Outermost wrapper: passes reads through unchanged and records the backend's positions."""
+class GroundTruth(ActuatorsWrapper):
+    """Outermost wrapper (a recorder, not a fault): passes reads through unchanged and records
+    the backend's true positions at each."""
 
     def __init__(self, actuators: Actuators) -> None:
         super().__init__(actuators)
-        self.available = has_ground_truth(actuators)
+        self._truth = find_capability(actuators.unwrapped, TruePosition)
+        self.available = self._truth is not None
         self._t: list[float] = []
         self._q: list[np.ndarray] = []
 
     def read(self) -> JointState:
         st = self.actuators.read()
-        if self.available:
-            backend = self.unwrapped
-            self._t.append(backend.now())
-            self._q.append(backend.true_position())
+        if self._truth is not None:
+            self._t.append(self.unwrapped.now())
+            self._q.append(self._truth.true_position())
         return st
 
     @property

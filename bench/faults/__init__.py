@@ -6,7 +6,7 @@ simulator and on the real or emulated servo bus. Trial configs declare them
 by name (see :mod:`bench.faults.spec` for the YAML form and :data:`FAULTS`
 for every fault and its parameters).
 
-Modules: ``base`` (the forwarding wrapper), ``tolerance`` (deadband, bias,
+Modules: ``base`` (the fault base, on :class:`drivers.ActuatorsWrapper`), ``tolerance`` (deadband, bias,
 backlash, quantisation, noise), ``torque`` (torque limit), ``comms``
 (dropped, late and corrupted status packets), ``ultrasonic`` (the train's
 distance sensor), ``spec`` (parsing and stacking).

@@ -19,7 +19,7 @@ import numpy as np
 
 from bench.faults.base import FaultWrapper
 from drivers import Actuators, ConfigurationError, JointState
-from drivers.capabilities import EmulatorHooks, find_capability
+from drivers.capabilities import EmulatorHooks, HostLoop, find_capability
 
 __all__ = ["DroppedStatus", "EmulatorStatusFault", "LateStatus", "emulator_fault_target"]
 
@@ -55,7 +55,11 @@ class EmulatorStatusFault(FaultWrapper):
 
 class DroppedStatus(FaultWrapper):
     """Each read, each targeted joint's status is lost with probability ``prob``:
-    the joint keeps its last value (position, velocity, effort), flagged stale."""
+    the joint keeps its last value (position, velocity, effort), flagged stale.
+
+    A backend with a host loop closed on its own readings (:class:`~drivers.capabilities.HostLoop`:
+    the train's, on the ultrasonic sensor) is told which joints were lost, so its loop holds
+    instead of steering on a reading the bench saw as stale."""
 
     def __init__(self, actuators: Actuators, joints: np.ndarray, prob: float,
                  rng: np.random.Generator) -> None:
@@ -64,21 +68,31 @@ class DroppedStatus(FaultWrapper):
         self.prob = float(prob)
         self._rng = rng
         self._last: JointState | None = None
+        self._loop = find_capability(actuators, HostLoop)
         self.dropped = 0
 
     def read(self) -> JointState:
         st = self.actuators.read()
         lost = self.joints[self._rng.random(self.joints.size) < self.prob]
         if self._last is not None and lost.size:
-            for arr, old in ((st.position, self._last.position), (st.velocity, self._last.velocity),
-                             (st.effort, self._last.effort)):
-                arr[lost] = old[lost]
             names = self.joint_names
-            st = JointState(st.time, st.position, st.velocity, st.effort,
-                            st.flags + tuple(f"stale:{names[j]}" for j in lost))
+            lost_names = [names[j] for j in lost]
+            st = JointState(st.time, _with(st.position, lost, self._last.position),
+                            _with(st.velocity, lost, self._last.velocity),
+                            _with(st.effort, lost, self._last.effort),
+                            st.flags + tuple(f"stale:{n}" for n in lost_names))
             self.dropped += lost.size
-        self._last = st.copy()
+            if self._loop is not None:  # the backend's own loop must not steer on what was lost
+                self._loop.status_lost(lost_names)
+        self._last = st
         return st
+
+
+def _with(values: np.ndarray, joints: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """A new array: ``values`` with ``joints`` taken from ``old`` (the reading received stays as it was)."""
+    out = values.copy()
+    out[joints] = old[joints]
+    return out
 
 
 class LateStatus(FaultWrapper):
@@ -109,15 +123,12 @@ class LateStatus(FaultWrapper):
         fresh = self.actuators.read()
         late = self.joints[self._rng.random(self.joints.size) < self.prob]
         old = self._old_sample(fresh.time)
-        self._history.append(fresh.copy())
+        self._history.append(fresh)
         while len(self._history) > 1 and self._history[1].time <= fresh.time - self.delay:
             self._history.popleft()
         if old is None or not late.size:
             return fresh
-        st = fresh.copy()
-        for arr, src in ((st.position, old.position), (st.velocity, old.velocity),
-                         (st.effort, old.effort)):
-            arr[late] = src[late]
         names = self.joint_names
-        return JointState(st.time, st.position, st.velocity, st.effort,
-                          st.flags + tuple(f"late:{names[j]}" for j in late))
+        return JointState(fresh.time, _with(fresh.position, late, old.position),
+                          _with(fresh.velocity, late, old.velocity), _with(fresh.effort, late, old.effort),
+                          fresh.flags + tuple(f"late:{names[j]}" for j in late))

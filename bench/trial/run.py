@@ -25,7 +25,7 @@ from bench.rig.backends import make_backend
 from bench.trial.plan import interlocks_for, plan, prepare
 from bench.trial.record import finish_record, trial_metadata
 from drivers import ActuatorError, Actuators
-from drivers.capabilities import ServoInfo, find_capability
+from drivers.capabilities import SafeStopReport, ServoInfo, StartWarnings, find_capability
 
 __all__ = ["run_trial"]
 
@@ -86,8 +86,9 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
             servos = find_capability(act, ServoInfo)
             if servos is not None:
                 log.metadata["servos"] = servos.servo_info()
-            if getattr(getattr(backend, "settings", None), "warnings", None):
-                log.metadata["warnings"] = list(backend.settings.warnings)
+            warned = find_capability(act, StartWarnings)
+            if warned is not None and warned.start_warnings:
+                log.metadata["warnings"] = list(warned.start_warnings)
             tell("planning")
             q_start = act.read().position if plan_start is None else np.asarray(plan_start, dtype=float)
             segments = plan(prep, q_start, act.limits.velocity)
@@ -127,7 +128,7 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
         interrupts.check()
     except KeyboardInterrupt as e:  # the record is complete; the report can be rebuilt from it
         e.run_dir = run_dir
-        e.safe_stop = getattr(backend, "safe_stop_report", None) or "the actuators were never enabled"
+        e.safe_stop = _safe_stop_report(backend) or "the actuators were never enabled"
         raise
     return res
 
@@ -150,8 +151,12 @@ def _abort_once(log: TrialLog, reason: str) -> None:
 
 def _note_safe_stop(log: TrialLog, backend: Actuators) -> None:
     """Record how the actuators were left (the backend's own read-back where it has one)."""
-    report = getattr(backend, "safe_stop_report", None)
+    report = _safe_stop_report(backend)
     if report:
         log.event(log.time[-1] if len(log) else 0.0, "safe-stop", report)
 
 
+def _safe_stop_report(backend: Optional[Actuators]) -> Optional[str]:
+    """The backend's own account of its last safe stop, when it keeps one."""
+    layer = None if backend is None else find_capability(backend, SafeStopReport)
+    return None if layer is None else layer.safe_stop_report

@@ -53,7 +53,6 @@ log = logging.getLogger(__name__)
 FAST_SYNC_READ_FIRMWARE = 45  # X-series firmware that answers Fast Sync Read
 
 
-
 def _register(name: str) -> tuple[int, int]:
     """(address, size) of an X-series register, from the one control table."""
     reg = x_series_table()[name]
@@ -152,6 +151,7 @@ class DynamixelActuators(ActuatorsBase):
                                    np.asarray(s.velocity, float), np.asarray(s.effort, float))
         self._t0 = time.monotonic()
         self._last: Optional[JointState] = None
+        self._lost = False  # the bench lost the train's last reading (HostLoop)
         self._fails = 0
         self.firmware: dict[int, int] = {}
         self.safe_stop_report: Optional[str] = None
@@ -179,7 +179,6 @@ class DynamixelActuators(ActuatorsBase):
             self._configure()
             self._setup_groups()
             if s.ultrasonic:
-
                 u = s.ultrasonic
                 self._sensor = UltrasonicSensor(u.port, baud=u.baud, median_window=u.median_window,
                                                 stale_after_s=u.stale_after_s,
@@ -289,7 +288,6 @@ class DynamixelActuators(ActuatorsBase):
             self._warn("Return Delay Time is 250 (500 µs per status packet): it caps the loop rate")
 
     def _setup_groups(self) -> None:
-
         fw_ok = all(self.firmware.get(sid, 0) >= FAST_SYNC_READ_FIRMWARE for sid in self._ids)
         self._fast = self.settings.fast_sync_read and fw_ok
         if self.settings.fast_sync_read and not fw_ok:
@@ -330,7 +328,19 @@ class DynamixelActuators(ActuatorsBase):
     def read(self) -> JointState:
         st = self._read_bus()
         self._last = st
+        self._lost = False
         return st
+
+    def status_lost(self, joints: Sequence[str]) -> None:
+        """The bench lost the train's last reading: the host loop holds until the next, as for a stale one."""
+        u = self.settings.ultrasonic
+        if u is not None and u.joint in joints:
+            self._lost = True
+
+    @property
+    def start_warnings(self) -> list[str]:
+        """What start-up warned about (latency timer, Return Delay Time, Sync Read), for the record."""
+        return list(self.settings.warnings)
 
     def _read_bus(self) -> JointState:
         cyc = self._cycle
@@ -381,7 +391,7 @@ class DynamixelActuators(ActuatorsBase):
         if self._sensor is not None and self._last is not None:
             # Host loop on the train: the arc angle follows the sensor, not the pinion.
             q = self._train_loop.goal(q, self._last.position[self._train], self._last.time,
-                                      valid=not self._last.flags)
+                                      valid=not (self._last.flags or self._lost))
         self._send_goals(self._goal_ticks(q))
 
     def _goal_ticks(self, q: np.ndarray) -> np.ndarray:
@@ -475,18 +485,15 @@ def _port_hint(port: str) -> str:
 
 def _model_name(number: int) -> str:
     try:
-
         return model_spec(number).name
     except Exception:
         return "unknown model"
 
 
 def _kt(number: int) -> float:
-
     return model_spec(number).motor.kt
 
 
 def _current_unit(number: int) -> float:
-
     unit = model_spec(number).current_unit
     return unit if unit is not None else 0.0

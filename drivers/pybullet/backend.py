@@ -19,7 +19,7 @@ from typing import Callable, Literal, Sequence
 
 import numpy as np
 
-from drivers import ActuatorError, ConfigurationError, JointLimits, JointState, NotEnabledError
+from drivers import ActuatorError, ConfigurationError, JointLimits, JointState, NotEnabledError, frozen_array
 from drivers.pybullet.stepped import SteppedActuators
 from drivers.quiet import muted_output, quiet_pybullet
 
@@ -39,7 +39,7 @@ class SceneObject:
 
 @dataclass(frozen=True)
 class BlockStates:
-    """The states read at the start of each cycle of a block, rows ordered by cycle (SI)."""
+    """The states read at the start of each cycle of a block, rows ordered by cycle (SI); read-only."""
 
     time: np.ndarray
     position: np.ndarray
@@ -191,7 +191,7 @@ class PyBulletActuators(SteppedActuators):
     def read(self) -> JointState:
         states = self._pb.getJointStates(self.robot, self._joint_index, physicsClientId=self._client)
         position, velocity, _, effort = zip(*states)
-        return JointState(self.now(), np.array(position), np.array(velocity), np.array(effort))
+        return JointState(self.now(), position, velocity, effort)  # fresh read-only arrays
 
     def wait_until(self, t: float) -> None:
         target = int(math.floor(t / self._dt + 1e-6))
@@ -280,9 +280,10 @@ class PyBulletActuators(SteppedActuators):
         self._step_count = int(counts[-1])
         counts = counts[:-1].tolist()
         self._hold_target = np.array(targets[-1]) if k else self._hold_target
-        rows = np.frombuffer(buf, dtype=float).reshape(k, 3, n)
-        states = BlockStates(np.array(counts, dtype=float) * self._dt, rows[:, 0], rows[:, 1],
-                             rows[:, 2])
+        # read-only, on an immutable copy: what a caller does to them cannot change a rewind
+        rows = np.frombuffer(buf.tobytes(), dtype=float).reshape(k, 3, n)
+        states = BlockStates(frozen_array(np.array(counts, dtype=float) * self._dt), rows[:, 0],
+                             rows[:, 1], rows[:, 2])
         self._block = (states, counts, targets, speeds)
         return states
 
@@ -342,6 +343,8 @@ class PyBulletActuators(SteppedActuators):
 
     def link_pose(self, link_name: str) -> tuple[np.ndarray, np.ndarray]:
         """World position and rotation matrix of a URDF link frame."""
+        if link_name not in self.link_index:
+            raise ConfigurationError(f"no link {link_name!r}; the robot has {sorted(self.link_index)}")
         st = self._pb.getLinkState(self.robot, self.link_index[link_name],
                                    computeForwardKinematics=True, physicsClientId=self._client)
         return np.array(st[4]), np.array(self._pb.getMatrixFromQuaternion(st[5])).reshape(3, 3)

@@ -120,6 +120,7 @@ class ServoSimActuators(SteppedActuators):
         self._sensed: SensedDistance | None = None
         self._train_loop: TrainLoop | None = None
         self._last: JointState | None = None
+        self._lost = False  # the bench lost the train's last reading (HostLoop)
         if s.train_sensor is not None:
             ts = s.train_sensor
             self._sensed = SensedDistance(lambda: ts.to_distance(float(self.plant.joint_position()[ts.joint])),
@@ -148,8 +149,15 @@ class ServoSimActuators(SteppedActuators):
         if self._sensed is not None:
             ts = self.settings.train_sensor
             position[ts.joint] = ts.to_joint(self._sensed.read())
-        self._last = JointState(self.now(), position, self._ratio * velocity, effort)
+        self._last = JointState(self.now(), position, self._ratio * velocity, effort)  # read-only
+        self._lost = False
         return self._last
+
+    def status_lost(self, joints: Sequence[str]) -> None:
+        """The bench lost the train's last reading: the host loop holds its correction until the next."""
+        ts = self.settings.train_sensor
+        if ts is not None and self.settings.joint_names[ts.joint] in joints:
+            self._lost = True
 
     def true_position(self) -> np.ndarray:
         """The joints where they really are (not quantised): the simulator's ground truth."""
@@ -188,7 +196,8 @@ class ServoSimActuators(SteppedActuators):
         lim = self._limits
         q = np.minimum(np.maximum(position, lim.lower), lim.upper)
         if self._train_loop is not None and self._last is not None:
-            q = self._train_loop.goal(q, self._last.position[self._train_loop.joint], self._last.time)
+            q = self._train_loop.goal(q, self._last.position[self._train_loop.joint], self._last.time,
+                                      valid=not self._lost)
         goal = (q - self._offset) / self._ratio
         self._pending.append((self._step_count + self._delay_steps, goal))
 
