@@ -1,7 +1,8 @@
 """One contract for every way the bench drives joints (drivers/checker.py, after Gymnasium's env
-checker): the PyBullet backend, the Dynamixel backend on the emulated rig, and each fault wrapper
-around them pass the same checks: shapes, refusals (ActuatorError before anything reaches the
-hardware), the enable/disable/close life cycle, the clock, capabilities found where they live."""
+checker): the PyBullet backend, the servo-model simulator, the Dynamixel backend on the emulated
+rig, and each fault wrapper around each of them pass the same checks: shapes, refusals
+(ActuatorError before anything reaches the hardware), the enable/disable/close life cycle, the
+clock, readings no one can edit, every capability found where it lives and doing what it says."""
 
 from __future__ import annotations
 
@@ -16,11 +17,22 @@ from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_backend, make_dynamixel_backend
 from bench.rig.emulated import EmulatedRig
 from drivers import Actuators
-from drivers.capabilities import EffortLimited, EmulatorHooks, JointKinds, ServoInfo, find_capability
+from drivers.capabilities import (
+    BlockExecution,
+    EffortLimited,
+    EmulatorHooks,
+    HostLoop,
+    JointKinds,
+    PositionReset,
+    ServoInfo,
+    TruePosition,
+    find_capability,
+)
 from drivers.checker import ContractViolation, check_actuators
 
 REPO = Path(__file__).resolve().parents[1]
 SIM = REPO / "hil_configs" / "sim_target1.yaml"
+SERVO_SIM = REPO / "hil_configs" / "sim_target1_servo.yaml"
 LAB = REPO / "hil_configs" / "lab_real.yaml"
 #: Faults that act on the emulated bus itself: they need the emulator's hooks.
 BUS_ONLY = {"corrupt_crc"}
@@ -28,6 +40,11 @@ BUS_ONLY = {"corrupt_crc"}
 
 def _sim_backend() -> Actuators:
     cfg = load_trial_config(SIM)
+    return make_backend(cfg, get_robot(cfg.robot))
+
+
+def _servo_sim_backend() -> Actuators:
+    cfg = load_trial_config(SERVO_SIM)
     return make_backend(cfg, get_robot(cfg.robot))
 
 
@@ -51,6 +68,8 @@ def _spec(name: str) -> dict:
         spec["joints"] = "all"
     if "level" in FAULTS[name].valid_parameters:
         spec["level"] = "wrapper"
+    if "prob" in FAULTS[name].valid_parameters and name not in BUS_ONLY:
+        spec["prob"] = 1.0  # every read after the first is rewritten: the checker sees what that does
     return spec
 
 
@@ -68,11 +87,34 @@ def test_the_dynamixel_backend_on_the_emulated_rig_keeps_the_contract(rig):
     check_actuators(act)
 
 
+def test_the_servo_model_sim_keeps_the_contract():
+    act = _servo_sim_backend()
+    assert find_capability(act, HostLoop) is act and find_capability(act, TruePosition) is act
+    assert find_capability(act, BlockExecution) is None and find_capability(act, PositionReset) is None
+    check_actuators(act)
+
+
 @pytest.mark.parametrize("name", sorted(set(FAULTS) - BUS_ONLY))
 def test_every_fault_wrapper_keeps_the_contract(name):
     act = apply_faults(_sim_backend(), [_spec(name)], np.random.default_rng(0))
     assert act is not act.unwrapped  # a wrapper really is being checked
     assert find_capability(act, EffortLimited) is act.unwrapped  # found through the stack, not forwarded
+    check_actuators(act)
+
+
+@pytest.mark.parametrize("name", sorted(set(FAULTS) - BUS_ONLY))
+def test_every_fault_wrapper_keeps_the_contract_on_the_servo_model_sim(name):
+    """The servo-model sim keeps the reading it returned (its train loop steers by it)."""
+    act = apply_faults(_servo_sim_backend(), [_spec(name)], np.random.default_rng(0))
+    assert act is not act.unwrapped
+    check_actuators(act)
+
+
+@pytest.mark.parametrize("name", sorted(set(FAULTS) - BUS_ONLY - {"torque_limit"}))
+def test_every_fault_wrapper_keeps_the_contract_on_the_emulated_rig(rig, name):
+    """The Dynamixel driver keeps the reading it returned (its train loop steers by it)."""
+    act = apply_faults(_rig_backend(rig), [_spec(name)], np.random.default_rng(0))
+    assert act is not act.unwrapped
     check_actuators(act)
 
 
@@ -92,6 +134,72 @@ def test_the_checker_catches_a_wrapper_that_lets_nan_through():
 
     with pytest.raises(ContractViolation, match="NaN"):
         check_actuators(Careless(_sim_backend()))
+
+
+def test_the_checker_catches_a_wrapper_writing_into_the_reading_it_received():
+    """As DroppedStatus did: the backend's own reading (the driver steers by it) must not change."""
+    from bench.faults.base import FaultWrapper
+
+    class WritesIntoIt(FaultWrapper):
+        def read(self):
+            st = self.actuators.read()
+            st.position[0] = 0.0
+            return st
+
+    with pytest.raises(ContractViolation, match="read.*raised ValueError"):
+        check_actuators(WritesIntoIt(_servo_sim_backend()))
+
+
+def test_the_checker_catches_a_reading_whose_edit_reaches_the_next_read():
+    from drivers import JointState
+    from bench.faults.base import FaultWrapper
+
+    class Editable(JointState):
+        def __post_init__(self):  # leaves the arrays writable
+            pass
+
+    class KeepsAndReturns(FaultWrapper):
+        """Hands out the reading it keeps, again while the clock has not moved."""
+        kept = None
+
+        def read(self):
+            st = self.actuators.read()
+            if self.kept is None or self.kept.time != st.time:
+                self.kept = Editable(st.time, st.position.copy(), st.velocity.copy(), st.effort.copy())
+            return self.kept
+
+    with pytest.raises(ContractViolation, match="changed the next read"):
+        check_actuators(KeepsAndReturns(_sim_backend()))
+
+
+def test_the_checker_catches_a_wrapper_offering_a_capability():
+    """A wrapper's set_effort_limit would be found before the backend's: a call could skip the layers beneath."""
+    from bench.faults.base import FaultWrapper
+
+    class Forwards(FaultWrapper):
+        def set_effort_limit(self, joint, effort):
+            self.unwrapped.set_effort_limit(joint, effort)
+
+    with pytest.raises(ContractViolation, match="Forwards offers EffortLimited"):
+        check_actuators(Forwards(_sim_backend()))
+
+
+def test_the_checker_catches_a_backend_that_does_not_say_how_it_stopped():
+    act = _sim_backend()
+    act._disable = lambda: None  # the joints left as they were, and nothing said
+    with pytest.raises(ContractViolation, match="safe_stop_report after disable"):
+        check_actuators(act)
+
+
+def test_the_checker_lists_every_capability_declared():
+    """A Protocol added to drivers/capabilities.py without joining CAPABILITIES goes unchecked."""
+    import typing
+
+    import drivers.capabilities as caps
+
+    declared = {v for v in vars(caps).values() if isinstance(v, type) and v.__module__ == caps.__name__
+                and v is not typing.Protocol and getattr(v, "_is_protocol", False)}
+    assert declared == set(caps.CAPABILITIES)
 
 
 def test_the_ground_truth_recorder_keeps_the_contract():

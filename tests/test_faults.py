@@ -317,6 +317,51 @@ def test_dropped_status_holds_the_last_sample_flagged_stale():
     assert stale["d10"] / n == pytest.approx(0.3, abs=0.04)
 
 
+class KeepsItsReading(Kinematic):
+    """As the Dynamixel driver and the servo sim: keeps the reading it returned, to steer by it."""
+
+    kept: list[tuple[JointState, np.ndarray]]
+
+    def read(self) -> JointState:
+        st = super().read()
+        self.kept.append((st, st.position.copy()))
+        return st
+
+
+@pytest.mark.parametrize("name", sorted(set(FAULTS) - {"corrupt_crc", "torque_limit", "deadband"}))
+def test_no_fault_writes_into_the_reading_it_received(name):
+    """What a fault changes it changes in a new reading: the backend's own stays as it returned it."""
+    base = KeepsItsReading(kept=[])
+    spec = {"name": name, **({"prob": 1.0} if "prob" in FAULTS[name].valid_parameters else {})}
+    act = apply_faults(base, parse_faults([spec], JOINTS), np.random.default_rng(3))
+    act.enable()
+    changed = 0
+    for k in range(40):
+        base.q[:] = 0.01 * k
+        base.t = 0.002 * k
+        st = act.read()
+        changed += st is not base.kept[-1][0]
+        act.command(base.q)
+    assert changed > 0  # the fault did rewrite readings
+    for st, position in base.kept:
+        assert np.array_equal(st.position, position) and st.flags == ()
+        assert not st.position.flags.writeable
+
+
+def test_a_reading_cannot_be_edited_nor_made_writable():
+    st = Kinematic().read()
+    with pytest.raises(ValueError):
+        st.position[0] = 1.0
+    with pytest.raises(ValueError):
+        st.velocity.flags.writeable = True
+    with pytest.raises(AttributeError):
+        st.effort = np.ones(len(JOINTS))
+    q = np.zeros(len(JOINTS))
+    mine = JointState(0.0, q, q, q)
+    q[0] = 1.0  # the arrays it was built from stay the builder's; the reading keeps its copy
+    assert mine.position[0] == 0.0 and q.flags.writeable
+
+
 def test_late_status_returns_an_older_sample_flagged_late():
     base = Kinematic()
     act = apply_faults(base, parse_faults([{"name": "late_status", "prob": 1.0, "delay_ms": 4}],
