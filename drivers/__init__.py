@@ -21,7 +21,8 @@ Beside the contract, as Gymnasium keeps ``Env`` and ``Wrapper`` together: the
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from array import array
+from dataclasses import dataclass
 from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
@@ -98,15 +99,30 @@ def frozen_array(values: object) -> np.ndarray:
 
     Its memory is an immutable ``bytes`` copy, so neither the caller who built it nor a
     reader who sets ``flags.writeable`` can change it; an array already frozen is reused.
+    Runs for every reading: the common inputs (a float array, a tuple of floats) go straight.
     """
+    kind = type(values)
+    if kind is np.ndarray:
+        a: np.ndarray = values  # type: ignore[assignment]
+        if a.base.__class__ is bytes and not a.flags.writeable:
+            return a
+        if a.dtype == np.float64:
+            out = _from_bytes(a.tobytes())
+            return out if a.ndim == 1 else out.reshape(a.shape)
+    elif kind is tuple or kind is list:
+        try:
+            return _from_bytes(array("d", values).tobytes())  # type: ignore[arg-type]
+        except TypeError:  # not a flat sequence of numbers: numpy's general path below
+            pass
     a = np.asarray(values, dtype=float)
-    if not a.flags.writeable and isinstance(a.base, bytes):
-        return a
-    out = np.frombuffer(a.tobytes(), dtype=float)
+    out = _from_bytes(a.tobytes())
     return out if a.ndim == 1 else out.reshape(a.shape)
 
 
-@dataclass(frozen=True, eq=False)
+_from_bytes = np.frombuffer
+
+
+@dataclass(frozen=True, eq=False, init=False)
 class JointState:
     """One sample of every joint: time (s) and SI arrays ordered like ``joint_names``.
 
@@ -121,14 +137,16 @@ class JointState:
     velocity: np.ndarray
     effort: np.ndarray
     # Optional per-sample flags a backend may raise (e.g. "stale:train").
-    flags: tuple[str, ...] = field(default_factory=tuple)
+    flags: tuple[str, ...] = ()
 
-    def __post_init__(self) -> None:
+    def __init__(self, time: float, position: object, velocity: object, effort: object,
+                 flags: Sequence[str] = ()) -> None:
         put = object.__setattr__
-        put(self, "position", frozen_array(self.position))
-        put(self, "velocity", frozen_array(self.velocity))
-        put(self, "effort", frozen_array(self.effort))
-        put(self, "flags", tuple(self.flags))
+        put(self, "time", time)
+        put(self, "position", frozen_array(position))
+        put(self, "velocity", frozen_array(velocity))
+        put(self, "effort", frozen_array(effort))
+        put(self, "flags", flags if type(flags) is tuple else tuple(flags))
 
     def copy(self) -> "JointState":
         """The reading itself: it is immutable, so a copy would be the same values."""

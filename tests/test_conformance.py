@@ -155,8 +155,10 @@ def test_the_checker_catches_a_reading_whose_edit_reaches_the_next_read():
     from bench.faults.base import FaultWrapper
 
     class Editable(JointState):
-        def __post_init__(self):  # leaves the arrays writable
-            pass
+        def __init__(self, time, position, velocity, effort, flags=()):  # leaves the arrays writable
+            for name, value in zip(("time", "position", "velocity", "effort", "flags"),
+                                   (time, position, velocity, effort, flags)):
+                object.__setattr__(self, name, value)
 
     class KeepsAndReturns(FaultWrapper):
         """Hands out the reading it keeps, again while the clock has not moved."""
