@@ -118,6 +118,22 @@ def test_every_fault_wrapper_keeps_the_contract_on_the_emulated_rig(rig, name):
     check_actuators(act)
 
 
+def test_the_torque_limit_wrapper_keeps_the_contract_on_the_emulated_rig():
+    """On a rig whose limited joint's servo is in current-based position mode (the lab config's
+    are not: there torque_limit is refused in one line)."""
+    cfg = load_trial_config(LAB)
+    with EmulatedRig(cfg) as r:
+        cfg = r.retarget(cfg)
+        servos = dict(cfg.backend.servos)
+        servos["theta4"] = servos["theta4"].model_copy(update={"mode": "current_based_position"})
+        cfg = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"servos": servos})})
+        backend = make_dynamixel_backend(cfg, get_robot(cfg.robot))
+        act = apply_faults(backend, [{"name": "torque_limit", "joints": ["theta4"], "scale": 0.9}],
+                           np.random.default_rng(0))
+        assert find_capability(act, EffortLimited) is backend
+        check_actuators(act)
+
+
 @pytest.mark.parametrize("name", sorted(BUS_ONLY))
 def test_bus_faults_keep_the_contract_on_the_emulated_rig(rig, name):
     act = apply_faults(_rig_backend(rig), [_spec(name)], np.random.default_rng(0))

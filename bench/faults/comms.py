@@ -1,13 +1,15 @@
 """Communication faults: status packets dropped, late or corrupted.
 
 Two levels. When the backend talks to the bench's servo-bus emulator it
-exposes ``emulator`` (the bus, or an object holding its ``faults``), and the
-fault is injected on the wire — the real driver then meets the lost,
+offers the emulator's bus faults (:class:`~drivers.capabilities.EmulatorHooks`),
+and the fault is injected on the wire — the real driver then meets the lost,
 delayed or corrupted packets itself (:class:`EmulatorStatusFault`). On any
 other backend the wrapper-level versions stand in: a dropped joint status
-returns that joint's last sample flagged ``stale:<joint>``; a late one
-returns an older sample flagged ``late:<joint>``. CRC corruption exists only
-on the wire, so it needs the emulator.
+returns that joint's last sample flagged ``stale:<joint>`` (and a backend's
+host loop is told, :class:`~drivers.capabilities.HostLoop`); a late one
+returns an older sample flagged ``late:<joint>``. Either builds a new reading:
+the one received is the backend's own. CRC corruption exists only on the
+wire, so it needs the emulator.
 """
 
 from __future__ import annotations
