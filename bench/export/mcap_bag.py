@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -32,41 +31,12 @@ import numpy as np
 from bench.core.log import TrialLog
 from bench.core.result import PreparedTrial
 from bench.export import ros2_messages as msgs
-from bench.scene.contact import GantryClearance
-from bench.trial.plan import planned_limits
+from bench.trial.margins import margins_of
 
-__all__ = ["Margins", "margins_of", "write_mcap", "TOPICS"]
+__all__ = ["write_mcap", "TOPICS"]
 
 TOPICS = ("/joint_states", "/joint_commands", "/tracking_error", "/interlock_margins/joint_limits",
           "/interlock_margins/tracking", "/interlock_margins/gantry", "/phase", "/rosout")
-
-
-@dataclass(frozen=True)
-class Margins:
-    """Per cycle, how far the trial was from each interlock's trip (SI; negative trips)."""
-
-    joint_limits: np.ndarray  # (n, joints)
-    tracking: np.ndarray  # (n, joints)
-    gantry: np.ndarray | None  # (n,), None when the gantry interlock is off
-
-
-def margins_of(log: TrialLog, prep: PreparedTrial) -> Margins:
-    """The margins the trial's interlocks had at each logged cycle, as configured."""
-    s = prep.config.safety
-    kinds = [r.kind for r in prep.robot.chain.rows]
-    lim = planned_limits(prep)
-    tol = s.joint_limit_tolerance
-    q = log.q
-    to_limit = np.minimum(q - (lim.lower - tol), (lim.upper + tol) - q)
-    bound = np.array([np.radians(s.tracking_error_deg) if k == "revolute" else s.tracking_error_mm * 1e-3
-                      for k in kinds])
-    tracking = bound - np.abs(q - log.q_cmd)
-    gantry = None
-    if s.gantry_margin_mm > 0:
-        margin = s.gantry_margin_mm * 1e-3
-        clearance = GantryClearance(prep.robot, margin)
-        gantry = np.array([clearance.check(row).distance for row in q]) - margin
-    return Margins(to_limit, tracking, gantry)
 
 
 def _stamp(ns: int) -> dict:
