@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+from mcap_ros2.writer import Writer
 
 from bench.core.log import TrialLog
 from bench.core.result import PreparedTrial
@@ -78,8 +79,6 @@ def _metadata(log: TrialLog, result: dict | None) -> Iterator[tuple[str, dict[st
 
 def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | None = None) -> Path:
     """Write the trial as an MCAP file of ROS 2 messages at ``path`` (atomically)."""
-    from mcap_ros2.writer import Writer  # deferred: only the export needs the mcap library
-
     path = Path(path)
     margins = margins_of(log, prep)
     names = list(log.joint_names)
