@@ -95,7 +95,7 @@ class RunFollower:
                 born = d.stat().st_mtime
             except OSError:
                 continue
-            if born >= self._started and d.name != "homing":
+            if born >= self._started and "homing" not in d.relative_to(self.out).parts:
                 fresh.append((born, str(d), d))
         return max(fresh)[2] if fresh else None
 
