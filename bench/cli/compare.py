@@ -97,8 +97,8 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
         sub = result.subject
         console.print(f"{sub.label}: {verdict} over {len(sub.logs)} repeat(s) "
                        f"({result.acceptance[0]:g} mm / {result.acceptance[1]:g}°)")
-        console.print(f"tip deviation (mm): mean {summary['tip_deviation_mm']['mean']}, "
-                       f"max {summary['tip_deviation_mm']['max']}")
+        for line in _deviation_lines(summary):
+            console.print(line, highlight=False, markup=False)
         console.print(f"worst joint: {summary['worst_joint']}")
         if predicted is not None:
             pr = summary["prediction"]
@@ -110,6 +110,23 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
         err_console.print(f"[bold red]compare failed:[/] {summary['reason']}", highlight=False,
                    soft_wrap=True)
     raise typer.Exit(0 if result.passed else 1)
+
+
+def _xyz(values) -> str:
+    return "  ".join(f"{axis} {'n/a' if v is None else format(round(v, 3) + 0.0, '+.3f')}"
+                     for axis, v in zip("XYZ", values))
+
+
+def _deviation_lines(summary: dict) -> list[str]:
+    """The console's needle lines: X/Y/Z with their unit, the mean signed and the largest |…|."""
+    tip, depth, angle = (summary[k] for k in ("tip_deviation_mm", "depth_deviation_mm", "angle_deviation_deg"))
+    if tip["mean"] is None or tip["mean"][0] is None:
+        return ["needle: no repeat placed it"]
+    num = lambda v: "n/a" if v is None else f"{round(v, 3) + 0.0:.3f}"  # noqa: E731 - no "-0.000"
+    return [f"tip deviation, mean (mm): {_xyz(tip['mean'])}",
+            f"tip deviation, max |…| (mm): {_xyz(tip['max']).replace('+', '')}",
+            f"depth (mm): mean {num(depth['mean'])}, max |…| {num(depth['max'])}; "
+            f"angle (°): mean {num(angle['mean'])}, max |…| {num(angle['max'])}"]
 
 
 def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path,
