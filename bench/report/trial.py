@@ -281,6 +281,7 @@ def _inline(text: str) -> str:
 
     t = html.escape(text)
     t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
+    t = re.sub(r"(?<![\w*])\*(?![\s*])(.+?)(?<![\s*])\*(?![\w*])", r"<em>\1</em>", t)  # not "2 * 3 * 4"
     t = re.sub(r"`(.+?)`", r"<code>\1</code>", t)
     return t
 
