@@ -22,6 +22,7 @@ from bench.cli.campaign import campaign_app
 from bench.cli.common import console, emit_json, fail
 from bench.cli.compare import compare
 from bench.cli.contact import contact_protocol
+from bench.cli.export import export
 from bench.cli.files import schema, urdf_build
 from bench.cli.identify import identify
 from bench.cli.lab import calibrate, doctor, jog, scan
@@ -190,7 +191,7 @@ def ik(name: str = typer.Argument(..., metavar="ROBOT", help=ROBOT_HELP),
 
 
 # Registered in the order `hilbench --help` lists them.
-for command in (check, trial, emulate, report, runs, schema):
+for command in (check, trial, emulate, report, runs, export, schema):
     app.command()(command)
 urdf_app.command("build")(urdf_build)
 for command in (accuracy, workspace):

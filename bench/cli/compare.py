@@ -9,9 +9,11 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from bench.cli.common import console, emit_json, err_console, fail, load_config
+from bench.cli.live import LIVE_HELP, live_view
 
 __all__ = ["compare"]
 
@@ -51,6 +53,7 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
                 None, "--sim-model", metavar="MODEL",
                 help="Also run the sim through the servo model ('datasheet': the servo table's models and "
                      "gains; or a servo model file) and report how well it predicts the rig."),
+            live: bool = typer.Option(False, "--live", help=LIVE_HELP),
             as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Compare sim and real tracking: run a config's plan on both backends N times, or compare two runs."""
     if align not in ("motion", "xcorr"):
@@ -71,19 +74,22 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
             except ConfigError as e:
                 fail(f"--sim-model: {e}")
             sim_model = str(Path(sim_model).resolve())
-        result, out_dir, predicted = _from_config(first, repeats, emulate, retries, align, out, sim_model,
-                                                   as_json)
+        result, out_dir, predicted, live_url = _from_config(first, repeats, emulate, retries, align, out,
+                                                             sim_model, as_json, live)
     else:
         if second is None:
             fail(f"{first}: give two runs to compare (RUN_A RUN_B), or a trial config (.yaml)")
-        if emulate or repeats != 5 or retries is not None or sim_model is not None:
-            fail("--repeats, --emulate, --retries and --sim-model go with a config, not with two saved runs")
+        if emulate or repeats != 5 or retries is not None or sim_model is not None or live:
+            fail("--repeats, --emulate, --retries, --sim-model and --live go with a config, not with two "
+                 "saved runs")
         result, out_dir = _from_runs(first, second, align, out)
-        predicted = None
+        predicted, live_url = None, None
     summary = result.summary()
     summary["report"] = str(out_dir / "report.html")
     if predicted is not None:
         summary["prediction"] = predicted.as_dict()
+    if live_url:
+        summary["live_url"] = live_url
     if as_json:
         emit_json(summary)
     else:
@@ -91,8 +97,8 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
         sub = result.subject
         console.print(f"{sub.label}: {verdict} over {len(sub.logs)} repeat(s) "
                        f"({result.acceptance[0]:g} mm / {result.acceptance[1]:g}°)")
-        console.print(f"tip deviation (mm): mean {summary['tip_deviation_mm']['mean']}, "
-                       f"max {summary['tip_deviation_mm']['max']}")
+        for line in _deviation_lines(summary):
+            console.print(line, highlight=False, markup=False)
         console.print(f"worst joint: {summary['worst_joint']}")
         if predicted is not None:
             pr = summary["prediction"]
@@ -106,8 +112,25 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
     raise typer.Exit(0 if result.passed else 1)
 
 
+def _xyz(values) -> str:
+    return "  ".join(f"{axis} {'n/a' if v is None else format(round(v, 3) + 0.0, '+.3f')}"
+                     for axis, v in zip("XYZ", values))
+
+
+def _deviation_lines(summary: dict) -> list[str]:
+    """The console's needle lines: X/Y/Z with their unit, the mean signed and the largest |…|."""
+    tip, depth, angle = (summary[k] for k in ("tip_deviation_mm", "depth_deviation_mm", "angle_deviation_deg"))
+    if tip["mean"] is None or tip["mean"][0] is None:
+        return ["needle: no repeat placed it"]
+    num = lambda v: "n/a" if v is None else f"{round(v, 3) + 0.0:.3f}"  # noqa: E731 - no "-0.000"
+    return [f"tip deviation, mean (mm): {_xyz(tip['mean'])}",
+            f"tip deviation, max |…| (mm): {_xyz(tip['max']).replace('+', '')}",
+            f"depth (mm): mean {num(depth['mean'])}, max |…| {num(depth['max'])}; "
+            f"angle (°): mean {num(angle['mean'])}, max |…| {num(angle['max'])}"]
+
+
 def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path,
-                 sim_model: Optional[str] = None, as_json: bool = False):
+                 sim_model: Optional[str] = None, as_json: bool = False, live: bool = False):
 
     from bench.compare.session import (  # deferred: --help and completion stay fast
         CompareError,
@@ -118,7 +141,6 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
     from bench.core.interrupts import (  # deferred: --help and completion stay fast
         SignalGuard,
         TrialInterrupted,
-        signal_name,
     )
     from bench.core.result import TrialError  # deferred: --help and completion stay fast
     from drivers import ActuatorError  # deferred: --help and completion stay fast
@@ -131,7 +153,7 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
         def progress(what: str, fraction: float) -> None:
             bar.update(task, description=what, completed=min(1.0, fraction))
 
-        with SignalGuard() as guard:
+        with SignalGuard() as guard, live_view(live, cfg, out, guard) as server:
             try:
                 res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
                                      align=align, progress=progress, interrupts=guard, sim_model=sim_model)
@@ -139,15 +161,15 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
                 fail(str(e))
             except TrialInterrupted as e:
                 bar.stop()
-                err_console.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] compare stopped; "
+                err_console.print(f"[bold red]{escape(str(e))}:[/] compare stopped; "
                            f"the rig got its safe stop ({cfg.backend.safe_stop}); the runs so far "
                            f"are under {out}", highlight=False, soft_wrap=True)
                 if as_json:
-                    emit_json({"passed": False, "completed": False,
-                               "reason": f"interrupted by {signal_name(e.signum)}", "runs": str(out),
-                               "safe_stop": cfg.backend.safe_stop, "exit_code": e.exit_code})
+                    emit_json({"passed": False, "completed": False, "reason": str(e), "runs": str(out),
+                               "safe_stop": cfg.backend.safe_stop, "exit_code": e.exit_code}
+                              | ({"live_url": server.url} if server else {}))
                 raise typer.Exit(e.exit_code)
-    return res.comparison, res.out_dir, res.prediction
+    return res.comparison, res.out_dir, res.prediction, server.url if server else None
 
 
 def _from_runs(a: Path, b: Path, align: str, out: Path):

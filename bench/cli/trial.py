@@ -8,10 +8,12 @@ import sys
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from bench.cli.common import console, emit_json, err_console, fail, load_config
+from bench.cli.live import LIVE_HELP, live_view
 
 __all__ = ["check", "emulate", "report", "runs", "trial"]
 
@@ -54,6 +56,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
           gui: bool = typer.Option(False, "--gui", help="Show the PyBullet window (sim backend)."),
           note: str = typer.Option("", "--note", help="Operator note stored in the trial record."),
           emulate: bool = typer.Option(False, "--emulate", help="Run the real backend against the emulated servo bus and sensor."),
+          live: bool = typer.Option(False, "--live", help=LIVE_HELP),
           as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Run one trial: home -> Target -> insertion -> retract, with its log and report.
 
@@ -71,13 +74,13 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
              "the pictures) or under xvfb-run")
     with SignalGuard() as guard:  # first, so no signal can land before it
         try:
-            res, name = _trial(config, out, gui, note, emulate, guard)
+            res, name, live_url = _trial(config, out, gui, note, emulate, guard, live)
         except TrialInterrupted as e:
             _interrupted(e, as_json)
     if not res.passed:
         err_console.print(f"[bold red]trial failed:[/] {res.why_not}", highlight=False, soft_wrap=True)
     if as_json:
-        emit_json(res.summary())
+        emit_json(res.summary() | ({"live_url": live_url} if live_url else {}))
     else:
         o = res.outcome
         verdict = "[green]PASSED[/]" if res.passed else "[red]FAILED[/]"
@@ -93,7 +96,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
     raise typer.Exit(0 if res.passed else 1)
 
 
-def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
+def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, live: bool = False):
     from bench.core.result import TrialError  # deferred: --help and completion stay fast
 
     cfg = load_config(config)
@@ -120,7 +123,13 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
             backend.fault_hooks = rig.faults
             return backend
     try:
-        return _run_with_progress(cfg, out, gui, note, factory, guard), cfg.name
+        with live_view(live, cfg, out, guard) as server:
+            try:
+                res = _run_with_progress(cfg, out, gui, note, factory, guard)
+            except KeyboardInterrupt as e:
+                e.live_url = server.url if server else None
+                raise
+        return res, cfg.name, server.url if server else None
     finally:
         if rig is not None:
             rig.close()
@@ -134,18 +143,17 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard):
 def _interrupted(e, as_json: bool = False) -> None:
     """One line on stderr for a trial stopped by a signal (and with ``--json`` the result line
     saying so), then exit 128 + N."""
-    from bench.core.interrupts import signal_name  # deferred: --help and completion stay fast
-
     run_dir = getattr(e, "run_dir", None)
     stop = getattr(e, "safe_stop", None)
     where = f"log saved in {run_dir}" if run_dir else "nothing had moved; no log"
     what = f"; {stop}" if stop else ""
-    err_console.print(f"[bold red]interrupted by {signal_name(e.signum)}:[/] trial stopped{what}; "
+    err_console.print(f"[bold red]{escape(str(e))}:[/] trial stopped{what}; "
                       f"{where}", highlight=False, soft_wrap=True)
     if as_json:
+        live_url = getattr(e, "live_url", None)
         emit_json({"run_dir": str(run_dir) if run_dir else None, "passed": False, "completed": False,
-                   "reason": f"interrupted by {signal_name(e.signum)}", "safe_stop": stop,
-                   "exit_code": e.exit_code})
+                   "reason": str(e), "safe_stop": stop, "exit_code": e.exit_code}
+                  | ({"live_url": live_url} if live_url else {}))
     raise typer.Exit(e.exit_code)
 
 

@@ -11,6 +11,7 @@ never raised, so the safe stop and the saving of the log always finish.
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 from contextlib import contextmanager
@@ -24,9 +25,10 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 class TrialInterrupted(KeyboardInterrupt):
     """A stop signal arrived; ``signum`` says which (exit code 128 + signum)."""
 
-    def __init__(self, signum: int) -> None:
-        super().__init__(f"interrupted by {signal_name(signum)}")
+    def __init__(self, signum: int, source: str | None = None) -> None:
+        super().__init__(f"interrupted by {signal_name(signum)}" + (f" ({source})" if source else ""))
         self.signum = signum
+        self.source = source
 
     @property
     def exit_code(self) -> int:
@@ -50,6 +52,8 @@ class SignalGuard:
 
     def __init__(self) -> None:
         self.signum: Optional[int] = None
+        #: Who asked for the stop when it was not a signal from outside (the live view's Stop).
+        self.source: Optional[str] = None
         self.repeats = 0
         self._previous: dict[int, object] = {}
         self._deferring = 0
@@ -60,7 +64,7 @@ class SignalGuard:
             return
         self.signum = signum
         if not self._deferring:
-            raise TrialInterrupted(signum)
+            raise TrialInterrupted(signum, self.source)
 
     @contextmanager
     def deferred(self) -> Iterator[None]:
@@ -75,7 +79,14 @@ class SignalGuard:
     def check(self) -> None:
         """Raise :class:`TrialInterrupted` if a stop signal has arrived (even if swallowed)."""
         if self.signum is not None:
-            raise TrialInterrupted(self.signum)
+            raise TrialInterrupted(self.signum, self.source)
+
+    def request_stop(self, source: str) -> None:
+        """The stop Ctrl-C gives, asked for from another thread of this process (a SIGINT to
+        itself, so it takes the very same path), recorded as coming from ``source``."""
+        if self.signum is None and self.source is None:
+            self.source = source
+        os.kill(os.getpid(), signal.SIGINT)
 
     @property
     def interrupted(self) -> bool:

@@ -97,7 +97,7 @@ def _fmt(v: float, nd: int = 2) -> str:
 def table3_markdown(target_mm: list[float], depth_mm: float, angle_deg: float, outcome) -> str:
     """Input and output target side by side, as seed 000 Table 3 (in mm)."""
     o = outcome
-    head = ("| | X (mm) | Y (mm) | Z (mm) | insertion (mm) | angle (°) |\n"
+    head = ("| | entry point X (mm) | entry point Y (mm) | entry point Z (mm) | insertion (mm) | angle (°) |\n"
             "|---|---:|---:|---:|---:|---:|\n")
     rows = [
         ("input target", *target_mm, depth_mm, angle_deg),
@@ -202,6 +202,13 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
         where = ("where the trial stopped" if not result.completed else
                  "at the end of the run" if result.excitation else "at the end of the insertion")
         lines += [f"![robot {where}]({figures['robot']})", ""]
+        if not result.excitation:
+            lines += [f"*The robot {where}, seen from the side, the phantom left out. Red: the "
+                      f"planned needle path, to the target's tip (from 30 mm above its entry point); "
+                      f"green: the entry point and tip where the robot placed the needle (measured "
+                      f"joints).*", ""]
+        else:
+            lines += [f"*The robot {where}, in the CT room.*", ""]
     lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Events", "",
               _events_markdown(log), "## Versions", "",
               ", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()), ""]
@@ -281,6 +288,7 @@ def _inline(text: str) -> str:
 
     t = html.escape(text)
     t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
+    t = re.sub(r"(?<![\w*])\*(?![\s*])(.+?)(?<![\s*])\*(?![\w*])", r"<em>\1</em>", t)  # not "2 * 3 * 4"
     t = re.sub(r"`(.+?)`", r"<code>\1</code>", t)
     return t
 
@@ -302,7 +310,8 @@ def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTria
             insert = log.segment_names.index("insert") if "insert" in log.segment_names else -1
             idx = np.flatnonzero(log.segment == insert)
             q = log.q[idx[-1]] if idx.size else log.q[-1]
-            render_robot(prep.config.robot, q, d / "robot.png")
+            render_robot(prep.config.robot, q, d / "robot.png",
+                         target=None if result.excitation else prep.target)
             figures["robot"] = "robot.png"
         except Exception:  # a picture is a nicety; never lose a report for it
             pass

@@ -1,0 +1,1 @@
+"""A trial's log in formats other robotics tools open (MCAP with ROS 2 messages)."""

@@ -1,0 +1,244 @@
+"""What the live view shows, read from the trial's own journal: the control loop never waits.
+
+A trial journals its rows and events to its run directory at least every
+:data:`bench.core.log.FLUSH_EVERY_S` (for a ``kill -9``). The live view reads
+that journal from another thread, so a slow or dead browser costs the loop
+nothing: it only ever reads files the loop has already handed to the operating
+system. A comparison writes several runs one after another under its output
+directory; the follower always shows the newest.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
+from bench.config.models import TrialConfig
+from bench.trial.margins import MarginMeter
+from bench.trial.plan import prepare
+
+__all__ = ["RunFollower", "Snapshot", "MAX_POINTS_HZ", "decimate"]
+
+#: Rows sent to the page per second of trial (the log's own rate is decimated to this).
+MAX_POINTS_HZ = 50.0
+#: How deep under the output directory a run directory may be (a comparison's repeats are two down).
+_DEPTH = 3
+_SEGMENT = re.compile(r"start (\S+) \(([\d.]+) s \+ ([\d.]+) s settle")
+
+
+@dataclass
+class Snapshot:
+    """One run as the page sees it; ``rows`` are decimated, times in s, joints in SI."""
+
+    run: str = ""
+    run_dir: str = ""
+    joints: list[str] = field(default_factory=list)
+    kinds: list[str] = field(default_factory=list)
+    segments: list[str] = field(default_factory=list)
+    time: list[float] = field(default_factory=list)
+    q_cmd: list[list[float]] = field(default_factory=list)
+    q: list[list[float]] = field(default_factory=list)
+    events: list[dict] = field(default_factory=list)
+    phase: str = "starting"
+    progress: float = 0.0
+    margins: dict = field(default_factory=dict)
+    result: dict | None = None
+    #: Changes when the rows start again (a new run followed, or the final log read in whole).
+    epoch: int = 0
+
+    def since(self, n: int) -> dict:
+        """The snapshot as JSON, with only the rows after the first ``n`` (a page's increment)."""
+        n = max(0, min(int(n), len(self.time)))
+        return {"run": self.run, "run_dir": self.run_dir, "joints": self.joints, "kinds": self.kinds,
+                "segments": self.segments, "first": n, "time": self.time[n:], "q_cmd": self.q_cmd[n:],
+                "q": self.q[n:], "events": self.events, "phase": self.phase,
+                "progress": self.progress, "margins": self.margins, "result": self.result,
+                "epoch": self.epoch}
+
+
+class RunFollower:
+    """Follows the newest run directory under ``out`` created after it started."""
+
+    def __init__(self, out: Path, config: TrialConfig) -> None:
+        self.out = Path(out)
+        self.config = config
+        self._meter: MarginMeter | None = None
+        self.kinds: list[str] = []
+        self._started = time.time() - 1.0
+        self._lock = threading.Lock()
+        self._dir: Path | None = None
+        self._offset = 0  # bytes of the rows file read so far
+        self._width = 0
+        self._meta_mtime = -1.0
+        self._meta: dict = {}
+        self._rows = np.empty((0, 0))
+        self._next_t = -np.inf
+        self.snapshot = Snapshot()
+
+    def _newest(self) -> Path | None:
+        found = []
+        for depth in range(1, _DEPTH + 1):
+            for meta in self.out.glob("/".join(["*"] * depth) + "/" + JOURNAL_META):
+                found.append(meta.parent)
+            for rec in self.out.glob("/".join(["*"] * depth) + "/record.json"):
+                found.append(rec.parent)
+        fresh = []
+        for d in set(found):
+            try:
+                born = d.stat().st_mtime
+            except OSError:
+                continue
+            if born >= self._started and "homing" not in d.relative_to(self.out).parts:
+                fresh.append((born, str(d), d))
+        return max(fresh)[2] if fresh else None
+
+    def poll(self) -> Snapshot:
+        """Read what the journal gained since the last poll (cheap when nothing did)."""
+        with self._lock:
+            newest = self._newest()
+            if newest is not None and newest != self._dir:
+                self._switch(newest)
+            if self._dir is not None:
+                self._read_meta()
+                self._read_rows()
+                self._read_result()
+            return self.snapshot
+
+    def _switch(self, run_dir: Path) -> None:
+        self._dir, self._offset, self._meta_mtime, self._meta = run_dir, 0, -1.0, {}
+        self._next_t = -np.inf
+        self.snapshot = Snapshot(run=run_dir.name, run_dir=str(run_dir), kinds=self.kinds,
+                                 epoch=self.snapshot.epoch + 1)
+
+    def _read_meta(self) -> None:
+        path = self._dir / JOURNAL_META
+        try:
+            mtime = path.stat().st_mtime
+            if mtime == self._meta_mtime:
+                return
+            meta = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return  # not there yet, or replaced under us: the next poll reads it
+        self._meta_mtime, self._meta = mtime, meta
+        s = self.snapshot
+        s.joints = list(meta.get("joint_names", []))
+        s.segments = list(meta.get("segment_names", []))
+        s.events = [e for e in meta.get("events", []) if isinstance(e, dict)]
+        self._width = 2 + 5 * len(s.joints)
+        self._phase()
+
+    def _read_rows(self) -> None:
+        if not self._width:
+            return
+        try:
+            with open(self._dir / JOURNAL_ROWS, "rb") as f:
+                f.seek(self._offset)
+                raw = f.read()
+        except OSError:
+            return
+        row_bytes = 8 * self._width
+        whole = len(raw) // row_bytes * row_bytes  # a row still being written waits for the next poll
+        if not whole:
+            return
+        self._offset += whole
+        rows = np.frombuffer(raw[:whole], dtype=float).reshape(-1, self._width)
+        n = len(self.snapshot.joints)
+        keep, self._next_t = decimate(rows[:, 0], self._next_t)
+        rows = rows[keep]
+        q_cmd, q = rows[:, 2:2 + n], rows[:, 2 + 2 * n:2 + 3 * n]
+        s = self.snapshot
+        s.time.extend(rows[:, 0].tolist())
+        s.q_cmd.extend(q_cmd.tolist())
+        s.q.extend(q.tolist())
+        self._margins(q[-1], q_cmd[-1], int(rows[-1, 1]))
+        self._phase()
+
+    @property
+    def meter(self) -> MarginMeter:
+        """The trial's interlock margins, built at the first row (off the control loop's start)."""
+        if self._meter is None:
+            prep = prepare(self.config)
+            self._meter = MarginMeter(prep)
+            self.kinds = [r.kind for r in prep.robot.chain.rows]
+        return self._meter
+
+    def _margins(self, q: np.ndarray, q_cmd: np.ndarray, segment: int) -> None:
+        m = self.meter(q, q_cmd)
+        self.snapshot.kinds = self.kinds
+        names = self.snapshot.joints
+        worst_limit = int(np.argmin(m.joint_limits[0]))
+        ratio = 1.0 - m.tracking[0] / self.meter.bound  # tracking error as a share of its bound
+        worst_track = int(np.argmax(ratio))
+        self.snapshot.margins = {
+            "gantry_mm": None if m.gantry is None else float(m.gantry[0]) * 1e3,
+            "joint_limit": {"joint": names[worst_limit], "margin": float(m.joint_limits[0][worst_limit]),
+                            "kind": self.kinds[worst_limit]},
+            "tracking": {"joint": names[worst_track], "share_of_bound": float(ratio[worst_track])},
+            "segment": segment,
+        }
+
+    def _phase(self) -> None:
+        """The phase and a progress fraction from the segments' start events (planned durations)."""
+        s = self.snapshot
+        starts = [(e["time"], _SEGMENT.match(str(e.get("message", ""))))
+                  for e in s.events if e.get("kind") == "segment"]
+        starts = [(t, m) for t, m in starts if m]
+        if not starts:
+            return
+        t_now = s.time[-1] if s.time else starts[-1][0]
+        t0, m = starts[-1]
+        length = float(m.group(2)) + float(m.group(3))
+        within = min(1.0, max(0.0, (t_now - t0) / length)) if length > 0 else 1.0
+        total = max(len(s.segments), 1)
+        s.phase = m.group(1)
+        s.progress = min(1.0, (len(starts) - 1 + within) / total)
+
+    def _read_result(self) -> None:
+        if self.snapshot.result is not None:
+            return
+        try:
+            res = json.loads((self._dir / "result.json").read_text())
+        except (OSError, ValueError):
+            return
+        if isinstance(res, dict):
+            self.snapshot.result = res
+            self.snapshot.progress = 1.0 if res.get("completed") else self.snapshot.progress
+            self.snapshot.phase = "done"
+            try:  # the whole log: the journal is removed once the log is saved
+                log = TrialLog.load(self._dir / "trial.npz")
+            except (OSError, ValueError, KeyError):
+                return
+            self.snapshot.events = [e.as_dict() for e in log.events]
+            self._final_rows(log)
+
+    def _final_rows(self, log: TrialLog) -> None:
+        """The page's rows rebuilt from the saved log, so the end shows every cycle's share."""
+        s = self.snapshot
+        if not len(log):
+            return
+        keep, _ = decimate(log.time, -np.inf)
+        s.epoch += 1
+        s.time = log.time[keep].tolist()
+        s.q_cmd = log.q_cmd[keep].tolist()
+        s.q = log.q[keep].tolist()
+        self._margins(log.q[-1], log.q_cmd[-1], int(log.segment[-1]))
+
+
+def decimate(times: np.ndarray, next_t: float) -> tuple[list[int], float]:
+    """Rows at most :data:`MAX_POINTS_HZ` apart, and always the newest, so the page is never
+    behind; returns them and the time the next kept row must reach."""
+    keep = []
+    for i, t in enumerate(times):
+        if t >= next_t:
+            keep.append(i)
+            next_t = t + 1.0 / MAX_POINTS_HZ
+    if len(times) and (not keep or keep[-1] != len(times) - 1):
+        keep.append(len(times) - 1)
+    return keep, next_t

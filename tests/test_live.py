@@ -1,0 +1,166 @@
+"""`--live`: the page follows an emulated-rig trial in headless Chromium, its Stop button stops the
+trial safely, and the server refuses every request that is not the page's own."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from bench.config.models import load_trial_config
+from bench.core.log import TrialLog
+from bench.live.follow import RunFollower, decimate
+from bench.live.server import LiveServer
+from bench.trial.margins import margins_of
+from bench.trial.record import load_record
+
+REPO = Path(__file__).resolve().parent.parent
+LAB = REPO / "hil_configs" / "lab_real.yaml"
+SIM = REPO / "hil_configs" / "sim_target1.yaml"
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None and not os.environ.get("CI"),
+    reason="Debian's chromium is not installed (apt-get install chromium); CI installs it")
+
+
+def _start_live_trial(out: Path) -> tuple[subprocess.Popen, str]:
+    """An emulated-rig trial with --live; its URL from the one stderr line that gives it."""
+    proc = subprocess.Popen([HILBENCH, "trial", str(LAB), "--emulate", "--live", "--out", str(out), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        found = re.fullmatch(r"live view: (http://127\.0\.0\.1:\d+/\?token=[\w-]+)\n", line)
+        if found:
+            return proc, found.group(1)
+        if not line and proc.poll() is not None:
+            break
+    proc.kill()
+    raise AssertionError(f"no live view line; stderr: {line!r}")
+
+
+@pytest.fixture()
+def browser():
+    playwright = pytest.importorskip("playwright.sync_api")
+    assert CHROMIUM is not None, "CI must install Debian's chromium"
+    with playwright.sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        yield b
+        b.close()
+
+
+def _points(page) -> int:
+    return int(page.evaluate("document.body.dataset.points"))
+
+
+@needs_chromium
+def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(tmp_path, browser):
+    proc, url = _start_live_trial(tmp_path)
+    page = browser.new_page(viewport={"width": 1300, "height": 1000}, bypass_csp=True)  # for the probes
+    page.goto(url)
+    page.wait_for_function("Number(document.body.dataset.points) > 0", timeout=30_000)
+    first = _points(page)
+    page.wait_for_function(f"Number(document.body.dataset.points) > {first}", timeout=10_000)
+    assert page.evaluate("document.body.dataset.phase") in ("approach", "insert", "retract", "done")
+    late = browser.new_page(bypass_csp=True)  # a second browser, connected late, gets the run so far
+    late.goto(url)
+    late.wait_for_function("Number(document.body.dataset.points) > 0", timeout=10_000)
+    assert _points(late) >= first
+    page.wait_for_function("document.body.dataset.verdict !== undefined", timeout=60_000)
+    late.wait_for_function("document.body.dataset.verdict !== undefined", timeout=10_000)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    result = json.loads(out)
+    assert result["live_url"] == url and result["passed"] is True
+
+    log, prep = load_record(Path(result["run_dir"]))
+    assert page.evaluate("document.body.dataset.verdict") == "passed"
+    m = margins_of(log, prep)
+    gantry_mm = float(m.gantry[-1]) * 1e3
+    assert page.inner_text("#gantry") == f"{gantry_mm:.1f} mm"
+    worst = int(np.argmin(m.joint_limits[-1]))
+    assert page.inner_text("#limit-detail") == log.joint_names[worst]
+    share = 1 - m.tracking[-1] / (m.tracking[-1] + np.abs(log.q[-1] - log.q_cmd[-1]))
+    assert page.inner_text("#track") == f"{100 * share.max():.1f} %"
+    assert "PASSED" in page.inner_text("#verdict")
+    assert page.get_attribute("#report-link", "href").startswith("report?token=")
+    assert "safe-stop" in page.inner_text("#events")
+    # Both pages drew the whole log, decimated to at most 50 points a second.
+    assert _points(page) == _points(late) == len(decimate(log.time, -np.inf)[0])
+
+
+@needs_chromium
+def test_stop_in_the_page_stops_the_trial_safely_with_its_log_and_reason(tmp_path, browser):
+    proc, url = _start_live_trial(tmp_path)
+    page = browser.new_page(bypass_csp=True)
+    page.goto(url)
+    page.wait_for_function("Number(document.body.dataset.points) > 20", timeout=30_000)
+    page.click("#stop")
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    result = json.loads(out)
+    assert "live view" in result["reason"] and result["completed"] is False
+    assert "torque off" in result["safe_stop"]
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Stop pressed in the live view" in lines[0]  # after the URL line
+    log = TrialLog.load(Path(result["run_dir"]) / "trial.npz")
+    aborts = [e.message for e in log.events if e.kind == "abort"]
+    assert aborts == ["interrupted by SIGINT (Stop pressed in the live view)"]
+    assert any(e.kind == "safe-stop" and "confirmed" in e.message for e in log.events)
+
+
+@pytest.fixture()
+def server(tmp_path):
+    stops = []
+    srv = LiveServer(RunFollower(tmp_path, load_trial_config(SIM)), on_stop=lambda: stops.append(1)).start()
+    srv.stops = stops
+    yield srv
+    srv.close(linger=False)
+
+
+def _request(url: str, method: str = "GET", host: str | None = None) -> int:
+    req = urllib.request.Request(url, method=method, headers={"Host": host} if host else {})
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status
+    except urllib.error.HTTPError as e:
+        return e.code
+
+
+def test_the_server_refuses_what_is_not_the_pages_own(server):
+    base = server.url.split("?")[0]
+    token = server.token
+    assert _request(server.url) == 200
+    assert _request(f"{base}data?token={token}") == 200
+    assert _request(base) == 403  # no token
+    assert _request(f"{base}?token={token[:-1]}x") == 403  # a wrong one
+    assert _request(f"{base}data") == 403
+    for path in ("favicon.ico", "etc/passwd", "../record.json", "report.html", "data/"):
+        assert _request(f"{base}{path}?token={token}") == 404, path
+    assert _request(server.url, host="evil.example:80") == 403  # a name rebound to the loopback
+    assert _request(f"{base}stop?token={token}") == 405  # a link or a prefetch never stops
+    assert _request(f"{base}stop", method="POST") == 403 and server.stops == []
+    assert _request(f"{base}stop?token={token}", method="POST") == 202 and server.stops == [1]
+    assert _request(f"{base}report?token={token}") == 404  # no run yet
+
+
+def test_a_request_from_another_machine_is_refused(server):
+    ok = SimpleNamespace(client_address=("127.0.0.1", 5000), headers={"Host": "127.0.0.1:1"},
+                         path=f"/?token={server.token}")
+    assert server._allowed(ok) is None
+    remote = SimpleNamespace(client_address=("192.0.2.7", 5000), headers={"Host": "127.0.0.1:1"},
+                             path=f"/?token={server.token}")
+    assert server._allowed(remote) is not None
