@@ -72,22 +72,23 @@ def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(t
     page = browser.new_page(viewport={"width": 1300, "height": 1000}, bypass_csp=True)  # for the probes
     page.goto(url)
     page.wait_for_function("Number(document.body.dataset.points) > 0", timeout=30_000)
-    first = _points(page)
-    page.wait_for_function(f"Number(document.body.dataset.points) > {first}", timeout=10_000)
-    assert page.evaluate("document.body.dataset.phase") in ("approach", "insert", "retract", "done")
     late = browser.new_page(bypass_csp=True)  # a second browser, connected late, gets the run so far
     late.goto(url)
-    late.wait_for_function("Number(document.body.dataset.points) > 0", timeout=10_000)
-    assert _points(late) >= first
-    page.wait_for_function("document.body.dataset.verdict !== undefined", timeout=60_000)
+    running = []  # the points the page showed, sampled while the trial ran
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline and page.evaluate("document.body.dataset.verdict") is None:
+        if page.evaluate("document.body.dataset.phase") in ("approach", "insert", "retract"):
+            running.append(_points(page))
+        time.sleep(0.1)
+    assert len(set(running)) >= 3, running  # the traces advanced as the trial ran
     late.wait_for_function("document.body.dataset.verdict !== undefined", timeout=10_000)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     result = json.loads(out)
-    assert result["live_url"] == url and result["passed"] is True
+    assert result["live_url"] == url
 
     log, prep = load_record(Path(result["run_dir"]))
-    assert page.evaluate("document.body.dataset.verdict") == "passed"
+    assert page.evaluate("document.body.dataset.verdict") == ("passed" if result["passed"] else "failed")
     m = margins_of(log, prep)
     gantry_mm = float(m.gantry[-1]) * 1e3
     assert page.inner_text("#gantry") == f"{gantry_mm:.1f} mm"
@@ -95,7 +96,7 @@ def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(t
     assert page.inner_text("#limit-detail") == log.joint_names[worst]
     share = 1 - m.tracking[-1] / (m.tracking[-1] + np.abs(log.q[-1] - log.q_cmd[-1]))
     assert page.inner_text("#track") == f"{100 * share.max():.1f} %"
-    assert "PASSED" in page.inner_text("#verdict")
+    assert ("PASSED" if result["passed"] else f"NOT PASSED: {result['reason']}") in page.inner_text("#verdict")
     assert page.get_attribute("#report-link", "href").startswith("report?token=")
     assert "safe-stop" in page.inner_text("#events")
     # Both pages drew the whole log, decimated to at most 50 points a second.
