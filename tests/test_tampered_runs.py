@@ -268,3 +268,18 @@ def test_an_untampered_run_still_reads_everywhere(good_run, tmp_path):
     assert CliRunner().invoke(app, ["report", str(run)]).exit_code == 0
     cmp = CliRunner().invoke(app, ["compare", str(good_run), str(run), "--out", str(tmp_path / "cmp"), "--json"])
     assert cmp.exit_code in (0, 1) and "Traceback" not in cmp.stderr, cmp.stderr
+
+
+@pytest.mark.parametrize("journal", [False, True], ids=["report-links-out", "recovery-links-out"])
+def test_report_writes_nothing_through_a_link_out_of_the_run(good_run, tmp_path, journal):
+    run = tmp_path / "runs" / "linked"
+    shutil.copytree(good_run, run)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    if journal:  # a killed trial's journal, its record.json a dangling link out
+        _journal(None)(run)
+        (run / "record.json").symlink_to(tmp_path / "made-by-recovery.json")
+    else:
+        (run / "report.html").symlink_to(victim)
+    _one_line_refusal(["report", str(run)], run, "is a link")
+    assert victim.read_text() == "keep me" and not (tmp_path / "made-by-recovery.json").exists()

@@ -26,11 +26,14 @@ from bench.core.rundir import RECORD, RunDirError, load_run, read_log_file
 
 def load_saved_trial(path: Path) -> TrialLog:
     """The log of a saved trial (``compare RUN_A RUN_B``), every file checked (bench.core.rundir):
-    a run directory, or a log file (checked against its run directory's record when it has one).
+    a run directory, or a log file (checked against its run directory's record when it has one;
+    a log with no record, as a bare ``trial.npz``, has its contents checked alone).
     :class:`RunDirError` names the run and what is wrong with it."""
     path = Path(path)
     if path.is_dir():
-        return load_run(path).log
+        if (path / RECORD).exists() or (path / RECORD).is_symlink():
+            return load_run(path).log
+        return read_log_file(path / "trial.npz", path)  # a bare log: its contents checked alone
     parent = path.parent
     if (parent / RECORD).is_file():
         saved = load_run(parent)

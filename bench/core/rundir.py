@@ -29,7 +29,7 @@ from bench.core.record import sha256_of
 from drivers import BenchError
 
 __all__ = ["LOG_MAX_BYTES", "RECORD", "RESULT", "RecordFile", "ResultFile", "RunDirError", "SavedRun",
-           "has_run_files", "load_run", "read_journal", "read_log_file", "read_result"]
+           "has_run_files", "load_run", "read_journal", "read_log_file", "read_result", "refuse_links"]
 
 RECORD = "record.json"
 RESULT = "result.json"
@@ -164,6 +164,15 @@ def _model(run_dir: Path, name: str, model: type[BaseModel], data: Any) -> Any:
         return model.model_validate(data)
     except ValidationError as e:
         raise _refuse(run_dir, describe_validation_error(e, model, name)) from None
+
+
+def refuse_links(run_dir: Path, names: tuple[str, ...]) -> None:
+    """Before a reader writes ``names`` back into a run directory: none may be a link (a write
+    would go through it, out of the run directory)."""
+    for name in names:
+        if (Path(run_dir) / name).is_symlink():
+            raise _refuse(run_dir, f"{name} is a link (to {(Path(run_dir) / name).resolve()}); "
+                                   f"nothing is written through it")
 
 
 def read_result(run_dir: Path) -> Optional[ResultFile]:

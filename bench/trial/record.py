@@ -15,10 +15,13 @@ from bench.config.models import TrialConfig
 from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
 from bench.core.record import package_versions, write_record
 from bench.core.result import PreparedTrial, TrialResult, result_from_log, write_result_json
-from bench.core.rundir import RECORD, RunDirError, SavedRun, has_run_files, load_run, read_journal
+from bench.core.rundir import RECORD, RunDirError, SavedRun, load_run, read_journal, refuse_links
 from bench.report.trial import write_trial_report
 from bench.trial.plan import prepare
 from drivers import BenchError
+
+#: What rebuilding a report writes into the run directory.
+REPORT_FILES = ("result.json", "report.md", "report.html", "joints.png", "robot.png")
 
 __all__ = ["finish_record", "load_checked", "load_record", "rebuild_report", "recover_run", "trial_metadata"]
 
@@ -62,8 +65,6 @@ def load_checked(run_dir: Path) -> tuple[SavedRun, PreparedTrial]:
     run_dir = Path(run_dir)
     if not (run_dir / RECORD).exists() and (run_dir / JOURNAL_META).is_file():
         recover_run(run_dir)
-    if not has_run_files(run_dir):
-        raise RunDirError(f"{run_dir}: no {RECORD}: not a trial run directory")
     saved = load_run(run_dir)
     log = saved.log
     try:
@@ -85,6 +86,7 @@ def load_checked(run_dir: Path) -> tuple[SavedRun, PreparedTrial]:
 
 def recover_run(run_dir: Path) -> Path:
     """trial.npz and record.json of a trial whose process was killed, from its journal (checked)."""
+    refuse_links(run_dir, ("trial.npz", RECORD))
     log = read_journal(run_dir)
     if not any(e.kind in ("done", "abort") for e in log.events):
         log.event(log.time[-1] if len(log) else 0.0, "abort",
@@ -102,6 +104,7 @@ def rebuild_report(run_dir: Path) -> TrialResult:
     """Write the report of a run directory again, from its record alone."""
 
     log, prep = load_record(run_dir)
+    refuse_links(run_dir, REPORT_FILES)
     res = result_from_log(run_dir, log, prep)
     write_trial_report(res, log, prep)
     return res
