@@ -97,3 +97,26 @@ def test_campaign_report_refuses_a_tampered_campaign_in_one_line(campaign, tmp_p
     assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
     assert lines[0].startswith("error: ") and named in lines[0] and words.lower() in lines[0].lower(), lines[0]
     assert not (d / "report.md").exists() and not (d / "report.html").exists()
+
+
+@pytest.mark.parametrize("content", ["garbage", "other-tables"])
+@pytest.mark.parametrize("command", ["status", "export", "report", "resume"])
+def test_every_campaign_command_refuses_a_database_that_holds_no_campaign(tmp_path, command, content):
+    d = tmp_path / "c"
+    d.mkdir()
+    if content == "garbage":
+        (d / "campaign.db").write_bytes(b"\x00garbage" * 64)
+    else:
+        db = sqlite3.connect(d / "campaign.db")
+        db.execute("CREATE TABLE notes (text)")
+        db.commit()
+        db.close()
+    extra = ["--out", str(tmp_path / "x.csv")] if command == "export" else []
+    res = CliRunner().invoke(app, ["campaign", command, str(d), *extra])
+    lines = res.stderr.strip().splitlines()
+    assert res.exit_code == 2 and len(lines) == 1, (res.exit_code, res.stderr, res.exception)
+    assert "not a campaign database" in lines[0] and str(d) in lines[0]
+    db = sqlite3.connect(d / "campaign.db") if content != "garbage" else None
+    if db is not None:  # nothing was made up in it
+        assert {r[0] for r in db.execute("SELECT name FROM sqlite_master")} == {"notes"}
+        db.close()

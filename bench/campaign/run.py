@@ -18,10 +18,12 @@ back to pending). Nothing is marked done that did not finish.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import os
 import shutil
 import signal
+import sqlite3
 import threading
 import time
 import uuid
@@ -30,7 +32,7 @@ from concurrent.futures import CancelledError
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Iterator, Optional
 
 from bench.campaign.execute import DaskPool, InlinePool, LocalPool, Pool, execute_trial
 from bench.campaign.lock import CampaignBusy, CampaignLock
@@ -368,12 +370,24 @@ def rerun_trial(campaign_dir: Path | str, trial_id: int, out: Path | str | None 
 
 
 def summarize(campaign_dir: Path | str) -> CampaignSummary:
-    with open_store(campaign_dir) as store:
+    with open_store(campaign_dir) as store, _unreadable(campaign_dir):
         c = store.counts()
         return CampaignSummary(store.path, c["planned"], c["done"], c["passed"], c["error"],
                                c["pending"] + c["running"])
 
 
 def export_csv(campaign_dir: Path | str, path: Path | str) -> Path:
-    with open_store(campaign_dir) as store:
+    with open_store(campaign_dir) as store, _unreadable(campaign_dir):
         return store.export_csv(path)
+
+
+@contextlib.contextmanager
+def _unreadable(campaign_dir: Path | str) -> Iterator[None]:
+    """A database that opens but does not hold a campaign's tables or JSON: one line, not a traceback."""
+    try:
+        yield
+    except sqlite3.DatabaseError as e:
+        raise CampaignError(f"{campaign_dir}: {DB_NAME} does not hold a campaign ({e})") from None
+    except (ValueError, KeyError) as e:
+        raise CampaignError(f"{campaign_dir}: {DB_NAME} holds a value that is not what the bench "
+                            f"writes ({type(e).__name__}: {str(e)[:80]})") from None

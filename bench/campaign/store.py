@@ -76,6 +76,11 @@ class CampaignStore:
         self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
         try:
             self._db.row_factory = sqlite3.Row
+            if not create:  # an existing campaign's: its tables are there, never made up here
+                tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+                if not {"campaign", "trials"} <= tables:
+                    raise sqlite3.DatabaseError(f"no {' or '.join(sorted({'campaign', 'trials'} - tables))} "
+                                                f"table")
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)

@@ -8,7 +8,6 @@ ends with 130 after the trials in flight are recorded.
 
 from __future__ import annotations
 
-from contextlib import nullcontext
 from pathlib import Path
 from typing import Optional
 
@@ -58,13 +57,14 @@ def _progress_bar():
 def _run(campaign_dir: Path, workers: Optional[int], scheduler: Optional[str], as_json: bool,
          report: bool = True) -> None:
     from bench.campaign.lock import CampaignBusy, CampaignLock  # deferred: --help and completion stay fast
-    from bench.campaign.run import CampaignError, run_campaign  # deferred: --help and completion stay fast
+    from bench.campaign.run import CampaignError, open_store, run_campaign  # deferred: --help stays fast
 
-    try:  # one writer per campaign: refused in one line, before the progress bar draws
-        lock = CampaignLock(campaign_dir).acquire() if (campaign_dir / "campaign.db").is_file() else None
-    except CampaignBusy as e:
+    try:  # one writer per campaign, and a database that is one: refused in one line, before the bar draws
+        open_store(campaign_dir).close()
+        lock = CampaignLock(campaign_dir).acquire()
+    except (CampaignBusy, CampaignError) as e:
         fail(str(e))
-    with lock or nullcontext(), _progress_bar() as bar:
+    with lock, _progress_bar() as bar:
         task = bar.add_task("campaign", total=None, failed=0, errors=0)
 
         def on_progress(state) -> None:
