@@ -11,6 +11,9 @@ moving the trial's run directory from ``trials/.staging`` to
 killed campaign loses at most the trials in flight, and a resumed one runs
 each missing trial once and leaves one log directory per trial.
 
+One process writes a campaign directory at a time: ``run`` and ``resume`` hold its
+lock (:mod:`bench.campaign.lock`), which the kernel drops if the holder is killed.
+
 Ctrl-C stops submitting, cancels what has not started, lets the trials in
 flight finish and records them; a second Ctrl-C abandons those (they go
 back to pending). Nothing is marked done that did not finish.
