@@ -11,10 +11,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bench.campaign.store import CampaignStore
+from bench.campaign.checked import read_campaign, trial_run_dir
 from bench.kinematics.arc_train import table3_deviations
 from bench.report.trial import markdown_to_html
-from bench.trial.record import rebuild_report
+from bench.trial.record import load_record, rebuild_report
 
 __all__ = ["deviation_table", "write_campaign_report"]
 
@@ -219,15 +219,18 @@ def worst_trials(rows: Sequence[dict], pos: float, ang: float, n: int = 10) -> l
     return [r for r in ranked if r["status"] in ("done", "error")][:n]
 
 
-def write_worst_reports(campaign_dir: Path, rows: Sequence[dict], pos: float, ang: float) -> int:
+def write_worst_reports(campaign_dir: Path, rows: Sequence[dict], pos: float, ang: float,
+                        strict: bool = False) -> int:
     """Each worst trial's own HTML report, from its record (campaign trials are run without one);
-    returns how many were written. A trial whose record cannot be read keeps its log link."""
+    returns how many were written. A trial whose record cannot be read keeps its log link, or,
+    ``strict``, refuses the report (:class:`RunDirError` naming the run and what is wrong)."""
 
+    worst = [(r, trial_run_dir(campaign_dir, r)) for r in worst_trials(rows, pos, ang) if r["log_path"]]
+    if strict:  # every run checked before anything is written
+        for _, run_dir in worst:
+            load_record(run_dir)
     written = 0
-    for r in worst_trials(rows, pos, ang):
-        if not r["log_path"]:
-            continue
-        run_dir = campaign_dir / Path(r["log_path"]).parent
+    for _, run_dir in worst:
         if (run_dir / "report.html").is_file():
             continue
         try:
@@ -265,8 +268,7 @@ def _beside_markdown(done: Sequence[dict], counts: dict, others: Sequence[tuple[
 
 
 def _load(campaign_dir: Path) -> tuple[dict, list[dict], dict]:
-    with CampaignStore(campaign_dir / "campaign.db") as store:
-        return store.meta(), store.trials(), store.counts()
+    return read_campaign(campaign_dir)
 
 
 def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[str, str],
@@ -345,9 +347,13 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
     return "\n".join(lines) + "\n"
 
 
-def write_campaign_report(campaign_dir: Path | str, beside: Sequence[Path] = ()) -> dict[str, Path]:
+def write_campaign_report(campaign_dir: Path | str, beside: Sequence[Path] = (),
+                          strict: bool = False) -> dict[str, Path]:
     """``report.md``, ``report.html`` (figures embedded) and ``figures/`` in the campaign directory;
-    ``beside``: other campaigns' directories whose deviations are tabled beside this one's."""
+    ``beside``: other campaigns' directories whose deviations are tabled beside this one's.
+
+    Every directory is checked first (:mod:`bench.campaign.checked`); ``strict`` (``campaign
+    report``) also refuses a worst trial whose run directory fails its checks, before writing."""
 
     campaign_dir = Path(campaign_dir)
     meta, rows, counts = _load(campaign_dir)
@@ -356,11 +362,12 @@ def write_campaign_report(campaign_dir: Path | str, beside: Sequence[Path] = ())
         o_meta, o_rows, o_counts = _load(other)
         o_done = [r for r in o_rows if r["status"] == "done"]
         others.append((o_meta.get("name", other.name), o_done, o_counts))
+    acc = meta.get("acceptance", {})
+    limits = (float(acc.get("position_mm", 5.0)), float(acc.get("angle_deg", 1.0)))
+    write_worst_reports(campaign_dir, rows, *limits, strict=strict)
     fig_dir = campaign_dir / "figures"
     fig_dir.mkdir(exist_ok=True)
     done = [r for r in rows if r["status"] == "done"]
-    acc = meta.get("acceptance", {})
-    limits = (float(acc.get("position_mm", 5.0)), float(acc.get("angle_deg", 1.0)))
     figures = {"hist": "figures/deviations.png"}
     plot_distributions(done, campaign_dir / figures["hist"], limits)
     axes_meta = meta.get("axes", [])
@@ -371,7 +378,6 @@ def write_campaign_report(campaign_dir: Path | str, beside: Sequence[Path] = ())
         if len(grid) >= 2:
             plot_heatmap(done, grid[0], grid[1], fig_dir / "heatmap.png")
             figures["heat0"] = "figures/heatmap.png"
-    write_worst_reports(campaign_dir, rows, *limits)
     md = render_markdown(meta, rows, counts, figures, campaign_dir, others)
     (campaign_dir / "report.md").write_text(md)
     html = markdown_to_html(md, {v: campaign_dir / v for v in figures.values()},

@@ -11,6 +11,9 @@ moving the trial's run directory from ``trials/.staging`` to
 killed campaign loses at most the trials in flight, and a resumed one runs
 each missing trial once and leaves one log directory per trial.
 
+One process writes a campaign directory at a time: ``run`` and ``resume`` hold its
+lock (:mod:`bench.campaign.lock`), which the kernel drops if the holder is killed.
+
 Ctrl-C stops submitting, cancels what has not started, lets the trials in
 flight finish and records them; a second Ctrl-C abandons those (they go
 back to pending). Nothing is marked done that did not finish.
@@ -18,10 +21,12 @@ back to pending). Nothing is marked done that did not finish.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import os
 import shutil
 import signal
+import sqlite3
 import threading
 import time
 import uuid
@@ -30,16 +35,17 @@ from concurrent.futures import CancelledError
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Iterator, Optional
 
 from bench.campaign.execute import DaskPool, InlinePool, LocalPool, Pool, execute_trial
+from bench.campaign.lock import CampaignBusy, CampaignLock
 from bench.campaign.report import write_campaign_report
 from bench.campaign.spec import find_axes, load_campaign_spec, plan_trials, resolve_base
-from bench.campaign.store import METRIC_COLUMNS, CampaignStore
+from bench.campaign.store import METRIC_COLUMNS, CampaignStore, CampaignStoreError
 from drivers import BenchError
 
-__all__ = ["CampaignError", "CampaignProgress", "CampaignSummary", "DB_NAME", "create_campaign",
-           "export_csv", "rerun_trial", "run_campaign", "summarize"]
+__all__ = ["CampaignBusy", "CampaignError", "CampaignProgress", "CampaignSummary", "DB_NAME",
+           "create_campaign", "export_csv", "rerun_trial", "run_campaign", "summarize"]
 
 DB_NAME = "campaign.db"
 TRIALS_DIR = "trials"
@@ -119,6 +125,16 @@ def create_campaign(spec_path: Path | str, out: Path | str | None = None) -> Pat
                             f"`hilbench campaign resume {out}` or choose another --out")
     trials = plan_trials(spec)
     out.mkdir(parents=True, exist_ok=True)
+    with CampaignLock(out):
+        if db.exists():  # another process made it meanwhile
+            raise CampaignError(f"{out} already holds a campaign; continue it with "
+                                f"`hilbench campaign resume {out}` or choose another --out")
+        _write_plan(spec, spec_path, trials, out)
+    return out
+
+
+def _write_plan(spec: Any, spec_path: Path | str, trials: list, out: Path) -> None:
+    db = out / DB_NAME
     tmp = out / f".{DB_NAME}.{os.getpid()}.part"
     for p in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm")):
         p.unlink(missing_ok=True)
@@ -136,7 +152,6 @@ def create_campaign(spec_path: Path | str, out: Path | str | None = None) -> Pat
     with CampaignStore(tmp, create=True) as store:
         store.add_trials(trials, meta)
     os.replace(tmp, db)
-    return out
 
 
 def open_store(campaign_dir: Path | str) -> CampaignStore:
@@ -144,7 +159,10 @@ def open_store(campaign_dir: Path | str) -> CampaignStore:
     if not db.is_file():
         raise CampaignError(f"no campaign in {campaign_dir} ({DB_NAME} not found); "
                             "start one with `hilbench campaign run SPEC --out DIR`")
-    return CampaignStore(db)
+    try:
+        return CampaignStore(db)
+    except CampaignStoreError as e:
+        raise CampaignError(str(e)) from None
 
 
 # ---------------------------------------------------------------------------
@@ -214,9 +232,21 @@ def _commit(store: CampaignStore, campaign_dir: Path, row: dict, result: dict, s
 def run_campaign(campaign_dir: Path | str, workers: int | None = None, scheduler: str | None = None,
                  progress: Optional[Callable[[CampaignProgress], None]] = None,
                  notify: Optional[Callable[[str], None]] = None, report: bool = True) -> CampaignSummary:
-    """Run every missing trial (pending, left running, or errored with attempts left)."""
+    """Run every missing trial (pending, left running, or errored with attempts left).
 
+    The campaign directory's lock is held throughout (:mod:`bench.campaign.lock`): a second
+    run or resume of it refuses with :class:`CampaignBusy` while this one lives.
+    """
     campaign_dir = Path(campaign_dir)
+    if not (campaign_dir / DB_NAME).is_file():
+        open_store(campaign_dir)  # refuses, saying there is no campaign there
+    with CampaignLock(campaign_dir):
+        return _run_locked(campaign_dir, workers, scheduler, progress, notify, report)
+
+
+def _run_locked(campaign_dir: Path, workers: int | None, scheduler: str | None,
+                progress: Optional[Callable[[CampaignProgress], None]],
+                notify: Optional[Callable[[str], None]], report: bool) -> CampaignSummary:
     t0 = time.perf_counter()
     say = notify or (lambda msg: None)
     store = open_store(campaign_dir)
@@ -343,12 +373,24 @@ def rerun_trial(campaign_dir: Path | str, trial_id: int, out: Path | str | None 
 
 
 def summarize(campaign_dir: Path | str) -> CampaignSummary:
-    with open_store(campaign_dir) as store:
+    with open_store(campaign_dir) as store, _unreadable(campaign_dir):
         c = store.counts()
         return CampaignSummary(store.path, c["planned"], c["done"], c["passed"], c["error"],
                                c["pending"] + c["running"])
 
 
 def export_csv(campaign_dir: Path | str, path: Path | str) -> Path:
-    with open_store(campaign_dir) as store:
+    with open_store(campaign_dir) as store, _unreadable(campaign_dir):
         return store.export_csv(path)
+
+
+@contextlib.contextmanager
+def _unreadable(campaign_dir: Path | str) -> Iterator[None]:
+    """A database that opens but does not hold a campaign's tables or JSON: one line, not a traceback."""
+    try:
+        yield
+    except sqlite3.DatabaseError as e:
+        raise CampaignError(f"{campaign_dir}: {DB_NAME} does not hold a campaign ({e})") from None
+    except (ValueError, KeyError) as e:
+        raise CampaignError(f"{campaign_dir}: {DB_NAME} holds a value that is not what the bench "
+                            f"writes ({type(e).__name__}: {str(e)[:80]})") from None

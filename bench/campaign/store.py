@@ -18,7 +18,9 @@ import time
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-__all__ = ["CampaignStore", "METRIC_COLUMNS", "STATUSES", "TrialRow"]
+from drivers import BenchError
+
+__all__ = ["CampaignStore", "CampaignStoreError", "METRIC_COLUMNS", "STATUSES", "TrialRow"]
 
 STATUSES = ("pending", "running", "done", "error")
 METRIC_COLUMNS = ("tip_dx_mm", "tip_dy_mm", "tip_dz_mm", "entry_dx_mm", "entry_dy_mm", "entry_dz_mm",
@@ -59,6 +61,10 @@ CREATE INDEX IF NOT EXISTS trials_status ON trials (status);
 TrialRow = dict[str, Any]
 
 
+class CampaignStoreError(BenchError, RuntimeError):
+    """A file that is not a campaign's database."""
+
+
 class CampaignStore:
     """The campaign's database; a context manager that closes the connection."""
 
@@ -68,10 +74,19 @@ class CampaignStore:
             raise FileNotFoundError(f"campaign database not found: {self.path}")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
-        self._db.row_factory = sqlite3.Row
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=NORMAL")
-        self._db.executescript(_SCHEMA)
+        try:
+            self._db.row_factory = sqlite3.Row
+            if not create:  # an existing campaign's: its tables are there, never made up here
+                tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+                if not {"campaign", "trials"} <= tables:
+                    raise sqlite3.DatabaseError(f"no {' or '.join(sorted({'campaign', 'trials'} - tables))} "
+                                                f"table")
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.executescript(_SCHEMA)
+        except sqlite3.DatabaseError as e:  # not SQLite, truncated, or another program's tables
+            self._db.close()
+            raise CampaignStoreError(f"{self.path} is not a campaign database ({e})") from None
 
     # -- plumbing -------------------------------------------------------------
     def close(self) -> None:

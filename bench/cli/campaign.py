@@ -56,9 +56,15 @@ def _progress_bar():
 
 def _run(campaign_dir: Path, workers: Optional[int], scheduler: Optional[str], as_json: bool,
          report: bool = True) -> None:
-    from bench.campaign.run import CampaignError, run_campaign  # deferred: --help and completion stay fast
+    from bench.campaign.lock import CampaignBusy, CampaignLock  # deferred: --help and completion stay fast
+    from bench.campaign.run import CampaignError, open_store, run_campaign  # deferred: --help stays fast
 
-    with _progress_bar() as bar:
+    try:  # one writer per campaign, and a database that is one: refused in one line, before the bar draws
+        open_store(campaign_dir).close()
+        lock = CampaignLock(campaign_dir).acquire()
+    except (CampaignBusy, CampaignError) as e:
+        fail(str(e))
+    with lock, _progress_bar() as bar:
         task = bar.add_task("campaign", total=None, failed=0, errors=0)
 
         def on_progress(state) -> None:
@@ -175,13 +181,14 @@ def report_cmd(campaign_dir: Path = typer.Argument(...),
     """Write report.md and report.html from the database as it stands."""
     from bench.campaign.report import write_campaign_report  # deferred: --help and completion stay fast
     from bench.campaign.run import CampaignError, open_store  # deferred: --help and completion stay fast
+    from drivers import BenchError  # deferred: --help and completion stay fast
 
     try:
         for d in (campaign_dir, *beside):
             open_store(d).close()
-    except CampaignError as e:
+        paths = write_campaign_report(campaign_dir, beside, strict=True)
+    except (CampaignError, BenchError) as e:  # a campaign or trial directory that fails its checks
         fail(str(e))
-    paths = write_campaign_report(campaign_dir, beside)
     if as_json:
         emit_json({k: str(v) for k, v in paths.items()})
     else:

@@ -174,16 +174,17 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
 
 def _from_runs(a: Path, b: Path, align: str, out: Path):
 
+    from bench.compare.alignment import load_saved_trial  # deferred: --help and completion stay fast
     from bench.compare.analysis import compare_logs  # deferred: --help and completion stay fast
     from bench.compare.report import write_compare_report  # deferred: --help and completion stay fast
     from bench.compare.signals import PlanMismatchError  # deferred: --help and completion stay fast
-    from bench.core.log import TrialLog  # deferred: --help and completion stay fast
+    from bench.core.rundir import RunDirError  # deferred: --help and completion stay fast
 
     pa, pb = _log_path(a), _log_path(b)
     try:
-        la, lb = TrialLog.load(pa), TrialLog.load(pb)
-    except (OSError, ValueError, KeyError) as e:
-        fail(f"cannot read the trial logs: {e}")
+        la, lb = load_saved_trial(a), load_saved_trial(b)
+    except RunDirError as e:
+        fail(str(e))
     # the run on hardware (or its emulator) is the one judged; with two alike, the second
     if la.metadata.get("backend") == "dynamixel" and lb.metadata.get("backend") != "dynamixel":
         (la, pa, a), (lb, pb, b) = (lb, pb, b), (la, pa, a)

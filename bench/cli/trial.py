@@ -214,12 +214,12 @@ def emulate(config: Path = typer.Argument(..., help="A config with backend.kind:
 def report(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
            as_json: bool = typer.Option(False, "--json")) -> None:
     """Rebuild a trial's report (Markdown, HTML, figures) from its record alone."""
-    from bench.core.result import TrialError  # deferred: --help and completion stay fast
     from bench.trial.record import rebuild_report  # deferred: --help and completion stay fast
+    from drivers import BenchError  # deferred: --help and completion stay fast
 
     try:
         res = rebuild_report(run_dir)
-    except (TrialError, FileNotFoundError) as e:
+    except BenchError as e:  # a run directory that fails a check (bench.core.rundir), or its config
         fail(str(e))
     if as_json:
         emit_json(res.summary())
@@ -239,7 +239,8 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
     if not found:
         console.print(f"no trial runs in {out}", highlight=False)
         return
-    colour = {"passed": "green", "failed": "red", "stopped": "red", "incomplete": "yellow"}
+    colour = {"passed": "green", "failed": "red", "stopped": "red", "incomplete": "yellow",
+              "broken": "magenta"}
     t = Table(title=f"trials in {out}", title_justify="left")
     t.add_column("run (started, config)", no_wrap=True)
     t.add_column("backend", no_wrap=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal, Optional
 
 import numpy as np
@@ -21,6 +22,26 @@ from bench.compare.signals import (
     velocity_lag,
 )
 from bench.core.log import TrialLog
+from bench.core.rundir import RECORD, RunDirError, load_run, read_log_file
+
+def load_saved_trial(path: Path) -> TrialLog:
+    """The log of a saved trial (``compare RUN_A RUN_B``), every file checked (bench.core.rundir):
+    a run directory, or a log file (checked against its run directory's record when it has one;
+    a log with no record, as a bare ``trial.npz``, has its contents checked alone).
+    :class:`RunDirError` names the run and what is wrong with it."""
+    path = Path(path)
+    if path.is_dir():
+        if (path / RECORD).exists() or (path / RECORD).is_symlink():
+            return load_run(path).log
+        return read_log_file(path / "trial.npz", path)  # a bare log: its contents checked alone
+    parent = path.parent
+    if (parent / RECORD).is_file():
+        saved = load_run(parent)
+        if saved.log_path.name != path.name:
+            raise RunDirError(f"{path}: not the log {parent / RECORD} names ({saved.record.log})")
+        return saved.log
+    return read_log_file(path, path)
+
 
 _PLAN_FIELDS = ("trajectory", "velocity_scale", "acceleration_scale", "jerk_scale", "settle_s", "retract")
 

@@ -7,8 +7,12 @@ moved, archived and compared without anything else.
 While a trial runs, the log also goes to a journal beside it (raw float64
 rows, and the metadata and events as JSON), flushed to the operating system
 at least every :data:`FLUSH_EVERY_S`: a process killed outright (SIGKILL, out
-of memory) leaves a log that :meth:`TrialLog.recover` reads back, losing at
-most that last second.
+of memory) leaves a log that :func:`bench.core.rundir.read_journal` reads back,
+losing at most that last second.
+
+Reading: :meth:`TrialLog.load` is for a log this process (or the bench's own
+worker) has just written; a run directory from disk, which may have been edited,
+truncated or crafted, is read through :mod:`bench.core.rundir`, which checks it.
 """
 
 from __future__ import annotations
@@ -156,30 +160,6 @@ class TrialLog:
                 except FileNotFoundError:
                     pass
 
-    @classmethod
-    def recover(cls, directory: Path) -> "TrialLog":
-        """The log of a trial whose process died, read back from its journal."""
-        directory = Path(directory)
-        meta_path, rows_path = directory / JOURNAL_META, directory / JOURNAL_ROWS
-        if not meta_path.is_file() or not rows_path.is_file():
-            raise FileNotFoundError(f"no trial journal in {directory}")
-        meta = json.loads(meta_path.read_text())
-        n_joints = len(meta["joint_names"])
-        width = 2 + 5 * n_joints
-        raw = np.frombuffer(rows_path.read_bytes(), dtype=float)
-        rows = raw[: len(raw) // width * width].reshape(-1, width)  # a torn last row is dropped
-        log = cls(meta["joint_names"], meta["segment_names"], meta["metadata"],
-                  [Event(**e) for e in meta["events"]], capacity=max(1, len(rows)))
-        j = 2
-        cols = {}
-        for k in SERIES[2:]:
-            cols[k] = rows[:, j:j + n_joints]
-            j += n_joints
-        log.append_block(rows[:, 0], 0, cols["q_cmd"], cols["qd_cmd"], cols["q"], cols["qd"],
-                         cols["effort"])
-        log._seg[: len(rows)] = rows[:, 1].astype(np.int16)
-        return log
-
     # -- views ---------------------------------------------------------------
     @property
     def time(self) -> np.ndarray:
@@ -220,6 +200,7 @@ class TrialLog:
 
     @classmethod
     def load(cls, path: Path) -> "TrialLog":
+        """A log the bench wrote (no pickle); an untrusted run directory goes through bench.core.rundir."""
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"trial log not found: {path}")

@@ -7,6 +7,7 @@ drawn from a :class:`TrialResult` and a :class:`PreparedTrial` and nothing else.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -108,7 +109,19 @@ def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialR
 
 
 def write_result_json(res: TrialResult) -> None:
+    """result.json: strict JSON, a value that is not a finite number written as null (never NaN)."""
     summary = res.summary()
     summary.update({"completed": res.completed, "reason": res.reason,
                     "outcome": res.outcome.as_dict() if res.outcome else None})
-    (res.run_dir / "result.json").write_text(json.dumps(summary, indent=2) + "\n")
+    text = json.dumps(_finite_or_null(summary), indent=2, allow_nan=False)
+    (res.run_dir / "result.json").write_text(text + "\n")
+
+
+def _finite_or_null(v: object) -> object:
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _finite_or_null(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite_or_null(x) for x in v]
+    return v

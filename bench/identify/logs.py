@@ -17,11 +17,10 @@ import numpy as np
 
 from bench.config.models import TrialConfig, model_number
 from bench.core.log import TrialLog
-from bench.core.record import sha256_of
 from bench.identify.errors import IdentifyError
 from bench.kinematics.registry import get_robot
 from bench.rig.backends import servo_params, servo_table
-from bench.trial.record import load_record
+from bench.trial.record import load_checked
 from drivers.dynamixel.control_table import model_spec
 from drivers.servo import ServoParams
 from drivers.servo.plant import PyBulletPlant
@@ -145,10 +144,10 @@ def load_runs(run_dirs: Sequence[Path]) -> tuple[RigSetup, list[LoggedRun]]:
     try:
         for run_dir in map(Path, run_dirs):
             try:
-                log, prep = load_record(run_dir)
+                saved, prep = load_checked(run_dir)
             except Exception as e:  # TrialError, a missing or unreadable record
                 raise IdentifyError(str(e) if str(run_dir) in str(e) else f"{run_dir}: {e}") from None
-            config = prep.config
+            log, config = saved.log, prep.config
             if config.backend.kind != "dynamixel":
                 raise IdentifyError(f"{run_dir}: a {config.backend.kind} trial; identification reads the "
                                     f"rig's logs (backend dynamixel, real or --emulate)")
@@ -169,7 +168,7 @@ def load_runs(run_dirs: Sequence[Path]) -> tuple[RigSetup, list[LoggedRun]]:
             inertia, load = _dynamics(plant, q, qd, t)
             span = goal.max(axis=0) - goal.min(axis=0)
             excited = span >= np.array([MIN_EXCURSION[k] for k in setup.kinds])
-            runs.append(LoggedRun(run_dir=run_dir, sha256=sha256_of(run_dir / "trial.npz"), time=t, goal=goal,
+            runs.append(LoggedRun(run_dir=run_dir, sha256=saved.record.sha256, time=t, goal=goal,
                                   q=q, qd=qd, current=current, inertia=inertia, load=load, excited=excited))
     finally:
         if plant is not None:

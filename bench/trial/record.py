@@ -7,15 +7,23 @@ import datetime as dt
 import json
 from pathlib import Path
 
+from pydantic import ValidationError
+
+from bench.config.base import describe_validation_error
 from bench.config.calibration import calibration_record
 from bench.config.models import TrialConfig
 from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
-from bench.core.record import package_versions, sha256_of, write_record
-from bench.core.result import PreparedTrial, TrialError, TrialResult, result_from_log, write_result_json
+from bench.core.record import package_versions, write_record
+from bench.core.result import PreparedTrial, TrialResult, result_from_log, write_result_json
+from bench.core.rundir import RECORD, RunDirError, SavedRun, load_run, read_journal, refuse_links
 from bench.report.trial import write_trial_report
 from bench.trial.plan import prepare
+from drivers import BenchError
 
-__all__ = ["finish_record", "load_record", "rebuild_report", "recover_run", "trial_metadata"]
+#: What rebuilding a report writes into the run directory.
+REPORT_FILES = ("result.json", "report.md", "report.html", "joints.png", "robot.png")
+
+__all__ = ["finish_record", "load_checked", "load_record", "rebuild_report", "recover_run", "trial_metadata"]
 
 
 def trial_metadata(prep: PreparedTrial, note: str) -> dict:
@@ -46,31 +54,40 @@ def finish_record(run_dir: Path, log: TrialLog, log_path: Path, prep: PreparedTr
 
 
 def load_record(run_dir: Path) -> tuple[TrialLog, PreparedTrial]:
-    """The log and the prepared trial of a run directory, after checking the log's checksum."""
+    """The log and the prepared trial of a run directory, every file checked first
+    (:mod:`bench.core.rundir`); a killed trial's journal is recovered into its log first."""
+    saved, prep = load_checked(run_dir)
+    return saved.log, prep
+
+
+def load_checked(run_dir: Path) -> tuple[SavedRun, PreparedTrial]:
+    """:func:`load_record` with the record itself (the log's checksum, for a reader that cites it)."""
     run_dir = Path(run_dir)
-    rec_path = run_dir / "record.json"
-    if not rec_path.is_file() and (run_dir / JOURNAL_META).is_file():
+    if not (run_dir / RECORD).exists() and (run_dir / JOURNAL_META).is_file():
         recover_run(run_dir)
-    if not rec_path.is_file():
-        raise TrialError(f"{run_dir} has no record.json: not a trial run directory")
-    rec = json.loads(rec_path.read_text())
-    log_path = run_dir / rec["log"]
-    if not log_path.is_file():
-        raise TrialError(f"{log_path} is missing")
-    if sha256_of(log_path) != rec["sha256"]:
-        raise TrialError(f"{log_path.name} does not match the checksum in record.json: "
-                         f"the log was modified after the trial")
-    log = TrialLog.load(log_path)
+    saved = load_run(run_dir)
+    log = saved.log
     try:
-        config = TrialConfig.model_validate(log.metadata["config"])
-    except Exception as e:  # a record written by an incompatible version
-        raise TrialError(f"the config stored in {log_path.name} is not readable: {e}") from None
-    return log, prepare(config)
+        config = TrialConfig.model_validate(log.metadata.get("config"))
+    except ValidationError as e:  # a record written by an incompatible version, or edited
+        raise RunDirError(f"{run_dir}: the config stored in the log is not readable: "
+                          f"{describe_validation_error(e, TrialConfig)}") from None
+    except (BenchError, ValueError, TypeError) as e:
+        raise RunDirError(f"{run_dir}: the config stored in the log is not readable: {e}") from None
+    try:
+        prep = prepare(config)
+    except BenchError as e:
+        raise RunDirError(f"{run_dir}: the config stored in the log: {e}") from None
+    if list(log.joint_names) != list(prep.robot.joint_names):
+        raise RunDirError(f"{run_dir}: the log's joints {log.joint_names} are not the joints of its "
+                          f"robot {config.robot} ({list(prep.robot.joint_names)})")
+    return saved, prep
 
 
 def recover_run(run_dir: Path) -> Path:
-    """trial.npz and record.json of a trial whose process was killed, from its journal."""
-    log = TrialLog.recover(run_dir)
+    """trial.npz and record.json of a trial whose process was killed, from its journal (checked)."""
+    refuse_links(run_dir, ("trial.npz", RECORD))
+    log = read_journal(run_dir)
     if not any(e.kind in ("done", "abort") for e in log.events):
         log.event(log.time[-1] if len(log) else 0.0, "abort",
                   "the trial's process ended without saving its log (killed?); "
@@ -87,6 +104,7 @@ def rebuild_report(run_dir: Path) -> TrialResult:
     """Write the report of a run directory again, from its record alone."""
 
     log, prep = load_record(run_dir)
+    refuse_links(run_dir, REPORT_FILES)
     res = result_from_log(run_dir, log, prep)
     write_trial_report(res, log, prep)
     return res

@@ -1,21 +1,21 @@
 """Past trials in an output directory: what ran, when, and how it ended.
 
 Reads what each run directory already holds (``result.json``, the log's metadata,
-or the journal of a run that was killed) and never rewrites anything, so it is
-safe beside a trial that is still running.
+or the journal of a run that was killed), each file checked as every reader checks it
+(:mod:`bench.core.rundir`), and never rewrites anything, so it is safe beside a trial
+that is still running. A run directory that fails a check is listed ``broken``, with
+what is wrong, and the listing goes on.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
-
 from bench.core.log import JOURNAL_META
+from bench.core.rundir import RECORD, RunDirError, has_run_files, load_run, read_journal, read_result
 
 __all__ = ["RunSummary", "list_runs"]
 
@@ -28,7 +28,7 @@ class RunSummary:
     started: Optional[str]  # ISO 8601, UTC
     config: Optional[str]  # the config's name
     backend: Optional[str]
-    status: str  # passed | failed | stopped | incomplete (killed: journal only)
+    status: str  # passed | failed | stopped | incomplete (killed: journal only) | broken
     reason: str
     tip_deviation_mm: Optional[float]  # length of the tip deviation vector
     angle_deviation_deg: Optional[float]
@@ -39,57 +39,45 @@ class RunSummary:
 
 
 def list_runs(out: Path) -> list[RunSummary]:
-    """Every trial run directory directly under ``out``, oldest first."""
+    """Every trial run directory directly under ``out``, oldest first; a broken one listed as such."""
     out = Path(out)
     if not out.is_dir():
         return []
-    runs = [_summary(d) for d in sorted(out.iterdir()) if d.is_dir()]
-    runs = [r for r in runs if r is not None]
+    runs = [_summary(d) for d in sorted(out.iterdir()) if d.is_dir() and has_run_files(d)]
     return sorted(runs, key=lambda r: (r.started or "", r.run_dir))
 
 
-def _summary(run_dir: Path) -> Optional[RunSummary]:
-    meta = _metadata(run_dir)
-    result = _read_json(run_dir / "result.json")
-    if meta is None and result is None:
-        return None  # not a trial's run directory (a compare or a campaign, say)
-    meta = meta or {}
-    config = (meta.get("config") or {}).get("name")
+def _summary(run_dir: Path) -> RunSummary:
+    try:
+        return _checked_summary(run_dir)
+    except RunDirError as e:
+        return RunSummary(str(run_dir), None, None, None, "broken", str(e).removeprefix(f"{run_dir}: "),
+                          None, None, None)
+
+
+def _checked_summary(run_dir: Path) -> RunSummary:
+    """The run's summary from its files, each checked as ``report`` checks it (config aside)."""
+    if (run_dir / RECORD).exists() or (run_dir / RECORD).is_symlink() or not (run_dir / JOURNAL_META).is_file():
+        meta = load_run(run_dir).log.metadata
+    else:
+        meta = read_journal(run_dir).metadata  # killed: read, never recovered here
+    result = read_result(run_dir)
+    config = meta.get("config") or {}
+    name = config.get("name")
     if result is None:
         status, reason, tip, angle = "incomplete", "no result: the process was killed", None, None
     else:
-        tip_vec = result.get("tip_deviation_mm")
-        tip = math.hypot(*tip_vec) if tip_vec else None
-        angle = result.get("angle_deviation_deg")
-        if result.get("passed"):
+        tip = math.hypot(*result.tip_deviation_mm) if result.tip_deviation_mm else None
+        angle = result.angle_deviation_deg
+        if result.passed:
             status = "passed"
-        elif result.get("completed") is False:
+        elif not result.completed:
             status = "stopped"
         else:
             status = "failed"
-        reason = result.get("reason") or ""
+        reason = result.reason
     report = run_dir / "report.html"
-    return RunSummary(str(run_dir), meta.get("start_time"), config, meta.get("backend"), status,
-                      reason, None if tip is None else round(tip, 3),
+    return RunSummary(str(run_dir), meta.get("start_time"), name if isinstance(name, str) else None,
+                      meta.get("backend"), status, reason, None if tip is None else round(tip, 3),
                       None if angle is None else round(float(angle), 4),
                       str(report) if report.is_file() else None)
-
-
-def _metadata(run_dir: Path) -> Optional[dict]:
-    log = run_dir / "trial.npz"
-    if log.is_file():
-        try:
-            with np.load(log, allow_pickle=False) as z:
-                return json.loads(str(z["meta"])).get("metadata", {})
-        except (OSError, ValueError, KeyError):
-            return None
-    journal = _read_json(run_dir / JOURNAL_META)
-    return None if journal is None else journal.get("metadata", {})
-
-
-def _read_json(path: Path) -> Optional[dict]:
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None

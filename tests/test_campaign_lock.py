@@ -1,0 +1,126 @@
+"""One writer per campaign directory: a second run or resume refuses while the first lives, and
+takes over after a kill -9 of the first; checked with real processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from bench.campaign.lock import LOCK_NAME, CampaignBusy, CampaignLock
+from bench.campaign.run import create_campaign, run_campaign
+from bench.campaign.store import CampaignStore
+
+REPO = Path(__file__).resolve().parent.parent
+FAST = REPO / "hil_configs" / "sim_target1_fast.yaml"
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+
+
+def _campaign(tmp_path: Path, samples: int) -> Path:
+    spec = {"name": "locked", "base": str(FAST), "seed": 3, "samples": samples, "repeats": 1,
+            "faults": [{"name": "deadband", "joints": "all", "tol_deg": 0.29}]}
+    path = tmp_path / "spec.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return create_campaign(path, tmp_path / "c")
+
+
+def _rows(d: Path) -> list[dict]:
+    with CampaignStore(d / "campaign.db") as store:
+        return store.trials()
+
+
+def _resume(d: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([HILBENCH, "campaign", "resume", str(d), "--workers", "1", "--no-report",
+                             "--json", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait(cond, timeout: float = 90.0) -> None:
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if cond():
+            return
+        time.sleep(0.05)
+    raise AssertionError("timed out")
+
+
+def _consistent(d: Path) -> list[dict]:
+    """Every trial done once, with its one log directory, and nothing else under trials/."""
+    rows = _rows(d)
+    assert all(r["status"] == "done" for r in rows), [r["status"] for r in rows]
+    dirs = sorted(p.name for p in (d / "trials").iterdir() if p.name != ".staging")
+    assert dirs == sorted(r["name"] for r in rows)
+    assert not any((d / "trials" / ".staging").glob("*"))
+    return rows
+
+
+def test_the_lock_refuses_another_process_naming_it_nests_in_its_holder_and_leaves_no_pid(tmp_path):
+    d = _campaign(tmp_path, samples=2)
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from bench.campaign.lock import "
+                               "CampaignLock; CampaignLock(sys.argv[1]).acquire(); print('held', flush=True); "
+                               "time.sleep(60)", str(d)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(CampaignBusy, match=rf"being run by process {holder.pid}"):
+            CampaignLock(d).acquire()
+        with pytest.raises(CampaignBusy, match="one writer"):
+            run_campaign(d, workers=1, report=False)
+        assert all(r["status"] == "pending" and r["attempts"] == 0 for r in _rows(d))  # untouched
+    finally:
+        holder.kill()
+        holder.wait()
+    with CampaignLock(d):  # the holder's death freed it; the holder of it may take it again
+        assert (d / LOCK_NAME).read_text().split()[0] == str(os.getpid())
+        with CampaignLock(d):
+            pass
+        assert (d / LOCK_NAME).read_text().split()[0] == str(os.getpid())  # still held
+    assert (d / LOCK_NAME).read_text() == ""  # released: no stale pid left behind
+
+
+def test_two_resumes_at_once_run_each_trial_once(tmp_path):
+    d = _campaign(tmp_path, samples=3)
+    a, b = _resume(d), _resume(d)
+    outs = [p.communicate(timeout=300) for p in (a, b)]
+    codes = sorted(p.returncode for p in (a, b))
+    assert codes == [0, 2], (codes, outs)
+    refused = next(err for p, (_, err) in zip((a, b), outs) if p.returncode == 2)
+    lines = refused.strip().splitlines()
+    assert len(lines) == 1 and "being run by process" in lines[0] and "Traceback" not in refused
+    rows = _consistent(d)
+    assert all(r["attempts"] == 1 for r in rows)  # not one trial ran twice
+
+
+def test_a_second_resume_refuses_while_the_first_lives_and_takes_over_after_kill_9(tmp_path):
+    d = _campaign(tmp_path, samples=8)
+    first = _resume(d)
+    try:
+        _wait(lambda: sum(r["status"] == "done" for r in _rows(d)) >= 1)
+        second = subprocess.run([HILBENCH, "campaign", "resume", str(d), "--json"], capture_output=True,
+                                text=True, timeout=120)
+        assert first.poll() is None, "the first resume ended before the second tried: nothing tested"
+        assert second.returncode == 2, second.stderr
+        (line,) = second.stderr.strip().splitlines()
+        assert f"being run by process {first.pid}" in line and str(d) in line
+        assert second.stdout == ""
+        first.send_signal(signal.SIGKILL)
+        first.wait(timeout=30)
+    finally:
+        if first.poll() is None:
+            first.kill()
+    before = {r["id"]: r for r in _rows(d)}
+    done_before = {i for i, r in before.items() if r["status"] == "done"}
+    assert 1 <= len(done_before) < 8
+    # the kernel dropped the dead holder's lock: the next resume takes over and finishes
+    again = subprocess.run([HILBENCH, "campaign", "resume", str(d), "--workers", "1", "--no-report", "--json"],
+                           capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert json.loads(again.stdout)["completed"] == 8
+    for r in _consistent(d):
+        if r["id"] in done_before:
+            assert r["attempts"] == 1 and r["finished_at"] == before[r["id"]]["finished_at"]
