@@ -96,7 +96,14 @@ def test_the_mcap_file_holds_the_trial_log_exactly(run_dir, tmp_path):
 
 
 def test_export_refuses_in_one_line(run_dir, tmp_path):
-    for args, words in (([str(tmp_path / "nowhere"), "--mcap", str(tmp_path / "a.mcap")], "record.json"),
+    import shutil
+
+    tampered = tmp_path / "tampered"
+    shutil.copytree(run_dir, tampered)
+    record = json.loads((tampered / "record.json").read_text())
+    (tampered / "record.json").write_text(json.dumps(record | {"log": "../../../../etc/passwd"}))
+    for args, words in (([str(tmp_path / "nowhere"), "--mcap", str(tmp_path / "a.mcap")], "no such run directory"),
+                        ([str(tampered), "--mcap", str(tmp_path / "a.mcap")], "not a plain file name"),
                         ([str(run_dir), "--mcap", str(tmp_path / "no" / "a.mcap")], "does not exist"),
                         ([str(run_dir), "--mcap", str(tmp_path)], "is a directory")):
         done = subprocess.run([HILBENCH, "export", *args], capture_output=True, text=True, timeout=120)

@@ -29,7 +29,7 @@ def export(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
                                                          "Foxglove and PlotJuggler open it as a bag)."),
            as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Write a trial's log as an MCAP file: joint states and commands, interlock margins, events."""
-    from bench.core.result import TrialError  # deferred: --help and completion stay fast
+    from drivers import BenchError  # deferred: --help and completion stay fast
     from bench.export.mcap_bag import TOPICS, write_mcap  # deferred: --help and completion stay fast
     from bench.trial.record import load_record  # deferred: --help and completion stay fast
 
@@ -39,7 +39,7 @@ def export(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
         fail(f"--mcap {mcap}: the directory {mcap.parent} does not exist")
     try:
         log, prep = load_record(run_dir)
-    except (TrialError, FileNotFoundError) as e:
+    except (BenchError, FileNotFoundError) as e:  # a run directory that fails a check says which
         fail(str(e))
     if len(log) == 0:
         fail(f"{run_dir}: the trial's log holds no cycle; nothing to export")
