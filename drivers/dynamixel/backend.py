@@ -42,7 +42,8 @@ from drivers import (
 )
 from drivers.dynamixel.control_table import model_spec, x_series_table
 from drivers.dynamixel.cycle import SyncCycle
-from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
+from drivers.dynamixel.goals import GoalBounds, GoalOutOfRange, outside_limits
+from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler, port_hint
 from drivers.dynamixel.protocol import decode_hardware_error
 from drivers.dynamixel.units import OPERATING_MODES, RAD_PER_TICK, VELOCITY_UNIT_RAD_S
 from drivers.train_loop import TrainLoop
@@ -51,7 +52,6 @@ from drivers.ultrasonic import UltrasonicSensor
 log = logging.getLogger(__name__)
 
 FAST_SYNC_READ_FIRMWARE = 45  # X-series firmware that answers Fast Sync Read
-
 
 
 def _register(name: str) -> tuple[int, int]:
@@ -106,6 +106,7 @@ class DynamixelSettings:
     reboot_on_hardware_error: bool = False
     ultrasonic: Optional[UltrasonicSettings] = None
     warnings: list[str] = field(default_factory=list)
+    limit_tolerance: float = 0.01  # a joint read further beyond a limit at enable: torque refused
 
 
 def latency_timer_ms(port: str) -> Optional[int]:
@@ -121,10 +122,8 @@ def latency_timer_ms(port: str) -> Optional[int]:
 class DynamixelActuators(ActuatorsBase):
     """Servos on one bus (and optionally the ultrasonic train sensor)."""
 
-
     def __init__(self, settings: DynamixelSettings) -> None:
         import dynamixel_sdk as sdk  # heavy: loaded only with servos
-
 
         self.settings = s = settings
         self._sdk = sdk
@@ -169,17 +168,17 @@ class DynamixelActuators(ActuatorsBase):
                 opened = self.port.openPort()
             except Exception as e:  # pyserial's SerialException: no such device, permissions
                 raise ConfigurationError(
-                    f"cannot open servo port {s.port}: {e}" + _port_hint(s.port)) from None
+                    f"cannot open servo port {s.port}: {e}" + port_hint(s.port)) from None
             if not opened:
-                raise ConfigurationError(f"cannot open servo port {s.port}" + _port_hint(s.port))
+                raise ConfigurationError(f"cannot open servo port {s.port}" + port_hint(s.port))
             if not self.port.setBaudRate(s.baud):
                 raise ConfigurationError(f"cannot set {s.baud} bps on {s.port}")
             self._check_latency()
             self._check_servos()
             self._configure()
+            self._bounds = self._goal_bounds()
             self._setup_groups()
             if s.ultrasonic:
-
                 u = s.ultrasonic
                 self._sensor = UltrasonicSensor(u.port, baud=u.baud, median_window=u.median_window,
                                                 stale_after_s=u.stale_after_s,
@@ -288,8 +287,16 @@ class DynamixelActuators(ActuatorsBase):
         if rdt >= 250:
             self._warn("Return Delay Time is 250 (500 µs per status packet): it caps the loop rate")
 
-    def _setup_groups(self) -> None:
+    def _goal_bounds(self) -> GoalBounds:
+        """Each servo's goal band (Position mode: within its Min/Max Position Limit as read)."""
+        s = self.settings
+        slack = [s.ultrasonic.max_correction if s.ultrasonic and sv.joint == s.ultrasonic.joint else 0.0
+                 for sv in s.servos]  # the host loop steers the train past its clipped goal
+        return GoalBounds.of(s.servos, self._limits.lower[self._index], self._limits.upper[self._index],
+                             lambda sid: (self._read(sid, "Min Position Limit"),
+                                          self._read(sid, "Max Position Limit")), slack)
 
+    def _setup_groups(self) -> None:
         fw_ok = all(self.firmware.get(sid, 0) >= FAST_SYNC_READ_FIRMWARE for sid in self._ids)
         self._fast = self.settings.fast_sync_read and fw_ok
         if self.settings.fast_sync_read and not fw_ok:
@@ -363,7 +370,13 @@ class DynamixelActuators(ActuatorsBase):
 
     def _enable(self) -> None:
         st = self._read_bus()
-        raw = self._goal_ticks(st.position if self._sensor is None else self._encoder_positions(st))
+        outside = outside_limits(self.joint_names, st.position, self._limits.lower, self._limits.upper,
+                                 self.settings.limit_tolerance)
+        if outside:
+            raise ConfigurationError(f"{outside}; torque not enabled (check its offset and calibration, "
+                                     f"or move it by hand with torque off)")
+        raw = self._goal_ticks(st.position if self._sensor is None else self._encoder_positions(st),
+                               hold=True)
         self._send_goals(raw)
         for sid in self._ids:
             self._write(sid, "Torque Enable", 1)
@@ -384,9 +397,11 @@ class DynamixelActuators(ActuatorsBase):
                                       valid=not self._last.flags)
         self._send_goals(self._goal_ticks(q))
 
-    def _goal_ticks(self, q: np.ndarray) -> np.ndarray:
+    def _goal_ticks(self, q: np.ndarray, hold: bool = False) -> np.ndarray:
+        """Goal ticks through each transmission, each checked against its band (hold: where the
+        shaft already is, against its mode's range only); one outside is refused, not clamped."""
         qs = q if self._in_joint_order else q[self._index]
-        return np.rint((qs - self._q_at_tick0) * self._ticks_per_q).astype(np.int64)
+        return self._bounds.check(np.rint((qs - self._q_at_tick0) * self._ticks_per_q), hold, qs)
 
     def _send_goals(self, ticks: np.ndarray) -> None:
         self._cycle.write_goals(ticks.tolist())
@@ -394,10 +409,13 @@ class DynamixelActuators(ActuatorsBase):
     def _disable(self) -> None:
         if self.settings.safe_stop == "hold":
             try:
-                self._send_goals(self._goal_ticks(self._encoder_positions(self._read_bus())))
+                self._send_goals(self._goal_ticks(self._encoder_positions(self._read_bus()), hold=True))
                 self.safe_stop_report = "holding the measured position (torque on)"
             except CommunicationError as e:
                 self.safe_stop_report = f"hold not confirmed: {e}"
+            except GoalOutOfRange as e:  # nothing sane to hold: free the motors instead
+                self._torque_off_all()
+                self.safe_stop_report = f"hold refused ({e}); {self.safe_stop_report}"
             return
         self._torque_off_all()
 
@@ -465,28 +483,17 @@ class DynamixelActuators(ActuatorsBase):
                  "firmware": self.firmware.get(sv.id)} for sv in self.settings.servos]
 
 
-def _port_hint(port: str) -> str:
-    if not os.path.exists(port):
-        return " (is the adapter plugged in? rehearse without hardware with --emulate)"
-    if not os.access(port, os.R_OK | os.W_OK):
-        return " (no permission: add yourself to the dialout group, `sudo usermod -aG dialout $USER`)"
-    return ""
-
-
 def _model_name(number: int) -> str:
     try:
-
         return model_spec(number).name
     except Exception:
         return "unknown model"
 
 
 def _kt(number: int) -> float:
-
     return model_spec(number).motor.kt
 
 
 def _current_unit(number: int) -> float:
-
     unit = model_spec(number).current_unit
     return unit if unit is not None else 0.0
