@@ -65,9 +65,10 @@ class ServoConfig(Strict):
     mode: Literal["position", "extended_position", "current_based_position"] = Field(
         default="extended_position", description="operating mode written to the servo")
     ratio: float = Field(default=1.0, ge=-100, le=100,
-                         description="joint units (rad or m) per shaft radian")
+                         description="joint units (rad or m) per shaft radian; the joint's range must "
+                                     "map inside what the servo takes in its mode (Position: one turn)")
     offset: float = Field(default=0.0, ge=-100, le=100,
-                          description="joint value at 2048 ticks (rad or m)")
+                          description="joint value at 2048 ticks (rad or m); checked with the ratio")
     current_limit_a: Optional[float] = Field(default=None, gt=0, le=20,
                                              description="Current Limit written to the servo (A)")
     # Position PID gains written to the servo (register units, as Dynamixel Wizard shows them).
@@ -114,12 +115,14 @@ class PyBulletBackendConfig(Strict):
     start: dict[str, float] = Field(
         default_factory=dict, max_length=32,
         description="joint values (rad or m) the simulation starts at instead of home, e.g. where a "
-                    "rig's repeat started (`compare` sets it); joints not named start at home")
+                    "rig's repeat started (`compare` sets it), within the joint's limits (± "
+                    "safety.joint_limit_tolerance); joints not named start at home")
     start_effort: dict[str, float] = Field(
         default_factory=dict, max_length=32,
         description="with a servo model: the effort (N·m or N, as the rig's driver reports it) each "
                     "named joint's servo already holds at the start, e.g. what the rig held before a "
-                    "repeat (`compare` sets it); joints not named hold their pose against gravity")
+                    "repeat (`compare` sets it), within the joint's effort limit; joints not named "
+                    "hold their pose against gravity")
     servo_model: str = Field(
         default="ideal", description="ideal: PyBullet's position motors; datasheet: the joints driven "
                                      "through the servo model (firmware PID, motor, gearbox) with the "
@@ -170,7 +173,8 @@ class UltrasonicConfig(Strict):
 
     port: str = Field(description="the sensor's serial port, e.g. /dev/ttyUSB1")
     baud: int = Field(default=9600, description="serial rate (MaxBotix: 9600)")
-    joint: str = Field(default="train", description="the joint whose position it measures")
+    joint: str = Field(default="train", description="the joint whose position it measures: the train "
+                                                    "(it reads d2 on the arc), on a port of its own")
 
     @field_validator("baud")
     @classmethod
