@@ -112,7 +112,8 @@ def ping_latency(cyc, hold_s: float = 0.0, rounds: int = 40) -> float:
 
 def measure(port: str, baud: int, fast: bool, cycles: int, hold: Callable[[float], None],
             rounds: int = 5) -> dict:
-    from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings
+    from drivers.dynamixel.backend import DynamixelActuators
+    from drivers.dynamixel.settings import DynamixelSettings, ServoSettings
 
     names = [f"j{i}" for i in range(1, N_SERVOS + 1)]
     settings = DynamixelSettings(

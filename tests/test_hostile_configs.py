@@ -57,6 +57,8 @@ SIM_MUTATIONS = [
     ("faults", [{"name": "no-such-fault"}]), ("faults", [{"name": "deadband"}] * 1000),
     ("emulator.seed", -3), ("emulator.ultrasonic_rate_hz", 1e9),
     ("plan.velosity_scale", 0.5), ("robot", "zerobot-9000"), ("urdf_dir", "no/such/dir"),
+    ("backend.start", {"theta4": 1e300}), ("backend.start", {"d10": -0.5}), ("backend.start", {"nope": 0.0}),
+    ("target.y_mm", 450.0), ("target.y_mm", -30.0), ("target.z_mm", -15.0),
 ]
 LAB_MUTATIONS = [
     ("backend.baud", 123456), ("backend.servos.theta4.offset", INF),
@@ -65,6 +67,11 @@ LAB_MUTATIONS = [
     ("backend.servos.theta4.position_p", 10**6), ("backend.ultrasonic.baud", 7),
     ("backend.ultrasonic.stale_after_s", INF), ("backend.timeout_ms", -1.0),
     ("backend.retries", 10**6), ("backend.return_delay_us", -2),
+    # each field valid alone, nonsense together: refused at validation, before anything moves
+    ("backend.servos.theta4.ratio", 1e-4), ("backend.servos.theta4.ratio", 1e-9),
+    ("backend.servos.train.ratio", 1e-4), ("backend.servos.d9.ratio", -1e-6),
+    ("backend.servos.theta4.offset", 100.0), ("backend.servos.d10.offset", 99.0),
+    ("backend.ultrasonic.joint", "theta4"), ("backend.ultrasonic.port", "/dev/ttyUSB0"),
 ]
 
 

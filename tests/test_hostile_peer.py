@@ -29,7 +29,8 @@ import dynamixel_sdk.port_handler as sdk_port
 import pytest
 
 from drivers import CommunicationError
-from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings
+from drivers.dynamixel.backend import DynamixelActuators
+from drivers.dynamixel.settings import DynamixelSettings, ServoSettings
 from drivers.dynamixel.bus import ServoBus
 from drivers.dynamixel.cycle import STATE_ADDRESS, STATE_LENGTH, SyncCycle
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler

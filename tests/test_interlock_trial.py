@@ -35,8 +35,9 @@ def test_target_really_is_inside_the_gantry():
     report = GantryContact(robot, 0.020).check(prep.q_entry)
     assert report.contact and report.distance <= 0.0  # touching or through the gantry
     refused = {**INTO_GANTRY, "safety": {}}
-    with pytest.raises(TrialError, match="planned path trips the gantry_clearance interlock"):
-        prepare(TrialConfig.model_validate(refused))  # by default it never starts
+    # by default it never starts: its entry point lies off the bed, and the refusal says so
+    with pytest.raises(TrialError, match="off the bed, Y -166.9 mm being 166.9 mm beyond its left edge"):
+        prepare(TrialConfig.model_validate(refused))
 
 
 def test_plan_through_the_gantry_halts_outside_the_margin_and_holds(tmp_path):

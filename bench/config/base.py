@@ -66,22 +66,48 @@ def did_you_mean(name: str, candidates: set[str]) -> str:
     return f"; did you mean {close[0]!r}?" if close else ""
 
 
+def _misspelt(errors: list[dict]) -> tuple[dict, list[str]]:
+    """The error to report and the field names it most likely meant: a required field reported
+    missing beside an unknown one at the same level is a misspelling, reported as such."""
+    first = errors[0]
+    if first["type"] != "missing":
+        return first, []
+    parent = first["loc"][:-1]
+    missing = [str(e["loc"][-1]) for e in errors if e["type"] == "missing" and e["loc"][:-1] == parent]
+    for e in errors:
+        if e["type"] == "extra_forbidden" and e["loc"][:-1] == parent:
+            return e, missing
+    return first, []
+
+
 def describe_validation_error(err: ValidationError, model: type[BaseModel],
                               source: Optional[object] = None) -> str:
-    """One line: ``source: field.path: what is wrong`` (a misspelt field gets what was meant)."""
-    first = err.errors()[0]
-    where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+    """One line: ``source: field.path: what is wrong`` (a misspelt field gets what was meant,
+    a required field first: ``y_nm`` for the missing ``y_mm``)."""
+    errors = err.errors()
+    first, missing = _misspelt(errors)
+    where = ".".join(str(p) for p in first["loc"])
     msg = first["msg"]
+    explained = 0
     if first["type"] == "extra_forbidden":
-        msg = "unknown field" + did_you_mean(str(first["loc"][-1]), field_names(model))
+        name = str(first["loc"][-1])
+        meant = did_you_mean(name, set(missing))
+        if meant:
+            explained = 1  # the missing field it meant is not another problem
+            msg = f"unknown field{meant} (a required field, missing)"
+        else:
+            msg = "unknown field" + did_you_mean(name, field_names(model))
     elif first["type"] == "string_pattern_mismatch" and first["loc"][-1] == "name":
         msg = "must be a plain name: letters, digits, '.', '_' or '-', at most 64 characters"
     elif isinstance(first.get("input"), (str, int, float, bool)) and first["type"] != "missing":
         msg = f"{msg} (got {quote(first['input'])})"
     msg = msg.removeprefix("Value error, ")
-    extra = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
+    if not where:  # a check across fields names its own field
+        where = "" if first["type"] == "value_error" else "(top level)"
+    more = err.error_count() - 1 - explained
+    extra = f" (and {more} more)" if more > 0 else ""
     head = f"{source}: " if source is not None else ""
-    return f"{head}{where}: {msg}{extra}".replace("\n", " ")
+    return f"{head}{where + ': ' if where else ''}{msg}{extra}".replace("\n", " ")
 
 
 def read_yaml_mapping(path: Path | str, what: str = "config file",

@@ -26,6 +26,8 @@ import yaml
 from pydantic import Field, ValidationError
 
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
+from bench.config.crossref import transmission_refusal
+from bench.kinematics.registry import get_robot
 
 if TYPE_CHECKING:
     from bench.config.models import TrialConfig
@@ -156,6 +158,12 @@ def check_calibration(config: "TrialConfig") -> None:
     unknown = sorted(set(cal.servos) - set(config.backend.servos))
     if unknown:
         raise ConfigError(f"{where}: {config.calibration} has offsets for unknown joint(s) {unknown}")
+    rows = {r.name: r for r in get_robot(config.robot).chain.rows}
+    for name, zero in cal.servos.items():  # a zero that puts the joint's range beyond its servo's
+        sv = config.backend.servos[name]
+        problem = transmission_refusal(name, sv.mode, sv.ratio, zero.offset, rows[name])
+        if problem:
+            raise ConfigError(f"{where}: {config.calibration}: {problem}")
     if cal.ultrasonic is not None and config.backend.ultrasonic is None:
         raise ConfigError(f"{where}: {config.calibration} calibrates an ultrasonic sensor the "
                           f"config does not have (backend.ultrasonic)")

@@ -15,9 +15,9 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 from bench.config.calibration import check_calibration
+from bench.config.crossref import check_cross_references
 from bench.config.servo_model import ServoPhysics, load_servo_model_file, physics_for
-from bench.faults import parse_faults
-from bench.kinematics.registry import get_robot, trial_refusal
+from bench.kinematics.registry import trial_refusal
 from bench.paths import REPO_ROOT, robot_urdf
 from drivers.dynamixel.control_table import supported_models
 from drivers.dynamixel.units import BAUD_RATES
@@ -65,9 +65,10 @@ class ServoConfig(Strict):
     mode: Literal["position", "extended_position", "current_based_position"] = Field(
         default="extended_position", description="operating mode written to the servo")
     ratio: float = Field(default=1.0, ge=-100, le=100,
-                         description="joint units (rad or m) per shaft radian")
+                         description="joint units (rad or m) per shaft radian; the joint's range must "
+                                     "map inside what the servo takes in its mode (Position: one turn)")
     offset: float = Field(default=0.0, ge=-100, le=100,
-                          description="joint value at 2048 ticks (rad or m)")
+                          description="joint value at 2048 ticks (rad or m); checked with the ratio")
     current_limit_a: Optional[float] = Field(default=None, gt=0, le=20,
                                              description="Current Limit written to the servo (A)")
     # Position PID gains written to the servo (register units, as Dynamixel Wizard shows them).
@@ -114,12 +115,14 @@ class PyBulletBackendConfig(Strict):
     start: dict[str, float] = Field(
         default_factory=dict, max_length=32,
         description="joint values (rad or m) the simulation starts at instead of home, e.g. where a "
-                    "rig's repeat started (`compare` sets it); joints not named start at home")
+                    "rig's repeat started (`compare` sets it), within the joint's limits (± "
+                    "safety.joint_limit_tolerance); joints not named start at home")
     start_effort: dict[str, float] = Field(
         default_factory=dict, max_length=32,
         description="with a servo model: the effort (N·m or N, as the rig's driver reports it) each "
                     "named joint's servo already holds at the start, e.g. what the rig held before a "
-                    "repeat (`compare` sets it); joints not named hold their pose against gravity")
+                    "repeat (`compare` sets it), within the joint's effort limit; joints not named "
+                    "hold their pose against gravity")
     servo_model: str = Field(
         default="ideal", description="ideal: PyBullet's position motors; datasheet: the joints driven "
                                      "through the servo model (firmware PID, motor, gearbox) with the "
@@ -170,7 +173,8 @@ class UltrasonicConfig(Strict):
 
     port: str = Field(description="the sensor's serial port, e.g. /dev/ttyUSB1")
     baud: int = Field(default=9600, description="serial rate (MaxBotix: 9600)")
-    joint: str = Field(default="train", description="the joint whose position it measures")
+    joint: str = Field(default="train", description="the joint whose position it measures: the train "
+                                                    "(it reads d2 on the arc), on a port of its own")
 
     @field_validator("baud")
     @classmethod
@@ -412,46 +416,15 @@ class TrialConfig(Strict):
         return {**data, "backend": {**b, "servos": dumped["servos"], "ultrasonic": dumped["ultrasonic"]}}
 
     @model_validator(mode="after")
-    def _joint_names_known(self) -> "TrialConfig":
-        names = get_robot(self.robot).joint_names
-        for where in ("joints", "start"):
-            unknown = sorted(set(getattr(self.backend, where, {})) - set(names))
-            if unknown:
-                raise ValueError(f"backend.{where}: unknown joint(s) {unknown}; {self.robot} has {names}")
-        ex = self.excitation
-        if ex is not None and ex.joints != "all":
-            unknown = sorted(set(ex.joints) - set(names))
-            if unknown or not ex.joints:
-                raise ValueError(f"excitation.joints: unknown joint(s) {unknown}; {self.robot} has {names}")
-        if ex is not None and ex.f1_hz <= ex.f0_hz:
-            raise ValueError(f"excitation.f1_hz ({ex.f1_hz:g}) must be above f0_hz ({ex.f0_hz:g})")
-        for key, where in ((self.emulator.servo_physics, "emulator.servo_physics"),
-                           (self.emulator.joint_friction, "emulator.joint_friction")):
-            unknown = sorted(set(key) - set(names) - ({"all"} if where.endswith("physics") else set()))
-            if unknown:
-                raise ValueError(f"{where}: unknown joint(s) {unknown}; {self.robot} has {names}"
-                                 + (" (or all)" if where.endswith("physics") else ""))
-        if self.backend.kind == "dynamixel":
-            servos = set(self.backend.servos)
-            if servos != set(names):
-                raise ValueError(f"backend.servos: missing {sorted(set(names) - servos)}, "
-                                 f"unknown {sorted(servos - set(names))}; {self.robot} has {names}")
-        u = self.backend.ultrasonic
-        if u is not None and u.joint not in names:
-            raise ValueError(f"backend.ultrasonic.joint: unknown joint {u.joint!r}")
-        if self.backend.kind == "pybullet" and self.backend.servos:
-            servos = set(self.backend.servos)
-            if servos != set(names):
-                raise ValueError(f"backend.servos: missing {sorted(set(names) - servos)}, "
-                                 f"unknown {sorted(servos - set(names))}; {self.robot} has {names}")
+    def _cross_references(self) -> "TrialConfig":
+        """What fields say about each other: joints named, sensor, ports, start, transmissions."""
+        check_cross_references(self)
         if self.backend.kind == "pybullet":
             steps = self.backend.physics_hz / self.control_hz
             if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
                 raise ValueError(f"control_hz {self.control_hz:g} must divide backend.physics_hz "
                                  f"{self.backend.physics_hz:g} (a control period is a whole number "
                                  f"of physics steps)")
-        if self.faults:
-            parse_faults(self.faults, names)  # raises ValueError naming the bad fault
         return self
 
     @property

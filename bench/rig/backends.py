@@ -15,14 +15,16 @@ from bench.config.calibration import calibration_of
 from bench.config.models import ConfigError, ServoConfig, TrialConfig, load_servo_model_file, model_number
 from bench.kinematics.arc_train import epsilon_from_d2, train_pose
 from bench.kinematics.transmission import servo_transmissions
-from drivers import Actuators, JointLimits
-from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings, UltrasonicSettings
+from drivers import Actuators, ConfigurationError, JointLimits
+from drivers.dynamixel.backend import DynamixelActuators
+from drivers.dynamixel.settings import DynamixelSettings, ServoSettings, UltrasonicSettings
+from drivers.dynamixel.goals import outside_limits
 from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, SceneObject
 from drivers.pybullet.servo_sim import ServoSimActuators, ServoSimSettings, TrainSensor
 from drivers.servo import ServoParams
 
 __all__ = ["backend_limits", "limits_of", "make_backend", "make_dynamixel_backend", "make_servo_sim",
-           "servo_params", "servo_table", "with_physics"]
+           "refuse_start_outside_limits", "servo_params", "servo_table", "with_physics"]
 
 
 def limits_of(rows, overrides=None) -> JointLimits:
@@ -167,8 +169,20 @@ def make_backend(config: TrialConfig, robot, gui: bool = False) -> Actuators:
             solver_iterations=b.solver_iterations)
         return PyBulletActuators(settings)
     if cfg.backend.kind == "dynamixel":
-        return make_dynamixel_backend(cfg, robot)
+        return refuse_start_outside_limits(make_dynamixel_backend(cfg, robot),
+                                           cfg.safety.joint_limit_tolerance)
     raise ConfigError(f"backend.kind: unknown backend {cfg.backend.kind!r}")
+
+
+def refuse_start_outside_limits(act: Actuators, tolerance: float) -> Actuators:
+    """``act``, unless a joint reads beyond its limits (a wrong offset or calibration): then it is
+    closed, never enabled, and refused. The lab tools skip this, to read and fix such a rig."""
+    lim = act.limits
+    problem = outside_limits(act.joint_names, act.read().position, lim.lower, lim.upper, tolerance)
+    if problem:
+        act.close()
+        raise ConfigurationError(f"{problem}; torque not enabled (check its offset and calibration)")
+    return act
 
 
 def make_dynamixel_backend(config: TrialConfig, robot) -> Actuators:
@@ -202,5 +216,5 @@ def make_dynamixel_backend(config: TrialConfig, robot) -> Actuators:
         return_delay_us=b.return_delay_us, fast_sync_read=b.fast_sync_read, retries=b.retries,
         timeout_s=b.timeout_ms * 1e-3 if b.timeout_ms else None,
         safe_stop=b.safe_stop, reboot_on_hardware_error=b.reboot_on_hardware_error,
-        ultrasonic=ultra)
+        ultrasonic=ultra, limit_tolerance=config.safety.joint_limit_tolerance)
     return DynamixelActuators(settings)

@@ -23,7 +23,7 @@ from bench.core.safety import (
 from bench.kinematics.needle import NeedleTarget, UnreachableError
 from bench.kinematics.registry import get_robot
 from bench.rig.backends import backend_limits
-from bench.trial.preflight import needle_direction_problem, planned_path_trip
+from bench.trial.preflight import needle_direction_problem, off_bed_problem, planned_path_trip
 from drivers import Actuators, JointLimits
 from trajectories import (
     LSPB,
@@ -55,6 +55,10 @@ def prepare(config: TrialConfig) -> PreparedTrial:
         if not p.is_file():
             raise TrialError(f"scene URDF not found: {p} (urdf_dir: {config.urdf_dir})")
     target = target_of(config)
+    t = config.target
+    off_bed = off_bed_problem(robot, t.x_mm, t.y_mm, t.z_mm)
+    if off_bed and config.safety.refuse_planned_trips:  # off: the interlocks themselves under test
+        raise TrialError(off_bed)
     try:
         q_insert = robot.ik(target)
     except UnreachableError as e:

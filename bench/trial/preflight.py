@@ -17,6 +17,9 @@ from typing import Sequence
 
 import numpy as np
 
+from bench.kinematics.arc_train import ArcTrainParams
+from bench.scene.room import SceneParams
+
 
 @dataclass(frozen=True)
 class PathTrip:
@@ -30,6 +33,29 @@ class PathTrip:
     def message(self) -> str:
         return (f"the planned path trips the {self.interlock} interlock during {self.segment} "
                 f"({self.time:.2f} s into the plan): {self.cause}; nothing moved")
+
+
+def off_bed_problem(robot, x_mm: float, y_mm: float, z_mm: float) -> str | None:
+    """Where the entry point lies off the bed, and by how much (mm), or None.
+
+    The robot stands on the bed and the patient lies on it: an entry point beside the bed,
+    beyond its ends or below its top is a typo, and said as such rather than as whatever
+    interlock or reach limit it would meet first."""
+    scene = SceneParams()
+    width = getattr(getattr(robot, "params", None), "bed_width", ArcTrainParams().bed_width) * 1e3
+    x0, x1 = scene.bed_x_min * 1e3, (scene.bed_x_min + scene.bed_length) * 1e3
+    bed = f"the {width / 10:g} cm bed spans Y 0 to {width:g} mm and X {x0:g} to {x1:g} mm"
+    edges = {"Y": ("left edge", "right edge"), "X": ("end away from the gantry", "far end, in the bore")}
+    for axis, value, low, high in (("Y", y_mm, 0.0, width), ("X", x_mm, x0, x1)):
+        if not low <= value <= high:
+            below = value < low
+            return (f"target: the entry point is off the bed, {axis} {value:g} mm being "
+                    f"{(low - value) if below else (value - high):.1f} mm beyond its "
+                    f"{edges[axis][0 if below else 1]} ({bed})")
+    if z_mm < 0.0:
+        return (f"target: the entry point is {-z_mm:.1f} mm below the bed top (Z {z_mm:g} mm; the "
+                f"bed top is Z 0)")
+    return None
 
 
 def needle_direction_problem(robot, q_insert: np.ndarray, angle_deg: float) -> str | None:

@@ -26,9 +26,8 @@ import logging
 import math
 import os
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Literal, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -42,8 +41,10 @@ from drivers import (
 )
 from drivers.dynamixel.control_table import model_spec, x_series_table
 from drivers.dynamixel.cycle import SyncCycle
-from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
+from drivers.dynamixel.goals import GoalBounds, GoalOutOfRange, outside_limits
+from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler, port_hint
 from drivers.dynamixel.protocol import decode_hardware_error
+from drivers.dynamixel.settings import DynamixelSettings, ServoSettings, UltrasonicSettings
 from drivers.dynamixel.units import OPERATING_MODES, RAD_PER_TICK, VELOCITY_UNIT_RAD_S
 from drivers.train_loop import TrainLoop
 from drivers.ultrasonic import UltrasonicSensor
@@ -59,54 +60,6 @@ def _register(name: str) -> tuple[int, int]:
     return reg.address, reg.size
 
 
-@dataclass(frozen=True)
-class ServoSettings:
-    joint: str
-    id: int
-    model: int  # model number, e.g. 1020 for XM430-W350
-    mode: str = "extended_position"
-    ratio: float = 1.0  # joint units per shaft radian
-    offset: float = 0.0  # joint value at shaft angle 0 (2048 ticks)
-    current_limit_a: Optional[float] = None
-    zero_tick: int = 2048
-    gains: tuple[Optional[int], Optional[int], Optional[int]] = (None, None, None)  # P, I, D
-
-
-@dataclass(frozen=True)
-class UltrasonicSettings:
-    port: str
-    joint: str
-    to_joint: Callable[[float], float]  # measured distance (m) -> joint value
-    baud: int = 9600
-    median_window: int = 5
-    stale_after_s: Optional[float] = None  # default: from the nominal rate
-    rate_hz: float = 6.0  # the sensor's nominal reading rate
-    range_m: tuple[float, float] = (0.3, 5.0)
-    no_target_m: float = 5.0
-    loop_gain: float = 0.5  # 1/s: how fast the host loop removes train error
-    max_correction: float = 0.05  # joint units
-
-
-@dataclass
-class DynamixelSettings:
-    port: str
-    baud: int
-    servos: Sequence[ServoSettings]
-    joint_names: Sequence[str]
-    lower: Sequence[float]
-    upper: Sequence[float]
-    velocity: Sequence[float]
-    effort: Sequence[float]
-    return_delay_us: int = 0
-    fast_sync_read: bool = True
-    retries: int = 3
-    timeout_s: Optional[float] = None  # per cycle transaction; default: 3 × wire time + latency
-    safe_stop: Literal["torque_off", "hold"] = "torque_off"
-    reboot_on_hardware_error: bool = False
-    ultrasonic: Optional[UltrasonicSettings] = None
-    warnings: list[str] = field(default_factory=list)
-
-
 def latency_timer_ms(port: str) -> Optional[int]:
     """The USB-serial latency timer of an FTDI adapter (None when not an FTDI device)."""
     name = Path(os.path.realpath(port)).name
@@ -120,10 +73,8 @@ def latency_timer_ms(port: str) -> Optional[int]:
 class DynamixelActuators(ActuatorsBase):
     """Servos on one bus (and optionally the ultrasonic train sensor)."""
 
-
     def __init__(self, settings: DynamixelSettings) -> None:
         import dynamixel_sdk as sdk  # heavy: loaded only with servos
-
 
         self.settings = s = settings
         self._sdk = sdk
@@ -169,14 +120,15 @@ class DynamixelActuators(ActuatorsBase):
                 opened = self.port.openPort()
             except Exception as e:  # pyserial's SerialException: no such device, permissions
                 raise ConfigurationError(
-                    f"cannot open servo port {s.port}: {e}" + _port_hint(s.port)) from None
+                    f"cannot open servo port {s.port}: {e}" + port_hint(s.port)) from None
             if not opened:
-                raise ConfigurationError(f"cannot open servo port {s.port}" + _port_hint(s.port))
+                raise ConfigurationError(f"cannot open servo port {s.port}" + port_hint(s.port))
             if not self.port.setBaudRate(s.baud):
                 raise ConfigurationError(f"cannot set {s.baud} bps on {s.port}")
             self._check_latency()
             self._check_servos()
             self._configure()
+            self._bounds = self._goal_bounds()
             self._setup_groups()
             if s.ultrasonic:
                 u = s.ultrasonic
@@ -287,6 +239,15 @@ class DynamixelActuators(ActuatorsBase):
         if rdt >= 250:
             self._warn("Return Delay Time is 250 (500 µs per status packet): it caps the loop rate")
 
+    def _goal_bounds(self) -> GoalBounds:
+        """Each servo's goal band (Position mode: within its Min/Max Position Limit as read)."""
+        s = self.settings
+        slack = [s.ultrasonic.max_correction if s.ultrasonic and sv.joint == s.ultrasonic.joint else 0.0
+                 for sv in s.servos]  # the host loop steers the train past its clipped goal
+        return GoalBounds.of(s.servos, self._limits.lower[self._index], self._limits.upper[self._index],
+                             lambda sid: (self._read(sid, "Min Position Limit"),
+                                          self._read(sid, "Max Position Limit")), slack)
+
     def _setup_groups(self) -> None:
         fw_ok = all(self.firmware.get(sid, 0) >= FAST_SYNC_READ_FIRMWARE for sid in self._ids)
         self._fast = self.settings.fast_sync_read and fw_ok
@@ -373,7 +334,13 @@ class DynamixelActuators(ActuatorsBase):
 
     def _enable(self) -> None:
         st = self._read_bus()
-        raw = self._goal_ticks(st.position if self._sensor is None else self._encoder_positions(st))
+        outside = outside_limits(self.joint_names, st.position, self._limits.lower, self._limits.upper,
+                                 self.settings.limit_tolerance)
+        if outside:
+            raise ConfigurationError(f"{outside}; torque not enabled (check its offset and calibration, "
+                                     f"or move it by hand with torque off)")
+        raw = self._goal_ticks(st.position if self._sensor is None else self._encoder_positions(st),
+                               hold=True)
         self._send_goals(raw)
         for sid in self._ids:
             self._write(sid, "Torque Enable", 1)
@@ -394,9 +361,11 @@ class DynamixelActuators(ActuatorsBase):
                                       valid=not (self._last.flags or self._lost))
         self._send_goals(self._goal_ticks(q))
 
-    def _goal_ticks(self, q: np.ndarray) -> np.ndarray:
+    def _goal_ticks(self, q: np.ndarray, hold: bool = False) -> np.ndarray:
+        """Goal ticks through each transmission, each checked against its band (hold: where the
+        shaft already is, against its mode's range only); one outside is refused, not clamped."""
         qs = q if self._in_joint_order else q[self._index]
-        return np.rint((qs - self._q_at_tick0) * self._ticks_per_q).astype(np.int64)
+        return self._bounds.check(np.rint((qs - self._q_at_tick0) * self._ticks_per_q), hold, qs)
 
     def _send_goals(self, ticks: np.ndarray) -> None:
         self._cycle.write_goals(ticks.tolist())
@@ -404,10 +373,13 @@ class DynamixelActuators(ActuatorsBase):
     def _disable(self) -> None:
         if self.settings.safe_stop == "hold":
             try:
-                self._send_goals(self._goal_ticks(self._encoder_positions(self._read_bus())))
+                self._send_goals(self._goal_ticks(self._encoder_positions(self._read_bus()), hold=True))
                 self.safe_stop_report = "holding the measured position (torque on)"
             except CommunicationError as e:
                 self.safe_stop_report = f"hold not confirmed: {e}"
+            except GoalOutOfRange as e:  # nothing sane to hold: free the motors instead
+                self._torque_off_all()
+                self.safe_stop_report = f"hold refused ({e}); {self.safe_stop_report}"
             return
         self._torque_off_all()
 
@@ -473,14 +445,6 @@ class DynamixelActuators(ActuatorsBase):
         return [{"joint": sv.joint, "id": sv.id, "model": self.models.get(sv.id),
                  "model_name": _model_name(self.models.get(sv.id, 0)),
                  "firmware": self.firmware.get(sv.id)} for sv in self.settings.servos]
-
-
-def _port_hint(port: str) -> str:
-    if not os.path.exists(port):
-        return " (is the adapter plugged in? rehearse without hardware with --emulate)"
-    if not os.access(port, os.R_OK | os.W_OK):
-        return " (no permission: add yourself to the dialout group, `sudo usermod -aG dialout $USER`)"
-    return ""
 
 
 def _model_name(number: int) -> str:

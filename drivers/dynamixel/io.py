@@ -56,7 +56,7 @@ from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch, reply
 from drivers.dynamixel.protocol import HEADER, Instruction, build_instruction
 from drivers.timing import drain_until_quiet
 
-__all__ = ["BlockingPortHandler", "RegisterAccess", "StuffingPacketHandler"]
+__all__ = ["BlockingPortHandler", "RegisterAccess", "StuffingPacketHandler", "port_hint"]
 
 
 class StuffingPacketHandler(Protocol2PacketHandler):
@@ -307,3 +307,12 @@ class RegisterAccess:
         """The SDK's words for a failed transaction, with what was wrong with the reply."""
         text = self.ph.getTxRxResult(result)
         return f"{text} ({self.ph.last_problem})" if self.ph.last_problem else text
+
+
+def port_hint(port: str) -> str:
+    """What to do about a serial port that would not open (missing, no permission), or ""."""
+    if not os.path.exists(port):
+        return " (is the adapter plugged in? rehearse without hardware with --emulate)"
+    if not os.access(port, os.R_OK | os.W_OK):
+        return " (no permission: add yourself to the dialout group, `sudo usermod -aG dialout $USER`)"
+    return ""
