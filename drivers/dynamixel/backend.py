@@ -44,7 +44,7 @@ from drivers.dynamixel.control_table import model_spec, x_series_table
 from drivers.dynamixel.cycle import SyncCycle
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler
 from drivers.dynamixel.protocol import decode_hardware_error
-from drivers.dynamixel.units import OPERATING_MODES, RAD_PER_TICK, VELOCITY_UNIT_RAD_S
+from drivers.dynamixel.units import CENTER_TICK, OPERATING_MODES
 from drivers.train_loop import TrainLoop
 from drivers.ultrasonic import UltrasonicSensor
 
@@ -67,9 +67,9 @@ class ServoSettings:
     model: int  # model number, e.g. 1020 for XM430-W350
     mode: str = "extended_position"
     ratio: float = 1.0  # joint units per shaft radian
-    offset: float = 0.0  # joint value at shaft angle 0 (2048 ticks)
+    offset: float = 0.0  # joint value at shaft angle 0 (the centre tick)
     current_limit_a: Optional[float] = None
-    zero_tick: int = 2048
+    zero_tick: int = CENTER_TICK
     gains: tuple[Optional[int], Optional[int], Optional[int]] = (None, None, None)  # P, I, D
 
 
@@ -137,8 +137,8 @@ class DynamixelActuators(ActuatorsBase):
         self._offset = np.array([sv.offset for sv in s.servos])
         self._zero = np.array([sv.zero_tick for sv in s.servos], dtype=float)
         # Unit conversions per servo, precomputed for the control cycle.
-        self._q_per_tick = self._ratio * RAD_PER_TICK
-        self._qd_per_unit = self._ratio * VELOCITY_UNIT_RAD_S
+        self._q_per_tick = self._ratio * x_series_table()["Present Position"].scale
+        self._qd_per_unit = self._ratio * x_series_table()["Present Velocity"].scale
         self._effort_per_unit = np.array(
             [_kt(sv.model) * _current_unit(sv.model) for sv in s.servos]) / self._ratio
         # The same, as one (3, n) scale on raw position, velocity, current and the
@@ -266,11 +266,12 @@ class DynamixelActuators(ActuatorsBase):
         so an arm that gravity would drop is not dropped just to be configured.
         """
         s = self.settings
-        rdt = int(round(s.return_delay_us / 2))
+        rdt = x_series_table()["Return Delay Time"].nearest(s.return_delay_us * 1e-6)
         for sv in s.servos:
             eeprom = {"Return Delay Time": rdt, "Operating Mode": OPERATING_MODES[sv.mode]}
             if sv.current_limit_a is not None:
-                eeprom["Current Limit"] = int(round(sv.current_limit_a / _current_unit(sv.model)))
+                limit = model_spec(sv.model).table["Current Limit"]
+                eeprom["Current Limit"] = limit.nearest(sv.current_limit_a)
             changes = {k: v for k, v in eeprom.items() if self._read(sv.id, k) != v}
             if changes:
                 if self._read(sv.id, "Torque Enable"):
@@ -453,7 +454,7 @@ class DynamixelActuators(ActuatorsBase):
                 f"joint {sv.joint}: effort limits need mode current_based_position (servo {sv.id} "
                 f"is in {sv.mode})")
         current = abs(effort * sv.ratio) / _kt(sv.model)
-        self._write(sv.id, "Goal Current", int(round(current / _current_unit(sv.model))))
+        self._write(sv.id, "Goal Current", model_spec(sv.model).table["Goal Current"].nearest(current))
         eff = self._limits.effort.copy()
         eff[joint] = effort
         self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)
@@ -488,5 +489,5 @@ def _kt(number: int) -> float:
 
 def _current_unit(number: int) -> float:
 
-    unit = model_spec(number).current_unit
-    return unit if unit is not None else 0.0
+    table = model_spec(number).table
+    return table["Present Current"].scale if "Present Current" in table else 0.0

@@ -1,6 +1,9 @@
-"""X-series units and codes, written once: ticks, velocity and acceleration units, the PWM scale,
-operating modes and baud rates (ROBOTIS e-manual). Raw units never leave ``drivers/``: the
-backend, the lab bus and the emulator convert to SI here and nowhere else."""
+"""X-series units and codes, written once: each register unit in SI (ticks, velocity,
+acceleration, current, voltage, PWM, Return Delay Time...), operating modes and baud rates
+(ROBOTIS e-manual). The control table (:mod:`drivers.dynamixel.control_table`) gives each
+register its unit and converter from these; every other module converts through the
+register (``table["Present Position"].to_si(raw)``), so a unit is written here and nowhere
+else, and raw units never leave ``drivers/``."""
 
 from __future__ import annotations
 
@@ -8,23 +11,70 @@ import math
 from enum import IntEnum
 
 __all__ = [
-    "ACCEL_UNIT_RAD_S2", "BAUD_RATES", "CENTER_TICK", "HOMING_OFFSET_LIMIT", "MODE_NAMES", "OPERATING_MODES",
-    "OperatingMode", "POSITION_MODES", "PWM_FULL_SCALE", "RAD_PER_TICK", "TICKS_PER_REV",
-    "VELOCITY_UNIT_RAD_S",
+    "ACCEL_UNIT_RAD_S2", "BAUD_RATES", "CENTER_TICK", "CURRENT_REGISTERS", "CURRENT_UNIT_A",
+    "LOAD_UNIT", "MODE_NAMES", "OPERATING_MODES", "OperatingMode", "POSITION_MODES",
+    "PWM_FULL_SCALE", "RAD_PER_TICK", "REALTIME_TICK_S", "REGISTER_UNITS", "RETURN_DELAY_UNIT_S",
+    "TEMPERATURE_UNIT_C", "TICKS_PER_REV", "VELOCITY_UNIT_RAD_S", "VOLTAGE_UNIT_V",
+    "WATCHDOG_UNIT_S",
 ]
 
 TICKS_PER_REV = 4096
 RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
 #: Present Position of a servo at its zero (the middle of one turn).
 CENTER_TICK = 2048
-#: Homing Offset (20) range, ticks.
-HOMING_OFFSET_LIMIT = 1_044_479
 #: Velocity registers (Profile/Present Velocity): 0.229 rev/min per unit.
 VELOCITY_UNIT_RAD_S = 0.229 * 2.0 * math.pi / 60.0
 #: Profile Acceleration: 214.577 rev/min² per unit.
 ACCEL_UNIT_RAD_S2 = 214.577 * 2.0 * math.pi / 3600.0
 #: Goal/Present PWM at 100 % duty.
 PWM_FULL_SCALE = 885
+#: Goal/Present Current and Current Limit of the models that sense current (XM430, XM540): 2.69 mA.
+CURRENT_UNIT_A = 2.69e-3
+#: Present Load of the models that do not (XL430, XC430): 0.1 % of the stall torque (current).
+LOAD_UNIT = 1.0e-3
+#: Return Delay Time: 2 µs per unit.
+RETURN_DELAY_UNIT_S = 2.0e-6
+#: Present Input Voltage and the voltage limits: 0.1 V per unit.
+VOLTAGE_UNIT_V = 0.1
+#: Present Temperature and Temperature Limit: 1 °C per unit.
+TEMPERATURE_UNIT_C = 1.0
+#: Realtime Tick: 1 ms per unit (wraps at 32767).
+REALTIME_TICK_S = 1.0e-3
+#: Bus Watchdog: 20 ms per unit.
+WATCHDOG_UNIT_S = 20.0e-3
+
+#: Register name -> (SI unit, SI per raw unit, raw value at SI zero): the control table gives each
+#: register its converter from these. Registers not named here are codes, counts, flags or gains.
+REGISTER_UNITS: dict[str, tuple[str, float, int]] = {
+    "Return Delay Time": ("s", RETURN_DELAY_UNIT_S, 0),
+    "Homing Offset": ("rad", RAD_PER_TICK, 0),
+    "Moving Threshold": ("rad/s", VELOCITY_UNIT_RAD_S, 0),
+    "Temperature Limit": ("°C", TEMPERATURE_UNIT_C, 0),
+    "Present Temperature": ("°C", TEMPERATURE_UNIT_C, 0),
+    "Max Voltage Limit": ("V", VOLTAGE_UNIT_V, 0),
+    "Min Voltage Limit": ("V", VOLTAGE_UNIT_V, 0),
+    "Present Input Voltage": ("V", VOLTAGE_UNIT_V, 0),
+    "PWM Limit": ("1", 1.0 / PWM_FULL_SCALE, 0),
+    "Goal PWM": ("1", 1.0 / PWM_FULL_SCALE, 0),
+    "Present PWM": ("1", 1.0 / PWM_FULL_SCALE, 0),
+    "Present Load": ("1", LOAD_UNIT, 0),
+    "Velocity Limit": ("rad/s", VELOCITY_UNIT_RAD_S, 0),
+    "Goal Velocity": ("rad/s", VELOCITY_UNIT_RAD_S, 0),
+    "Present Velocity": ("rad/s", VELOCITY_UNIT_RAD_S, 0),
+    "Velocity Trajectory": ("rad/s", VELOCITY_UNIT_RAD_S, 0),
+    # Drive Mode bit 2 (time-based profile) makes these two ms instead.
+    "Profile Velocity": ("rad/s", VELOCITY_UNIT_RAD_S, 0),
+    "Profile Acceleration": ("rad/s²", ACCEL_UNIT_RAD_S2, 0),
+    "Max Position Limit": ("rad", RAD_PER_TICK, CENTER_TICK),
+    "Min Position Limit": ("rad", RAD_PER_TICK, CENTER_TICK),
+    "Goal Position": ("rad", RAD_PER_TICK, CENTER_TICK),
+    "Present Position": ("rad", RAD_PER_TICK, CENTER_TICK),
+    "Position Trajectory": ("rad", RAD_PER_TICK, CENTER_TICK),
+    "Realtime Tick": ("s", REALTIME_TICK_S, 0),
+    "Bus Watchdog": ("s", WATCHDOG_UNIT_S, 0),
+}
+#: The current registers: A, in the model's own unit (its ``current_unit``, e.g. CURRENT_UNIT_A).
+CURRENT_REGISTERS = ("Current Limit", "Goal Current", "Present Current")
 
 
 class OperatingMode(IntEnum):
