@@ -47,6 +47,17 @@ def test_each_register_converts_to_si_as_the_e_manual_says(name, raw, si, unit):
     assert register.from_si(si) == pytest.approx(raw, rel=1e-12, abs=1e-9)
 
 
+def test_decimal_units_convert_exactly():
+    """What a servo reports in tenths of a volt reads as the volts it means (12.0 V, not
+    12.000000000000002), and back to the same raw value: what doctor and scan print."""
+    table = x_series_table()
+    volts = table["Present Input Voltage"]
+    assert [volts.to_si(raw) for raw in (95, 120, 140, 160)] == [9.5, 12.0, 14.0, 16.0]
+    assert all(volts.from_si(volts.to_si(raw)) == raw for raw in range(256))
+    assert table["Present PWM"].from_si(1.0) == 885.0 and table["Present PWM"].to_si(885) == 1.0
+    assert table["Realtime Tick"].to_si(1234) == 1.234
+
+
 def test_the_nearest_raw_value_is_what_a_decimal_setting_means():
     """A Return Delay Time of 123 µs is 61.5 units, written 62 (as round(123 / 2)), whatever the
     float quotient's last bit; the whole range agrees with integer arithmetic."""
@@ -170,8 +181,9 @@ def _tenths(value):
         "leftovers.py:9", "leftovers.py:10", "leftovers.py:11", "leftovers.py:11", "leftovers.py:13"]
 
 
-#: The unit scales of units.py (every float it exports, and the PWM full scale).
-SCALES = {name for name in units.__all__ if isinstance(getattr(units, name), float)} | {"PWM_FULL_SCALE"}
+#: The unit scales of units.py (every float it exports, and the whole fractions).
+SCALES = {name for name in units.__all__ if isinstance(getattr(units, name), float)} | {
+    "PWM_FULL_SCALE", "VOLTAGE_UNITS_PER_V", "LOAD_UNITS_PER_STALL", "REALTIME_TICKS_PER_S"}
 
 
 def test_only_the_control_table_imports_the_unit_scales():

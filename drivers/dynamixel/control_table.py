@@ -9,7 +9,7 @@ out below from the ROBOTIS e-manual control-table pages of each model
 emulated.
 
 Each register also carries its unit and its converter to and from SI
-(``unit``, ``scale``, ``zero``; the units themselves are written once in
+(``unit``, ``scale``, ``zero``, ``divisor``; the units themselves are written once in
 :mod:`drivers.dynamixel.units`), as pypot's register table carries its
 ``dxl_to_si``/``si_to_dxl`` pair: the driver, the emulator, the servo model and
 the lab tools convert through the register, never with a constant of their own.
@@ -74,7 +74,8 @@ class Register:
 
     ``unit`` is the SI unit of :meth:`to_si` ("" for codes, counts, flags and gains, which
     have none; "1" for a fraction such as a PWM duty); a raw value ``r`` means
-    ``(r - zero) * scale`` of it."""
+    ``(r - zero) * scale`` of it, or ``(r - zero) / divisor`` when the unit is a whole
+    fraction of it (0.1 V, 1/885 of full PWM), so that decimal values stay exact."""
 
     name: str
     address: int
@@ -90,14 +91,20 @@ class Register:
     scale: float = 1.0
     #: The raw value at SI zero (the centre tick of a position).
     zero: int = 0
+    #: Raw units per SI unit when the unit is a whole fraction of it (0: use ``scale``).
+    divisor: int = 0
 
     def to_si(self, raw):
         """The SI value of a raw value (a number or a numpy array)."""
+        if self.divisor:
+            return (raw - self.zero) / self.divisor
         return (raw - self.zero) * self.scale
 
     def from_si(self, value):
         """The raw value of an SI value, unrounded (a number or a numpy array): the caller
         rounds as the firmware does (or keeps the fraction, as an encoder model does)."""
+        if self.divisor:
+            return value * self.divisor + self.zero
         return value / self.scale + self.zero
 
     def nearest(self, value: float) -> int:
@@ -106,7 +113,7 @@ class Register:
         The quotient is cleaned of float noise first, so that a value written in a decimal
         unit lands as exactly: 123 µs of Return Delay Time is 61.5 units (62), not 61.4999…
         """
-        return int(round(round(value / self.scale + self.zero, 9)))
+        return int(round(round(self.from_si(value), 9)))
 
     def encode(self, value: int) -> bytes:
         """Little-endian bytes of ``value`` (two's complement when signed)."""
@@ -421,9 +428,9 @@ def model_spec(model: int) -> ModelSpec:
             default = model
         area = Area.EEPROM if address < 64 else Area.RAM
         if name in CURRENT_REGISTERS:
-            unit = ("A", info["current_unit"], 0)
+            unit = ("A", info["current_unit"], 0, 0)
         else:
-            unit = REGISTER_UNITS.get(name, ("", 1.0, 0))
+            unit = REGISTER_UNITS.get(name, ("", 1.0, 0, 0))
         registers.append(Register(name, address, size, access, area, default, lo, hi, signed, *unit))
     return ModelSpec(
         number=model,

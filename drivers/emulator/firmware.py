@@ -163,7 +163,7 @@ class ServoFirmware:
         present = math.floor(raw + 0.5) + self._values["Homing Offset"]
         self._report("Present Position", present)
         self._report("Present Velocity", round(self._velocity_reg.from_si(sign * velocity)))
-        self._report("Realtime Tick", int(round(self._tick_reg.from_si(self._time), 6)) % 32768)
+        self._report("Realtime Tick", int(self._tick_reg.from_si(self._time)) % 32768)
         self._report("Present Input Voltage", self._voltage_reg.nearest(self.input_voltage))
         temperature = self._temperature_reg.nearest(self.temperature_c)
         self._report("Present Temperature", max(0, min(255, temperature)))

@@ -149,7 +149,7 @@ class ServoArray:
         # rad/s per Profile Velocity unit, rad/s² per Profile Acceleration unit
         table = x_series_table()
         self._rad_per_tick = table["Present Position"].scale
-        self._pwm_full = 1.0 / table["Present PWM"].scale
+        self._pwm_full = table["Present PWM"].from_si(1.0)
         self._velocity_unit = table["Profile Velocity"].scale
         self._accel_unit = table["Profile Acceleration"].scale
         # the registers' firmware settings
