@@ -290,8 +290,3 @@ def json_config(cfg: TrialConfig) -> dict:
     data = json.loads(cfg.model_dump_json())
     data["urdf_dir"] = str(cfg.resolve(cfg.urdf_dir))
     return data
-
-
-def count_trials(spec: CampaignSpec) -> int:
-    grid = [a for a in find_axes(spec) if a.is_grid]
-    return math.prod(len(a.args) for a in grid) * spec.samples * spec.repeats

@@ -29,7 +29,8 @@ def accuracy(
     robot: str = typer.Argument(..., metavar="ROBOT", help="arc-train, zerobot or para-brachy"),
     pose: Optional[str] = typer.Option(
         None, "--pose", help='JSON object {"joint": value} (rad or m); missing joints at the default pose.'),
-    tol_deg: float = typer.Option(0.29, "--tol-deg", help="Servo position tolerance, ± degrees."),
+    tol_deg: Optional[float] = typer.Option(
+        None, "--tol-deg", help="Servo position tolerance, ± degrees [default: the servos' own, seed 000]."),
     samples: int = typer.Option(20000, "--samples", help="Monte-Carlo draws."),
     seed: int = typer.Option(0, "--seed", help="Seed of the joint-error sampler."),
     out: Optional[Path] = typer.Option(None, "--out", help="Directory for the report (Markdown, HTML, figures)."),
@@ -50,6 +51,10 @@ def accuracy(
             fail(f"--pose is not valid JSON: {e.msg} at character {e.pos}")
         if not isinstance(overrides, dict):
             fail(f"--pose must be a JSON object of joint values, got {pose!r}")
+    if tol_deg is None:
+        from bench.kinematics.arc_train import SERVO_TOL_DEG  # deferred: --help and completion stay fast
+
+        tol_deg = SERVO_TOL_DEG
     if not (math.isfinite(tol_deg) and tol_deg >= 0.0):
         fail(f"--tol-deg must be a non-negative number of degrees, got {tol_deg!r}")
     if samples < 2:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Optional
+from typing import Any, Literal, Optional, Protocol
 
 import yaml
 from pydantic import Field, ValidationError
@@ -29,12 +29,21 @@ from bench.config.base import ConfigError, Strict, describe_validation_error, re
 from bench.config.crossref import transmission_refusal
 from bench.kinematics.registry import get_robot
 
-if TYPE_CHECKING:
-    from bench.config.models import TrialConfig
-
-__all__ = ["CalibrationFile", "ServoCalibration", "UltrasonicCalibration", "UltrasonicStop",
-           "calibration_of", "calibration_record", "check_calibration", "load_calibration",
+__all__ = ["CalibratedConfig", "CalibrationFile", "ServoCalibration", "UltrasonicCalibration",
+           "UltrasonicStop", "calibration_of", "calibration_record", "check_calibration", "load_calibration",
            "save_calibration"]
+
+
+class CalibratedConfig(Protocol):
+    """What the calibration needs of a trial config (``bench.config.models.TrialConfig``):
+    written here so this module does not import the models, which import it."""
+
+    robot: str
+    source: Optional[Path]
+    calibration: Optional[Path]
+    backend: Any  # the backend section: ``kind``, ``servos`` and ``ultrasonic`` are read
+
+    def resolve(self, path: Path) -> Path: ...
 
 
 class ServoCalibration(Strict):
@@ -125,17 +134,17 @@ def save_calibration(cal: CalibrationFile, path: Path) -> Path:
     return path
 
 
-def calibration_path(config: "TrialConfig") -> Optional[Path]:
+def calibration_path(config: CalibratedConfig) -> Optional[Path]:
     return config.resolve(config.calibration) if config.calibration is not None else None
 
 
-def calibration_of(config: "TrialConfig") -> Optional[CalibrationFile]:
+def calibration_of(config: CalibratedConfig) -> Optional[CalibrationFile]:
     """The calibration a config names, or None."""
     path = calibration_path(config)
     return load_calibration(path) if path is not None else None
 
 
-def calibration_record(config: "TrialConfig") -> Optional[dict]:
+def calibration_record(config: CalibratedConfig) -> Optional[dict]:
     """Path and content of the config's calibration, for the trial log's metadata."""
     path = calibration_path(config)
     if path is None:
@@ -143,7 +152,7 @@ def calibration_record(config: "TrialConfig") -> Optional[dict]:
     return {"path": str(path), "content": load_calibration(path).model_dump(mode="json")}
 
 
-def check_calibration(config: "TrialConfig") -> None:
+def check_calibration(config: CalibratedConfig) -> None:
     """Refuse a calibration that cannot apply to this config (ConfigError, one line)."""
     where = f"{config.source}: calibration" if config.source else "calibration"
     if config.backend.kind != "dynamixel":

@@ -10,14 +10,11 @@ field, before anything is built or moves.
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot
 from drivers.dynamixel.goals import transmission_problem
-
-if TYPE_CHECKING:
-    from bench.config.models import TrialConfig
 
 __all__ = ["SENSED_JOINTS", "check_cross_references", "transmission_refusal"]
 
@@ -25,7 +22,19 @@ __all__ = ["SENSED_JOINTS", "check_cross_references", "transmission_refusal"]
 SENSED_JOINTS = {"arc-train": "train"}
 
 
-def check_cross_references(config: "TrialConfig") -> None:
+class CrossReferenced(Protocol):
+    """What the cross-references read of a trial config (``bench.config.models.TrialConfig``):
+    written here so this module does not import the models, which call it."""
+
+    robot: str
+    backend: Any
+    emulator: Any
+    excitation: Any
+    faults: Any
+    safety: Any
+
+
+def check_cross_references(config: CrossReferenced) -> None:
     """Raise ValueError (one line, naming the field) for the first reference that does not hold."""
     robot = get_robot(config.robot)
     names = list(robot.joint_names)
@@ -35,14 +44,14 @@ def check_cross_references(config: "TrialConfig") -> None:
         parse_faults(config.faults, names)  # raises ValueError naming the bad fault
 
 
-def _unknown(where: str, keys, names: list[str], config: "TrialConfig", extra: frozenset = frozenset()):
+def _unknown(where: str, keys, names: list[str], config: CrossReferenced, extra: frozenset = frozenset()):
     unknown = sorted(set(keys) - set(names) - extra)
     if unknown:
         raise ValueError(f"{where}: unknown joint(s) {unknown}; {config.robot} has {names}"
                          + (" (or all)" if extra else ""))
 
 
-def _joint_names(config: "TrialConfig", names: list[str]) -> None:
+def _joint_names(config: CrossReferenced, names: list[str]) -> None:
     b = config.backend
     for key in ("joints", "start", "start_effort"):
         _unknown(f"backend.{key}", getattr(b, key, {}), names, config)
@@ -62,7 +71,7 @@ def _joint_names(config: "TrialConfig", names: list[str]) -> None:
                              f"unknown {sorted(servos - set(names))}; {config.robot} has {names}")
 
 
-def _backend(config: "TrialConfig", robot, names: list[str]) -> None:
+def _backend(config: CrossReferenced, robot, names: list[str]) -> None:
     b = config.backend
     rows = {r.name: r for r in robot.chain.rows}
     u = b.ultrasonic

@@ -18,12 +18,7 @@ from bench.core.outcome import SETTLED_WINDOW_S, NeedleOutcome, needle_outcome, 
 from drivers import Actuators, ActuatorsWrapper, JointState
 from drivers.capabilities import TruePosition, find_capability
 
-__all__ = ["GroundTruth", "has_ground_truth", "settled_truth", "true_outcome"]
-
-
-def has_ground_truth(actuators: Actuators) -> bool:
-    """True when the backend knows where the joints really are (a simulator)."""
-    return find_capability(actuators.unwrapped, TruePosition) is not None
+__all__ = ["GroundTruth", "settled_truth", "true_outcome"]
 
 
 class GroundTruth(ActuatorsWrapper):

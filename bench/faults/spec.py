@@ -31,6 +31,7 @@ from bench.faults.torque import TorqueLimit, check_effort_limit
 from bench.faults.ultrasonic import UltrasonicDropout, UltrasonicNoise, UltrasonicStuck
 from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG
 from drivers import Actuators, ConfigurationError
+from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import TICKS_PER_REV
 
 __all__ = ["FAULTS", "FaultDef", "FaultSpec", "Param", "apply_faults", "fault_names", "parse_faults"]
@@ -269,7 +270,7 @@ FAULTS: dict[str, FaultDef] = {f.name: f for f in (
              _backlash, joints="prismatic"),
     FaultDef("quantisation", "goal and present position in whole encoder ticks",
              (Param("ticks_per_rev", TICKS_PER_REV, lo=2, integer=True, kind="revolute"),
-              Param("step_mm", round(2 * math.pi * PINION_RADIUS_MM / TICKS_PER_REV, 6), "mm",
+              Param("step_mm", round(PINION_RADIUS_MM * x_series_table()["Present Position"].scale, 6), "mm",
                     lo=0.0, lo_open=True, kind="prismatic")), _quantisation),
     FaultDef("noise", "Gaussian measurement noise on read positions",
              (Param("std_deg", 0.05, "deg", lo=0.0, kind="revolute"),

@@ -29,7 +29,7 @@ import numpy as np
 from bench.identify.logs import LoggedRun, RigSetup
 from bench.identify.search import cma_search
 from bench.identify.simulate import PHYSICS, SlotPhysics, file_values, merge_runs, simulate_run
-from drivers.dynamixel.units import RAD_PER_TICK
+from drivers.dynamixel.control_table import x_series_table
 
 __all__ = ["FitResult", "JointFit", "fit_servos", "initial_physics"]
 
@@ -120,7 +120,7 @@ class _Problem:
         self.workers = max(1, workers)
         q_err = np.concatenate([(r.q - r.goal)[:, joints] for r in runs])
         current = np.concatenate([r.current[:, joints] for r in runs])
-        tick = np.abs(setup.ratio[joints]) * RAD_PER_TICK
+        tick = np.abs(setup.ratio[joints]) * x_series_table()["Present Position"].scale
         self.q_scale = np.maximum(np.sqrt(np.mean(q_err ** 2, axis=0)), 2 * tick)
         # all logs as one, each cut in windows; the window each residual belongs to (the columns of
         # :meth:`residuals`): windows are simulated apart, so they are the fit's independent clusters

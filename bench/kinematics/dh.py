@@ -211,11 +211,6 @@ def matrix_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
     ])
 
 
-def rot_x(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
-
-
 def check_rows(rows: Sequence[DHRow]) -> None:
     for r in rows:
         if not r.lower <= r.home <= r.upper:

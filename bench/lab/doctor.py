@@ -27,6 +27,7 @@ from bench.kinematics.registry import get_robot
 from drivers import ActuatorError
 from drivers.dynamixel.backend import latency_timer_ms
 from drivers.dynamixel.bus import PingReply, ServoBus, ServoStatus, open_error
+from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import BAUD_RATES
 from drivers.ultrasonic import UltrasonicSensor
 
@@ -194,7 +195,8 @@ def _health_checks(add: Add, joint: str, s: ServoStatus, config: TrialConfig) ->
     sc = config.backend.servos[joint]
     want_rdt = config.backend.return_delay_us
     problems = []
-    if s.return_delay_s is not None and round(s.return_delay_s * 1e6) != 2 * round(want_rdt / 2):
+    rdt = x_series_table()["Return Delay Time"]
+    if s.return_delay_s is not None and rdt.nearest(s.return_delay_s) != rdt.nearest(want_rdt * 1e-6):
         problems.append(f"Return Delay Time {s.return_delay_s * 1e6:.0f} µs (config {want_rdt} µs)")
     if s.operating_mode is not None and s.operating_mode != sc.mode:
         problems.append(f"{s.operating_mode} mode (config {sc.mode})")

@@ -29,6 +29,7 @@ from bench.config.models import DynamixelBackendConfig, EmulatorConfig, TrialCon
 from bench.kinematics.arc_train import train_pose
 from bench.kinematics.registry import get_robot
 from bench.rig.backends import with_physics
+from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import BAUD_RATES, OPERATING_MODES
 from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
 from drivers.servo import ServoParams
@@ -100,10 +101,11 @@ class EmulatedRig:
         joints = {}
         for j, n in enumerate(names):
             sc = b.servos[n]
-            deadband = int(round(math.radians(e.deadband_deg) / (2 * math.pi / 4096)))
+            deadband = int(round(math.radians(e.deadband_deg) / x_series_table()["Present Position"].scale))
             # The rig as the lab keeps it: EEPROM already set up, servos holding their pose.
+            return_delay = x_series_table()["Return Delay Time"].nearest(b.return_delay_us * 1e-6)
             registers = {"Baud Rate": baud_index, "Operating Mode": OPERATING_MODES[sc.mode],
-                         "Return Delay Time": int(round(b.return_delay_us / 2))}
+                         "Return Delay Time": return_delay}
             if warm_start_s > 0:
                 gains = zip(("Position P Gain", "Position I Gain", "Position D Gain"),
                             (sc.position_p, sc.position_i, sc.position_d))

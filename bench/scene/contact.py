@@ -51,7 +51,7 @@ from bench.scene.room import SceneParams, gantry_mesh
 
 __all__ = ["Gantry", "GantryContact", "ContactReport", "GantryClearance", "Clearance",
            "RobotGeometry", "all_pairs_distance", "all_pairs_contact", "default_gantry",
-           "robot_triangles", "DEFAULT_MARGIN"]
+           "DEFAULT_MARGIN"]
 
 DEFAULT_MARGIN = 0.020  # m; seed 001 section 4.1
 
@@ -490,9 +490,3 @@ def all_pairs_contact(robot_tris: np.ndarray, gantry_tris: np.ndarray, margin: f
         if hit and stop_at_first:
             return True
     return hit
-
-
-def robot_triangles(robot, q: np.ndarray) -> np.ndarray:
-    """All of a robot's link triangles in the bed frame at ``q`` (for the brute force)."""
-    g = _geometry(robot)
-    return g.world_triangles(g.link_frames(np.asarray(q, dtype=float)))[0]

@@ -15,8 +15,6 @@ import numpy as np
 
 from bench.kinematics.dh import DHChain, joint_split, rpy_from_matrix
 
-ABS_DENSITY = 1050.0  # kg/m^3, 3D-printed ABS
-
 
 @dataclass(frozen=True)
 class Shape:

@@ -45,7 +45,7 @@ from drivers.dynamixel.goals import GoalBounds, GoalOutOfRange, outside_limits
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler, port_hint
 from drivers.dynamixel.protocol import decode_hardware_error
 from drivers.dynamixel.settings import DynamixelSettings, ServoSettings, UltrasonicSettings
-from drivers.dynamixel.units import OPERATING_MODES, RAD_PER_TICK, VELOCITY_UNIT_RAD_S
+from drivers.dynamixel.units import OPERATING_MODES
 from drivers.train_loop import TrainLoop
 from drivers.ultrasonic import UltrasonicSensor
 
@@ -87,8 +87,8 @@ class DynamixelActuators(ActuatorsBase):
         self._offset = np.array([sv.offset for sv in s.servos])
         self._zero = np.array([sv.zero_tick for sv in s.servos], dtype=float)
         # Unit conversions per servo, precomputed for the control cycle.
-        self._q_per_tick = self._ratio * RAD_PER_TICK
-        self._qd_per_unit = self._ratio * VELOCITY_UNIT_RAD_S
+        self._q_per_tick = self._ratio * x_series_table()["Present Position"].scale
+        self._qd_per_unit = self._ratio * x_series_table()["Present Velocity"].scale
         self._effort_per_unit = np.array(
             [_kt(sv.model) * _current_unit(sv.model) for sv in s.servos]) / self._ratio
         # The same, as one (3, n) scale on raw position, velocity, current and the
@@ -217,11 +217,12 @@ class DynamixelActuators(ActuatorsBase):
         so an arm that gravity would drop is not dropped just to be configured.
         """
         s = self.settings
-        rdt = int(round(s.return_delay_us / 2))
+        rdt = x_series_table()["Return Delay Time"].nearest(s.return_delay_us * 1e-6)
         for sv in s.servos:
             eeprom = {"Return Delay Time": rdt, "Operating Mode": OPERATING_MODES[sv.mode]}
             if sv.current_limit_a is not None:
-                eeprom["Current Limit"] = int(round(sv.current_limit_a / _current_unit(sv.model)))
+                limit = model_spec(sv.model).table["Current Limit"]
+                eeprom["Current Limit"] = limit.nearest(sv.current_limit_a)
             changes = {k: v for k, v in eeprom.items() if self._read(sv.id, k) != v}
             if changes:
                 if self._read(sv.id, "Torque Enable"):
@@ -435,7 +436,7 @@ class DynamixelActuators(ActuatorsBase):
                 f"joint {sv.joint}: effort limits need mode current_based_position (servo {sv.id} "
                 f"is in {sv.mode})")
         current = abs(effort * sv.ratio) / _kt(sv.model)
-        self._write(sv.id, "Goal Current", int(round(current / _current_unit(sv.model))))
+        self._write(sv.id, "Goal Current", model_spec(sv.model).table["Goal Current"].nearest(current))
         eff = self._limits.effort.copy()
         eff[joint] = effort
         self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)
@@ -459,5 +460,5 @@ def _kt(number: int) -> float:
 
 
 def _current_unit(number: int) -> float:
-    unit = model_spec(number).current_unit
-    return unit if unit is not None else 0.0
+    table = model_spec(number).table
+    return table["Present Current"].scale if "Present Current" in table else 0.0

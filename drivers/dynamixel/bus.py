@@ -24,6 +24,7 @@ from typing import Optional
 import serial
 
 from drivers import CommunicationError, ConfigurationError
+from drivers.dynamixel.control_table import Register, x_series_table
 from drivers.dynamixel.models import model_name, register_layout
 from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch
 from drivers.dynamixel.protocol import (
@@ -34,8 +35,9 @@ from drivers.dynamixel.protocol import (
     decode_hardware_error,
     describe_status_error,
 )
-from drivers.dynamixel.units import BAUD_RATES, CENTER_TICK, HOMING_OFFSET_LIMIT, MODE_NAMES, RAD_PER_TICK
+from drivers.dynamixel.units import BAUD_RATES, MODE_NAMES
 from drivers.timing import drain_until_quiet
+
 
 __all__ = ["PingReply", "ServoBus", "ServoStatus", "open_error"]
 
@@ -198,19 +200,20 @@ class ServoBus:
             operating_mode=MODE_NAMES.get(mode, f"mode {mode}") if mode is not None else None,
             torque=bool(torque) if torque is not None else None,
             hardware_error=decode_hardware_error(hw) if hw else [],
-            return_delay_s=rdt * 2e-6 if rdt is not None else None,
-            voltage_v=_tenths(volts), voltage_min_v=_tenths(vmin), voltage_max_v=_tenths(vmax),
-            temperature_c=float(temp) if temp is not None else None,
-            temperature_limit_c=float(tlim) if tlim is not None else None)
+            return_delay_s=_si("Return Delay Time", rdt),
+            voltage_v=_si("Present Input Voltage", volts), voltage_min_v=_si("Min Voltage Limit", vmin),
+            voltage_max_v=_si("Max Voltage Limit", vmax),
+            temperature_c=_si("Present Temperature", temp),
+            temperature_limit_c=_si("Temperature Limit", tlim))
 
     # -- shaft angle and zero ------------------------------------------------------------
     def shaft_angle(self, sid: int) -> float:
-        """Present Position as a shaft angle (rad, 0 at tick 2048, Homing Offset included)."""
-        return (self.read(sid, "Present Position") - CENTER_TICK) * RAD_PER_TICK
+        """Present Position as a shaft angle (rad, 0 at the centre tick, Homing Offset included)."""
+        return _register("Present Position").to_si(self.read(sid, "Present Position"))
 
     def homing_offset(self, sid: int) -> float:
         """The Homing Offset register as a shaft angle (rad)."""
-        return self.read(sid, "Homing Offset") * RAD_PER_TICK
+        return _register("Homing Offset").to_si(self.read(sid, "Homing Offset"))
 
     def shift_zero(self, sid: int, shaft_rad: float) -> float:
         """Make the servo report ``shaft_rad`` more from now on, through its Homing Offset.
@@ -219,11 +222,12 @@ class ServoBus:
         goes off for the write and back to what it was. Returns the shift
         applied, a whole number of ticks.
         """
-        ticks = int(round(shaft_rad / RAD_PER_TICK))
+        register = _register("Homing Offset")
+        ticks = register.nearest(shaft_rad)
         new = self.read(sid, "Homing Offset") + ticks
-        if abs(new) > HOMING_OFFSET_LIMIT:
+        if abs(new) > register.maximum:
             raise ConfigurationError(
-                f"servo ID {sid}: Homing Offset {new} ticks is beyond ±{HOMING_OFFSET_LIMIT}; "
+                f"servo ID {sid}: Homing Offset {new} ticks is beyond ±{register.maximum}; "
                 f"the joint is too far from its reference for a register offset")
         torque = self.read(sid, "Torque Enable")
         try:
@@ -233,7 +237,7 @@ class ServoBus:
         finally:
             if torque:
                 self.write(sid, "Torque Enable", 1)
-        return ticks * RAD_PER_TICK
+        return register.to_si(ticks)
 
     # -- transactions ---------------------------------------------------------------------
     def _model(self, sid: int) -> int:
@@ -332,5 +336,11 @@ class ServoBus:
                 return
 
 
-def _tenths(value: Optional[int]) -> Optional[float]:
-    return value / 10.0 if value is not None else None
+def _register(name: str) -> Register:
+    """An X-series register, with its unit (every model the bus meets shares them)."""
+    return x_series_table()[name]
+
+
+def _si(name: str, raw: Optional[int]) -> Optional[float]:
+    """A register's raw value in SI (its unit in the control table), or None when unread."""
+    return float(_register(name).to_si(raw)) if raw is not None else None

@@ -8,6 +8,12 @@ out below from the ROBOTIS e-manual control-table pages of each model
 (XM430-W350, XL430-W250, XM540-W270, XC430-W150). Indirect addresses are not
 emulated.
 
+Each register also carries its unit and its converter to and from SI
+(``unit``, ``scale``, ``zero``, ``divisor``; the units themselves are written once in
+:mod:`drivers.dynamixel.units`), as pypot's register table carries its
+``dxl_to_si``/``si_to_dxl`` pair: the driver, the emulator, the servo model and
+the lab tools convert through the register, never with a constant of their own.
+
 Motor figures (:class:`MotorSpec`) are the e-manual's 12 V stall torque,
 stall current and no-load speed; the servo model derives a DC-motor model
 from them (R = V/I_stall, Kt = T_stall/I_stall, Ke = V/w_no_load).
@@ -24,6 +30,7 @@ from typing import Callable, Iterator, Mapping
 
 from drivers import ConfigurationError
 from drivers.dynamixel.models import sdk_rows
+from drivers.dynamixel.units import CENTER_TICK, CURRENT_REGISTERS, CURRENT_UNIT_A, REGISTER_UNITS
 
 __all__ = [
     "Access",
@@ -63,7 +70,12 @@ class Area(Enum):
 
 @dataclass(frozen=True)
 class Register:
-    """One control-table item. ``minimum``/``maximum`` are the fixed range (None: none)."""
+    """One control-table item. ``minimum``/``maximum`` are the fixed range (None: none).
+
+    ``unit`` is the SI unit of :meth:`to_si` ("" for codes, counts, flags and gains, which
+    have none; "1" for a fraction such as a PWM duty); a raw value ``r`` means
+    ``(r - zero) * scale`` of it, or ``(r - zero) / divisor`` when the unit is a whole
+    fraction of it (0.1 V, 1/885 of full PWM), so that decimal values stay exact."""
 
     name: str
     address: int
@@ -74,6 +86,34 @@ class Register:
     minimum: int | None
     maximum: int | None
     signed: bool
+    unit: str = ""
+    #: SI per raw unit.
+    scale: float = 1.0
+    #: The raw value at SI zero (the centre tick of a position).
+    zero: int = 0
+    #: Raw units per SI unit when the unit is a whole fraction of it (0: use ``scale``).
+    divisor: int = 0
+
+    def to_si(self, raw):
+        """The SI value of a raw value (a number or a numpy array)."""
+        if self.divisor:
+            return (raw - self.zero) / self.divisor
+        return (raw - self.zero) * self.scale
+
+    def from_si(self, value):
+        """The raw value of an SI value, unrounded (a number or a numpy array): the caller
+        rounds as the firmware does (or keeps the fraction, as an encoder model does)."""
+        if self.divisor:
+            return value * self.divisor + self.zero
+        return value / self.scale + self.zero
+
+    def nearest(self, value: float) -> int:
+        """The whole raw value nearest an SI value (what is written to the register).
+
+        The quotient is cleaned of float noise first, so that a value written in a decimal
+        unit lands as exactly: 123 µs of Return Delay Time is 61.5 units (62), not 61.4999…
+        """
+        return int(round(round(self.from_si(value), 9)))
 
     def encode(self, value: int) -> bytes:
         """Little-endian bytes of ``value`` (two's complement when signed)."""
@@ -224,6 +264,14 @@ class ModelSpec:
     def senses_current(self) -> bool:
         return self.current_unit is not None
 
+    @property
+    def amps_per_unit(self) -> float:
+        """A per unit of Present Current; on a model without current sensing, per unit of Present
+        Load (its share of the stall current)."""
+        if self.current_unit is not None:
+            return self.current_unit
+        return self.motor.stall_current * self.table["Present Load"].scale
+
 
 # -- attributes written out from the e-manual ----------------------------------
 # name: (access, default, minimum, maximum, signed)
@@ -273,7 +321,7 @@ _COMMON: dict[str, tuple[Access, int, int | None, int | None, bool]] = {
     "Goal Velocity": (Access.RW, 0, -1023, 1023, True),
     "Profile Acceleration": (Access.RW, 0, 0, 32767, False),
     "Profile Velocity": (Access.RW, 0, 0, 32767, False),
-    "Goal Position": (Access.RW, 2048, -1_048_575, 1_048_575, True),
+    "Goal Position": (Access.RW, CENTER_TICK, -1_048_575, 1_048_575, True),
     "Realtime Tick": (Access.R, 0, None, None, False),
     "Moving": (Access.R, 0, None, None, False),
     "Moving Status": (Access.R, 0, None, None, False),
@@ -281,9 +329,9 @@ _COMMON: dict[str, tuple[Access, int, int | None, int | None, bool]] = {
     "Present Current": (Access.R, 0, None, None, True),
     "Present Load": (Access.R, 0, None, None, True),
     "Present Velocity": (Access.R, 0, None, None, True),
-    "Present Position": (Access.R, 2048, None, None, True),
+    "Present Position": (Access.R, CENTER_TICK, None, None, True),
     "Velocity Trajectory": (Access.R, 0, None, None, True),
-    "Position Trajectory": (Access.R, 2048, None, None, True),
+    "Position Trajectory": (Access.R, CENTER_TICK, None, None, True),
     "Present Input Voltage": (Access.R, 120, None, None, False),
     "Present Temperature": (Access.R, 30, None, None, False),
     "External Port Data 1": (Access.RW, 0, 0, 65535, False),
@@ -299,7 +347,7 @@ _MODELS: dict[int, dict] = {
         overrides={},
         motor=MotorSpec(12.0, 4.1, 2.3, _rpm(46.0)),
         modes=(0, 1, 3, 4, 5, 16),
-        current_unit=0.00269,
+        current_unit=CURRENT_UNIT_A,
     ),
     XM540_W270: dict(
         file="xm540_w270.model",
@@ -311,7 +359,7 @@ _MODELS: dict[int, dict] = {
         },
         motor=MotorSpec(12.0, 10.6, 4.4, _rpm(30.0)),
         modes=(0, 1, 3, 4, 5, 16),
-        current_unit=0.00269,
+        current_unit=CURRENT_UNIT_A,
     ),
     XL430_W250: dict(
         file="xl430_w250.model",
@@ -379,7 +427,11 @@ def model_spec(model: int) -> ModelSpec:
         if name == "Model Number":
             default = model
         area = Area.EEPROM if address < 64 else Area.RAM
-        registers.append(Register(name, address, size, access, area, default, lo, hi, signed))
+        if name in CURRENT_REGISTERS:
+            unit = ("A", info["current_unit"], 0, 0)
+        else:
+            unit = REGISTER_UNITS.get(name, ("", 1.0, 0, 0))
+        registers.append(Register(name, address, size, access, area, default, lo, hi, signed, *unit))
     return ModelSpec(
         number=model,
         name=info["name"],

@@ -19,10 +19,14 @@ import numpy as np
 
 from drivers import CommandError, ConfigurationError
 from drivers.dynamixel.control_table import x_series_table
-from drivers.dynamixel.units import CENTER_TICK, RAD_PER_TICK
 
 __all__ = ["GoalBounds", "GoalOutOfRange", "joint_ticks", "mode_ticks", "outside_limits",
            "transmission_problem"]
+
+
+#: Goal Position: its unit (rad of shaft per tick) and centre tick convert every goal here.
+_GOAL = x_series_table()["Goal Position"]
+_CENTER = _GOAL.zero
 
 
 class GoalOutOfRange(CommandError):
@@ -40,13 +44,13 @@ def mode_ticks(mode: str) -> tuple[int, int]:
 
 
 def joint_ticks(q: float | np.ndarray, ratio: float, offset: float,
-                zero_tick: float = CENTER_TICK) -> float | np.ndarray:
+                zero_tick: float = _CENTER) -> float | np.ndarray:
     """The shaft position (ticks, unrounded) at joint value ``q``: ``q = offset + ratio · shaft``."""
-    return zero_tick + (np.asarray(q, dtype=float) - offset) / (ratio * RAD_PER_TICK)
+    return zero_tick + (np.asarray(q, dtype=float) - offset) / (ratio * _GOAL.scale)
 
 
 def transmission_problem(joint: str, mode: str, ratio: float, offset: float, lower: float,
-                         upper: float, zero_tick: float = CENTER_TICK,
+                         upper: float, zero_tick: float = _CENTER,
                          allowed: tuple[int, int] | None = None) -> str | None:
     """Why the joint's range [lower, upper] does not fit in the servo's range for ``mode``
     through this transmission (one line), or None. ``allowed``: the servo's own range, when
@@ -57,7 +61,7 @@ def transmission_problem(joint: str, mode: str, ratio: float, offset: float, low
     a, b = sorted(float(t) for t in joint_ticks(np.array([lower, upper]), ratio, offset, zero_tick))
     if lo <= a and b <= hi:
         return None
-    span = f" ({(b - a) / 4096:,.1f} turns)" if b - a > hi - lo else ""
+    span = f" ({(b - a) * _GOAL.scale / (2 * math.pi):,.1f} turns)" if b - a > hi - lo else ""
     return (f"{joint}: range [{lower:g}, {upper:g}] through ratio {ratio:g}, offset {offset:g} needs "
             f"goals of {a:,.0f} to {b:,.0f} ticks{span}; a servo in {mode} mode takes {lo:,} to {hi:,}")
 
@@ -112,7 +116,7 @@ class GoalBounds:
         if bad.size:
             i = int(bad[0])
             value = (float(q[i]) if q is not None else
-                     self._offset[i] + self._ratio[i] * RAD_PER_TICK * (float(ticks[i]) - self._zero[i]))
+                     self._offset[i] + self._ratio[i] * _GOAL.scale * (float(ticks[i]) - self._zero[i]))
             what = "its operating mode allows" if hold else "its joint's limits and its mode allow"
             raise GoalOutOfRange(
                 f"{self.joints[i]}: goal {value:.6g} is {ticks[i]:,.0f} ticks, outside the "

@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable, Literal, Optional, Sequence
 
+from drivers.dynamixel.units import CENTER_TICK
+
 __all__ = ["DynamixelSettings", "ServoSettings", "UltrasonicSettings"]
 
 
@@ -19,9 +21,9 @@ class ServoSettings:
     model: int  # model number, e.g. 1020 for XM430-W350
     mode: str = "extended_position"
     ratio: float = 1.0  # joint units per shaft radian
-    offset: float = 0.0  # joint value at shaft angle 0 (2048 ticks)
+    offset: float = 0.0  # joint value at shaft angle 0 (the centre tick)
     current_limit_a: Optional[float] = None
-    zero_tick: int = 2048
+    zero_tick: int = CENTER_TICK
     gains: tuple[Optional[int], Optional[int], Optional[int]] = (None, None, None)  # P, I, D
 
 

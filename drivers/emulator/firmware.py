@@ -13,15 +13,8 @@ from __future__ import annotations
 
 import math
 
-from drivers.dynamixel.units import (
-    ACCEL_UNIT_RAD_S2,
-    CENTER_TICK,
-    POSITION_MODES,
-    RAD_PER_TICK,
-    TICKS_PER_REV,
-    VELOCITY_UNIT_RAD_S,
-    OperatingMode,
-)
+from drivers.dynamixel.control_table import Register
+from drivers.dynamixel.units import POSITION_MODES, TICKS_PER_REV, OperatingMode
 from drivers.servo.model import ServoArray, ServoParams
 
 __all__ = ["CONTROL_PERIOD_S", "ServoFirmware", "clamp"]
@@ -39,6 +32,13 @@ class ServoFirmware:
 
     _bank: ServoArray
     _slot: int
+    # The registers whose units the loop converts with (set by the servo from its table).
+    _position_reg: Register
+    _velocity_reg: Register
+    _accel_reg: Register
+    _voltage_reg: Register
+    _temperature_reg: Register
+    _tick_reg: Register
 
     # -- the slot -------------------------------------------------------------------------
     def _motor_params(self) -> ServoParams:
@@ -127,8 +127,8 @@ class ServoFirmware:
             if b.pid[i]:
                 self._profile_ongoing = bool(b.ongoing[i])
                 self._report("Position Trajectory", round(float(b.traj[i])))
-                self._report("Velocity Trajectory",
-                             round(float(b.traj_vel[i]) * RAD_PER_TICK / VELOCITY_UNIT_RAD_S))
+                traj_vel = float(b.traj_vel[i]) * self._position_reg.scale  # rad/s
+                self._report("Velocity Trajectory", round(self._velocity_reg.from_si(traj_vel)))
         if values["Torque Enable"] != 1:  # overload may just have switched it off
             current, pwm = 0.0, 0.0
         self._report_drive(pwm, current)
@@ -158,19 +158,20 @@ class ServoFirmware:
 
     def _sense(self, position: float, velocity: float, sign: float) -> float:
         """Update Present Position/Velocity; return the encoder reading in ticks."""
-        raw = CENTER_TICK + sign * position / RAD_PER_TICK + self._turn_offset
+        raw = self._position_reg.from_si(sign * position) + self._turn_offset
         self._raw_ticks = raw
         present = math.floor(raw + 0.5) + self._values["Homing Offset"]
         self._report("Present Position", present)
-        self._report("Present Velocity", round(sign * velocity / VELOCITY_UNIT_RAD_S))
-        self._report("Realtime Tick", int(self._time * 1000.0) % 32768)
-        self._report("Present Input Voltage", round(self.input_voltage * 10.0))
-        self._report("Present Temperature", max(0, min(255, round(self.temperature_c))))
+        self._report("Present Velocity", round(self._velocity_reg.from_si(sign * velocity)))
+        self._report("Realtime Tick", int(self._tick_reg.from_si(self._time)) % 32768)
+        self._report("Present Input Voltage", self._voltage_reg.nearest(self.input_voltage))
+        temperature = self._temperature_reg.nearest(self.temperature_c)
+        self._report("Present Temperature", max(0, min(255, temperature)))
         return float(present)
 
     def _wrap_turns(self) -> None:
         """Bring the encoder count back into one revolution, as after power-up."""
-        raw = getattr(self, "_raw_ticks", CENTER_TICK + self._turn_offset)
+        raw = getattr(self, "_raw_ticks", self._position_reg.zero + self._turn_offset)
         self._turn_offset -= TICKS_PER_REV * math.floor(raw / TICKS_PER_REV)
         self._raw_ticks = raw - TICKS_PER_REV * math.floor(raw / TICKS_PER_REV)
         self.set("Present Position", math.floor(self._raw_ticks + 0.5) + self.get("Homing Offset"))
@@ -213,18 +214,20 @@ class ServoFirmware:
             vmax = max(distance / max(total - ramp, 1e-3), 1e-9)
             amax = vmax / ramp if ramp > 0 else math.inf
         else:
-            vmax = pv * VELOCITY_UNIT_RAD_S / RAD_PER_TICK
-            amax = pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK if pa else math.inf
+            tick = self._position_reg.scale
+            vmax = self._velocity_reg.to_si(pv) / tick
+            amax = self._accel_reg.to_si(pa) / tick if pa else math.inf
         self._bank.plan_slot(self._slot, goal, vmax, amax)
         self._profile_ongoing = True
 
     def _velocity_control(self, dt: float) -> float:
-        goal = float(self.get("Goal Velocity"))  # 0.229 rev/min units
+        goal = float(self.get("Goal Velocity"))  # velocity units
         pa = self.get("Profile Acceleration")
-        per_unit = VELOCITY_UNIT_RAD_S / RAD_PER_TICK  # ticks/s per velocity unit
+        per_unit = self._velocity_reg.scale / self._position_reg.scale  # ticks/s per velocity unit
         target = goal * per_unit
         if pa:
-            self._vel_traj += clamp(target - self._vel_traj, pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK * dt)
+            accel = self._accel_reg.to_si(pa) / self._position_reg.scale  # ticks/s²
+            self._vel_traj += clamp(target - self._vel_traj, accel * dt)
         else:
             self._vel_traj = target
         self._profile_ongoing = self._vel_traj != target
@@ -238,7 +241,7 @@ class ServoFirmware:
 
     def _check_supervision(self) -> None:
         values = self._values
-        volts = self.input_voltage * 10.0
+        volts = self._voltage_reg.from_si(self.input_voltage)
         if not values["Min Voltage Limit"] <= volts <= values["Max Voltage Limit"]:
             self.raise_hardware_error("input_voltage")
         if self.temperature_c > values["Temperature Limit"]:
@@ -259,7 +262,7 @@ class ServoFirmware:
         if self.spec.senses_current:
             self._report("Present Current", round(current / self._amps_per_unit))
         else:
-            load = round(current / self.spec.motor.stall_current * 1000.0)
+            load = round(self.table["Present Load"].from_si(current / self.spec.motor.stall_current))
             self._report("Present Load", max(-1000, min(1000, load)))
         velocity = values["Present Velocity"]
         moving = abs(velocity) > values["Moving Threshold"] or self._profile_ongoing

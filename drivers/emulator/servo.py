@@ -59,7 +59,7 @@ from typing import Mapping, NoReturn
 
 from drivers.dynamixel.control_table import XM430_W350, Access, Area, ModelSpec, Register, model_spec
 from drivers.dynamixel.protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
-from drivers.dynamixel.units import BAUD_RATES, CENTER_TICK, OperatingMode
+from drivers.dynamixel.units import BAUD_RATES, OperatingMode
 from drivers.emulator.firmware import CONTROL_PERIOD_S, ServoFirmware
 
 __all__ = ["CONTROL_PERIOD_S", "ServoModel"]
@@ -105,7 +105,12 @@ class ServoModel(ServoFirmware):
             raise ValueError(f"kt_scale must be > 0, got {kt_scale}")
         # kt_scale: a motor stronger or weaker than its datasheet (Kt and Ke are one constant in SI)
         self._kt, self._ke, self._resistance = motor.kt * kt_scale, motor.ke * kt_scale, motor.resistance
-        self._amps_per_unit = self.spec.current_unit or (motor.stall_current / 1000.0)
+        self._amps_per_unit = self.spec.amps_per_unit
+        # The registers whose units the 1 ms loop converts with (the control table's).
+        self._position_reg, self._velocity_reg, self._accel_reg, self._voltage_reg, \
+            self._temperature_reg, self._tick_reg = (
+                self.table[n] for n in ("Present Position", "Present Velocity", "Profile Acceleration",
+                                        "Present Input Voltage", "Present Temperature", "Realtime Tick"))
         self._has_current_limit = "Current Limit" in self.table
         # The cycle's Goal Position writes take a short path when the item is the usual
         # 4-byte signed RAM register (every X-series model); -1: always the general one.
@@ -223,7 +228,7 @@ class ServoModel(ServoFirmware):
 
     @property
     def return_delay_s(self) -> float:
-        return self.get("Return Delay Time") * 2e-6
+        return self.table["Return Delay Time"].to_si(self.get("Return Delay Time"))
 
     @property
     def status_return_level(self) -> int:
@@ -278,7 +283,7 @@ class ServoModel(ServoFirmware):
         if "Goal Position" in written:
             self._plan_profile()
         if "Homing Offset" in written:  # reported at once, not at the next physics step
-            raw = getattr(self, "_raw_ticks", float(CENTER_TICK))
+            raw = getattr(self, "_raw_ticks", float(self._position_reg.zero))
             self.set("Present Position", math.floor(raw + 0.5) + self.get("Homing Offset"))
             self._apply_forced()
         return 0

@@ -24,7 +24,7 @@ from typing import Callable, Literal, Sequence
 import numpy as np
 
 from drivers import ConfigurationError, JointLimits, JointState
-from drivers.dynamixel.units import RAD_PER_TICK, VELOCITY_UNIT_RAD_S
+from drivers.dynamixel.control_table import x_series_table
 from drivers.pybullet.backend import steps_per_period
 from drivers.pybullet.stepped import SteppedActuators
 from drivers.servo import ServoArray, ServoParams
@@ -141,11 +141,13 @@ class ServoSimActuators(SteppedActuators):
     def read(self) -> JointState:
         """What the rig's driver reads: ticks and velocity units through the transmissions."""
         shaft = self.plant.position()
-        ticks = np.floor(shaft / RAD_PER_TICK + 0.5)
-        velocity = np.round(self.plant.velocity() / VELOCITY_UNIT_RAD_S) * VELOCITY_UNIT_RAD_S
+        table = x_series_table()
+        ticks = self.servos.ticks(shaft)
+        units = table["Present Velocity"]
+        velocity = units.to_si(np.round(units.from_si(self.plant.velocity())))
         effort = (self._reported_kt * self.servos.current / self._ratio if self._torque_on
                   else np.zeros_like(shaft))
-        position = self._offset + self._ratio * ticks * RAD_PER_TICK
+        position = self._offset + self._ratio * ticks * table["Present Position"].scale
         if self._sensed is not None:
             ts = self.settings.train_sensor
             position[ts.joint] = ts.to_joint(self._sensed.read())

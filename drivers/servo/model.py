@@ -26,8 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-from drivers.dynamixel.control_table import model_spec
-from drivers.dynamixel.units import ACCEL_UNIT_RAD_S2, PWM_FULL_SCALE, RAD_PER_TICK, VELOCITY_UNIT_RAD_S
+from drivers.dynamixel.control_table import model_spec, x_series_table
 
 __all__ = ["FIRMWARE_PERIOD_S", "FRICTION_SMOOTHING_RAD_S", "ServoArray", "ServoParams", "friction_torque"]
 
@@ -93,7 +92,7 @@ class ServoParams:
         # a gain left None keeps the model's factory value
         g = np.array([[f if v is None else v for v, f in zip(given, fac)]
                       for given, fac in zip(gains or factory, factory)], dtype=float).reshape(n, 3)
-        unit = np.array([s.current_unit or s.motor.stall_current / 1000.0 for s in specs])
+        unit = np.array([s.amps_per_unit for s in specs])
         limit = np.where([s.senses_current for s in specs], reg("Current Limit") * unit, np.inf)
         if current_limit_a is not None:
             limit = np.array([lim if a is None else float(a) for lim, a in zip(limit, current_limit_a)])
@@ -146,6 +145,13 @@ class ServoArray:
     def __init__(self, params: ServoParams) -> None:
         self.params = params
         n = params.n
+        # register units, from the control table: rad per tick, PWM units at 100 % duty,
+        # rad/s per Profile Velocity unit, rad/s² per Profile Acceleration unit
+        table = x_series_table()
+        self._rad_per_tick = table["Present Position"].scale
+        self._pwm_full = table["Present PWM"].from_si(1.0)
+        self._velocity_unit = table["Profile Velocity"].scale
+        self._accel_unit = table["Profile Acceleration"].scale
         # the registers' firmware settings
         self.gains = np.stack([params.position_p, params.position_i, params.position_d], axis=1).astype(float)
         self.pwm_limit = params.pwm_limit.astype(float).copy()  # PWM Limit: bounds the integrator
@@ -185,10 +191,9 @@ class ServoArray:
         fields = {f: np.concatenate([getattr(p, f) for p in params]) for f in ServoParams.__dataclass_fields__}
         return cls(ServoParams(**fields))
 
-    @staticmethod
-    def ticks(position: np.ndarray) -> np.ndarray:
+    def ticks(self, position: np.ndarray) -> np.ndarray:
         """Encoder reading (integer ticks, 0 at shaft angle 0) of shaft angles (rad)."""
-        return np.floor(np.asarray(position, dtype=float) / RAD_PER_TICK + 0.5)
+        return np.floor(np.asarray(position, dtype=float) / self._rad_per_tick + 0.5)
 
     # -- per slot: what a servo does on a register write ---------------------------------
     def reset_slot(self, i, present) -> None:
@@ -227,7 +232,7 @@ class ServoArray:
         self.reset(position)
         p = self.params
         pwm = np.asarray(torque, dtype=float) / p.kt * p.resistance / np.maximum(self.supply, 1e-6)
-        self.integral = np.clip(pwm * PWM_FULL_SCALE, -self.pwm_limit, self.pwm_limit)
+        self.integral = np.clip(pwm * self._pwm_full, -self.pwm_limit, self.pwm_limit)
         self.current = np.asarray(torque, dtype=float) / p.kt
 
     def resume(self, position: np.ndarray, velocity: np.ndarray, goal: np.ndarray, current: np.ndarray) -> None:
@@ -235,7 +240,7 @@ class ServoArray:
         under way), the derivative primed with the present error, and the integrator holding what
         the PID must add to the proportional term to drive ``current`` (A) at ``velocity`` (rad/s)."""
         present = self.ticks(position)
-        goal_ticks = np.round(np.asarray(goal, dtype=float) / RAD_PER_TICK)
+        goal_ticks = np.round(np.asarray(goal, dtype=float) / self._rad_per_tick)
         self.reset_slot(slice(None), goal_ticks)
         self.goal[:] = goal_ticks
         error = goal_ticks - present
@@ -244,26 +249,26 @@ class ServoArray:
         p = self.params
         vin = np.maximum(self.supply, 1e-6)
         pwm = (np.asarray(current, dtype=float) * p.resistance + p.ke * np.asarray(velocity, dtype=float)) / vin
-        self.integral = np.clip(pwm * PWM_FULL_SCALE - (self.gains[:, 0] / 128.0) * error,
+        self.integral = np.clip(pwm * self._pwm_full - (self.gains[:, 0] / 128.0) * error,
                                 -self.pwm_limit, self.pwm_limit)
         self.current = np.asarray(current, dtype=float).copy()
-        self.pwm = pwm * PWM_FULL_SCALE
+        self.pwm = pwm * self._pwm_full
 
     def set_goal(self, goal: np.ndarray) -> None:
         """New goal positions (rad): ticks as the bus writes them, with the profile planned."""
-        goal_ticks = np.round(np.asarray(goal, dtype=float) / RAD_PER_TICK)
+        goal_ticks = np.round(np.asarray(goal, dtype=float) / self._rad_per_tick)
         changed = goal_ticks != self.goal
         if not changed.any():
             return
         pv, pa = self.profile_velocity, self.profile_acceleration
-        vmax = np.where(pv == 0, np.inf, pv * VELOCITY_UNIT_RAD_S / RAD_PER_TICK)
-        amax = np.where((pv == 0) | (pa == 0), np.inf, pa * ACCEL_UNIT_RAD_S2 / RAD_PER_TICK)
+        vmax = np.where(pv == 0, np.inf, pv * self._velocity_unit / self._rad_per_tick)
+        amax = np.where((pv == 0) | (pa == 0), np.inf, pa * self._accel_unit / self._rad_per_tick)
         idx = np.flatnonzero(changed)
         self.plan_slot(idx, goal_ticks[idx], vmax[idx], amax[idx])
 
     def step(self, dt: float, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """One firmware sample of ``dt`` s at the shaft state (rad, rad/s); the motor torque (N·m)."""
-        self.present = np.floor(position * (1.0 / RAD_PER_TICK) + 0.5)
+        self.present = np.floor(position * (1.0 / self._rad_per_tick) + 0.5)
         self.omega = velocity
         self.step_ticks(dt)
         return self.params.kt * self.current
@@ -336,8 +341,8 @@ class ServoArray:
         if current_cmd is not None:
             commanded = np.isfinite(current_cmd)
             if commanded.any():
-                needed = (np.nan_to_num(current_cmd) * p.resistance + p.ke * omega) / vin * PWM_FULL_SCALE
+                needed = (np.nan_to_num(current_cmd) * p.resistance + p.ke * omega) / vin * self._pwm_full
                 pwm = np.where(commanded, np.minimum(np.maximum(needed, -lim), lim), pwm)
-        current = (pwm * (vin / PWM_FULL_SCALE) - p.ke * omega) / p.resistance
+        current = (pwm * (vin / self._pwm_full) - p.ke * omega) / p.resistance
         self.current = np.minimum(np.maximum(current, -self.current_limit), self.current_limit)
         self.pwm = pwm
