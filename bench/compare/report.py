@@ -310,7 +310,8 @@ def render_markdown(comparison: Comparison, figures: dict[str, str], title: str,
               "Error = measured − commanded. Lag: delay of the measured velocity behind the commanded "
               "(cross-correlation peak, sub-sample); — for a joint whose command hardly moves. Settling: "
               "after the joint's last move that is followed by a hold, the time until |error| stays "
-              "within the band (the servo tolerance ±0.29°, through a 10 mm pinion for slides, widened "
+              "within the band (the servo tolerance ±0.29° through the joint's transmission: a 10 mm "
+              "pinion for slides, the same pinion on the 200 mm arc for the train (±0.0145°); widened "
               "to 3σ of the sample noise) for the rest of the hold; — when it never does or the joint "
               "never moves. Placement error: at the placement window, where the needle is measured.", ""]
     lines += _train_note(comparison)
