@@ -273,8 +273,8 @@ def render_markdown(comparison: Comparison, figures: dict[str, str], title: str,
              f"settle {plan.get('settle_s', '?')} s; control rate: {ref.label} "
              f"{1 / float(ref.logs[0].metadata.get('control_period', float('nan'))):g} Hz, {sub.label} "
              f"{1 / float(meta.get('control_period', float('nan'))):g} Hz",
-             f"- repeats: {len(ref.logs)} on {ref.label} ({ref.backend}), {len(sub.logs)} on {sub.label} "
-             f"({sub.backend})",
+             f"- repeats: {len(ref.logs)} on {ref.label} ({ref.backend}, {ref.rig}), {len(sub.logs)} on "
+             f"{sub.label} ({sub.backend}, {sub.rig}: what each trial's record says ran it)",
              f"- acceptance: {pos:g} mm per axis and depth, {ang:g}° in angle"]
     lines += [f"- {n}" for n in notes]
     for a in lost:

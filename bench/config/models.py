@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 from bench.config.calibration import check_calibration
@@ -341,6 +341,12 @@ class SafetyConfig(Strict):
 class TrialConfig(Strict):
     """One trial: a robot, a target, a plan, the limits it is judged by and where it runs."""
 
+    #: (path, content) of the calibration read when the config was loaded, so a trial applies
+    #: and records that one reading (copies of the config keep it).
+    _calibration_read: Any = PrivateAttr(default=None)
+    #: (the faults list, its parse) from validation, so a trial parses its faults once.
+    _faults_parsed: Any = PrivateAttr(default=None)
+
     name: str = Field(pattern=NAME_PATTERN, description="letters, digits, . _ - (the run's folder)")
     robot: Literal["arc-train"] = Field(default="arc-train", description="the robot driven (trials run "
                                         "arc-train; `hilbench robot` lists what zerobot and para-brachy lack)")
@@ -450,13 +456,20 @@ class TrialConfig(Strict):
                 raise ValueError(f"control_hz {self.control_hz:g} must divide backend.physics_hz "
                                  f"{self.backend.physics_hz:g} (a control period is a whole number "
                                  f"of physics steps)")
-        if self.faults:
-            parse_faults(self.faults, names)  # raises ValueError naming the bad fault
+        if self.faults:  # raises ValueError naming the bad fault; kept for the trial
+            self._faults_parsed = (self.faults, parse_faults(self.faults, names))
         return self
 
     @property
     def control_period(self) -> float:
         return 1.0 / self.control_hz
+
+    def fault_specs(self) -> list:
+        """The faults, parsed once (at validation; again only for a copy given other faults)."""
+        kept = self._faults_parsed
+        if kept is not None and kept[0] is self.faults:
+            return list(kept[1])
+        return parse_faults(self.faults, get_robot(self.robot).joint_names) if self.faults else []
 
     def resolve(self, path: Path) -> Path:
         """A path from the config, relative to the repository root if not absolute."""
@@ -479,6 +492,6 @@ def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialC
         config = TrialConfig.model_validate({**data, "source": path})
     except ValidationError as e:
         raise ConfigError(describe_validation_error(e, TrialConfig, path)) from None
-    if config.calibration is not None:
-        check_calibration(config)  # raises ConfigError naming the problem
+    if config.calibration is not None:  # read once: a trial applies and records this content
+        config._calibration_read = (config.resolve(config.calibration), check_calibration(config))
     return config

@@ -7,14 +7,15 @@ open a backend: a trial, a comparison, the lab tools.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
-from bench.config.calibration import calibration_of
+from bench.config.calibration import CalibrationFile, calibration_of
 from bench.config.models import ConfigError, ServoConfig, TrialConfig, load_servo_model_file, model_number
 from bench.kinematics.arc_train import epsilon_from_d2, train_pose
 from bench.kinematics.transmission import servo_transmissions
+from bench.rig.live import hooks_for
 from drivers import Actuators, JointLimits
 from drivers.dynamixel.backend import DynamixelActuators, DynamixelSettings, ServoSettings, UltrasonicSettings
 from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, SceneObject
@@ -143,8 +144,13 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
     return ServoSimActuators(settings)
 
 
-def make_backend(config: TrialConfig, robot, gui: bool = False) -> Actuators:
-    """The configured backend, inactive (reading allowed, commands refused)."""
+def make_backend(config: TrialConfig, robot, gui: bool = False,
+                 calibration: Optional[CalibrationFile] = None) -> Actuators:
+    """The configured backend, inactive (reading allowed, commands refused).
+
+    ``calibration``: what a trial read once and records; without it a Dynamixel backend reads
+    the config's own. A Dynamixel backend on a bus this process emulates carries that bus's
+    fault hooks (:mod:`bench.rig.live`)."""
     cfg = config
     if cfg.backend.kind == "pybullet" and cfg.backend.servo_model != "ideal":
         if gui:
@@ -167,15 +173,17 @@ def make_backend(config: TrialConfig, robot, gui: bool = False) -> Actuators:
             solver_iterations=b.solver_iterations)
         return PyBulletActuators(settings)
     if cfg.backend.kind == "dynamixel":
-        return make_dynamixel_backend(cfg, robot)
+        return make_dynamixel_backend(cfg, robot, calibration)
     raise ConfigError(f"backend.kind: unknown backend {cfg.backend.kind!r}")
 
 
-def make_dynamixel_backend(config: TrialConfig, robot) -> Actuators:
+def make_dynamixel_backend(config: TrialConfig, robot,
+                           calibration: Optional[CalibrationFile] = None) -> Actuators:
     """The Dynamixel backend from a config (ports, IDs, models, transmissions)."""
 
     b = config.backend
-    cal = calibration_of(config)  # zero offsets and ultrasonic mapping, if the config names one
+    # zero offsets and ultrasonic mapping: as given, else the config's own, if it names one
+    cal = calibration if calibration is not None else calibration_of(config)
     rows = robot.chain.rows
     servos = [ServoSettings(joint=n, id=sc.id, model=model_number(sc.model), mode=sc.mode,
                             ratio=sc.ratio, offset=cal.offset(n, sc.offset) if cal else sc.offset,
@@ -203,4 +211,8 @@ def make_dynamixel_backend(config: TrialConfig, robot) -> Actuators:
         timeout_s=b.timeout_ms * 1e-3 if b.timeout_ms else None,
         safe_stop=b.safe_stop, reboot_on_hardware_error=b.reboot_on_hardware_error,
         ultrasonic=ultra)
-    return DynamixelActuators(settings)
+    backend = DynamixelActuators(settings)
+    hooks = hooks_for(b.port)
+    if hooks is not None:  # an emulated bus: bus-level faults reach the wire through its hooks
+        backend.fault_hooks = hooks
+    return backend
