@@ -238,7 +238,8 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
     for r in found:
         tip = "" if r.tip_deviation_mm is None else f"{r.tip_deviation_mm:.2f}"
         angle = "" if r.angle_deviation_deg is None else f"{r.angle_deviation_deg:+.3f}"
-        t.add_row(Path(r.run_dir).name, r.backend or "?", f"[{colour[r.status]}]{r.status}[/]",
+        backend = f"{r.backend or '?'} ({r.rig})" if r.rig and r.rig != "sim" else (r.backend or "?")
+        t.add_row(Path(r.run_dir).name, backend, f"[{colour[r.status]}]{r.status}[/]",
                   tip, angle)
     console.print(t)
     for r in found:

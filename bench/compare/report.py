@@ -31,6 +31,7 @@ from bench.compare.prediction import Prediction
 from bench.compare.prediction_report import plot_prediction, prediction_markdown
 from bench.compare.signals import nanmean
 from bench.core.log import TrialLog
+from bench.core.outcome import SETTLED_WINDOW_S
 from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, table3_deviations, train_pose
 from bench.report.trial import markdown_to_html
 from bench.scene.dynamics import gravity_torques
@@ -300,7 +301,8 @@ def render_markdown(comparison: Comparison, figures: dict[str, str], title: str,
         lines += _table3(side)
     lines += ["## Deviations over repeats", "",
               "Entry point (Table 3's X, Y, Z), insertion depth and angle, and the needle tip, achieved "
-              "minus target.", ""]
+              "minus target; each repeat placed as its trial placed it for its verdict (the median "
+              f"reading over the last {SETTLED_WINDOW_S:g} s of the insertion's settle).", ""]
     for side in (sub, ref):
         lines += _deviation_table(side)
     lines += ["## Average deviation (Table 4 layout)", ""] + _table4(comparison)

@@ -99,6 +99,8 @@ class SessionResult:
     #: With a servo model: the ideal sim against the rig, and how much better the model predicts it.
     ideal: Optional[Comparison] = None
     prediction: Optional[Prediction] = None
+    #: The emulated rig's counters when it stopped (packets, status packets dropped...); {} on hardware.
+    rig_stats: dict = field(default_factory=dict)
 
 
 def sim_counterpart(config: TrialConfig, servo_model: str = "ideal") -> TrialConfig:
@@ -153,11 +155,12 @@ def _safe_stop(prep: PreparedTrial) -> None:
 class _Rig:
     """What the rig side of a session did: its repeats, their homings, the attempts lost."""
 
-    out_dir: Path
+    out_dir: Path  #: where the session's folder goes, then that folder
     runs: list[Path] = field(default_factory=list)
     homings: list[Path] = field(default_factory=list)
     lost: list[LostAttempt] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    stats: dict = field(default_factory=dict)  #: the emulator's counters, when it stopped
 
 
 def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bool = False,
@@ -175,13 +178,15 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     if not emulate:
         check_real_ports(config)
     progress = progress or (lambda what, f: None)
-    rig = _run_rig(rig_prep, out, repeats, emulate, retries, progress, interrupts)
+    rig = _Rig(Path(out))
+    _run_rig(rig, rig_prep, repeats, emulate, retries, progress, interrupts)
     found = [(TrialLog.load(p / "trial.npz"), TrialLog.load(h) if h.exists() else None)
              for p, h in zip(rig.runs, rig.homings)]
     runs = {label: _run_sim(cfg, where, found, label, k, len(sides), progress, interrupts)
             for k, (label, cfg, where) in enumerate((lb, c, rig.out_dir / d) for lb, c, d in sides)}
     progress("comparing", 1.0)
     result = _analysed(rig, runs, [log for log, _ in found], emulate, align, sim_model)
+    result.rig_stats = rig.stats
     result.notes = _notes(config, rig, emulate, sim_model) + rig.notes
     if report:
         real_label = "emulated rig" if emulate else "real rig"
@@ -222,8 +227,8 @@ def _prepared_sides(config: TrialConfig, sim_model: Optional[str]):
     return rig, sides
 
 
-def _run_rig(prep: PreparedTrial, out: Path, repeats: int, emulate: bool, retries: int,
-             progress: ProgressFn, interrupts: Interruptible) -> _Rig:
+def _run_rig(rig: _Rig, prep: PreparedTrial, repeats: int, emulate: bool, retries: int,
+             progress: ProgressFn, interrupts: Interruptible) -> None:
     """Every rig repeat, each after its homing, the emulator (``emulate``) started once for all;
     the config's safe stop after the last, or whenever the session ends early."""
     w_real = 0.88 / repeats  # rough share of the wall time: the rig runs in real time, the sim ~8x faster
@@ -234,7 +239,7 @@ def _run_rig(prep: PreparedTrial, out: Path, repeats: int, emulate: bool, retrie
         if emulate:
             progress("starting the emulated rig", 0.0)
             emulator, prep = _emulated(prep)
-        rig = _Rig(new_run_dir(out, f"compare-{prep.config.name}"))
+        rig.out_dir = new_run_dir(rig.out_dir, f"compare-{prep.config.name}")
         touched = True
         for i in range(repeats):
             res, homing = _rig_repeat(i, repeats, prep, rig.out_dir / "real", rig.out_dir / "homing",
@@ -256,7 +261,7 @@ def _run_rig(prep: PreparedTrial, out: Path, repeats: int, emulate: bool, retrie
             _safe_stop(prep)  # that repeat held the arm; stop as the config says
         if emulator is not None:
             emulator.close()
-    return rig
+            rig.stats = dict(emulator.stats)
 
 
 def _emulated(prep: PreparedTrial) -> tuple[EmulatorProcess, PreparedTrial]:

@@ -33,6 +33,7 @@ class RunSummary:
     tip_deviation_mm: Optional[float]  # length of the tip deviation vector
     angle_deviation_deg: Optional[float]
     report: Optional[str]  # report.html when it was drawn
+    rig: Optional[str] = None  # sim, emulated or real: what the record says ran it (None: older runs)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -72,7 +73,7 @@ def _summary(run_dir: Path) -> Optional[RunSummary]:
     return RunSummary(str(run_dir), meta.get("start_time"), config, meta.get("backend"), status,
                       reason, None if tip is None else round(tip, 3),
                       None if angle is None else round(float(angle), 4),
-                      str(report) if report.is_file() else None)
+                      str(report) if report.is_file() else None, meta.get("rig"))
 
 
 def _metadata(run_dir: Path) -> Optional[dict]:
