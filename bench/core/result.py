@@ -45,6 +45,9 @@ class PreparedTrial:
     limits: Optional[Any] = None  #: the joint limits the backend will have (JointLimits)
     interlocks: Optional[Any] = None  #: the configured interlocks (None when disabled)
     start: Optional[np.ndarray] = None  #: the pose the prepared plan starts from
+    #: False when the plan's start was given (a comparison runs the rig's very plan on the sim):
+    #: the run keeps it; True: the plan's moves from the start are re-aimed at the first reading.
+    aim_at_reading: bool = True
     segments: list = field(default_factory=list)  #: the checked plan from ``start``
 
     def with_config(self, config: TrialConfig) -> "PreparedTrial":

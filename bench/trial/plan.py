@@ -79,6 +79,7 @@ def prepare(config: TrialConfig, plan_start: Optional[np.ndarray] = None) -> Pre
                          faults=faults, limits=backend_limits(config, robot))
     prep.interlocks = interlocks_for(prep, prep.limits)
     prep.start = np.array(robot.chain.home if plan_start is None else plan_start, dtype=float)
+    prep.aim_at_reading = plan_start is None
     prep.segments = _checked_plan(prep, prep.start)
     return prep
 
@@ -110,9 +111,9 @@ def _checked_plan(prep: PreparedTrial, start: np.ndarray) -> list[Segment]:
 def aimed_plan(prep: PreparedTrial, q_start: np.ndarray) -> list[Segment]:
     """The prepared plan, its moves from and back to the start re-aimed at ``q_start`` (the
     backend's first reading) when the robot is not exactly where the plan starts; the rest of the
-    plan is the one prepared and checked."""
+    plan is the one prepared and checked. A plan prepared from a given start is kept as it is."""
     q_start = np.asarray(q_start, dtype=float)
-    if prep.start is not None and np.array_equal(q_start, prep.start):
+    if not prep.aim_at_reading or (prep.start is not None and np.array_equal(q_start, prep.start)):
         return list(prep.segments)
     traj = _trajectories(prep, prep.limits.velocity)
     out = []
