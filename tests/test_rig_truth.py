@@ -60,13 +60,14 @@ def test_a_campaign_on_an_emulated_rig_drops_status_packets_on_the_bus(tmp_path)
                 "samples": 1, "repeats": 1, "faults": DROPS}
         d = create_campaign(write(tmp_path, "spec", spec), tmp_path / "campaign")
         before = rig.bus.stats.status_dropped
-        run_campaign(d, workers=1, report=False)
+        run_campaign(d, workers=1)
         dropped = rig.bus.stats.status_dropped - before
     assert dropped > 0  # on the wire, not in a wrapper: the emulator itself dropped them
     with CampaignStore(d / "campaign.db") as store:
         (row,) = store.trials()
     assert row["status"] == "done", row.get("error")
     assert row["metrics"]["rig"] == "emulated"
+    assert "- rig: emulated" in (d / "report.md").read_text()
     trial_dirs = [p for p in (d / "trials").rglob("record.json")]
     assert trial_dirs and json.loads(trial_dirs[0].read_text())["rig"] == "emulated"
 

@@ -188,7 +188,10 @@ def _from_runs(a: Path, b: Path, align: str, out: Path):
 
 def _label(log, fallback: str) -> str:
     backend = str(log.metadata.get("backend"))
-    if backend == "dynamixel":
+    rig = log.metadata.get("rig")  # what the record says ran it
+    if rig in ("emulated", "real"):
+        return f"{rig} rig"
+    if backend == "dynamixel":  # a log recorded before records said which rig
         port = str(((log.metadata.get("config") or {}).get("backend") or {}).get("port", ""))
         return "emulated rig" if port.startswith("/dev/pts/") else "real rig"
     return {"pybullet": "sim"}.get(backend, fallback)
