@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -170,3 +171,25 @@ def test_a_backend_built_on_an_emulated_port_gets_its_hooks_and_a_real_port_none
         finally:
             act.close()
     assert rig_kind(there) == "real"  # the rig is gone: that port is no emulator's any more
+
+
+def test_an_emulate_rehearsal_says_emulated_in_runs_report_and_log(tmp_path):
+    import subprocess
+    import sys
+
+    hilbench = str(Path(sys.executable).with_name("hilbench"))
+    path = write(tmp_path, "lab", short_lab(tmp_path))
+    out = tmp_path / "runs"
+    done = subprocess.run([hilbench, "trial", str(path), "--emulate", "--json", "--out", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode in (0, 1), done.stderr
+    run = Path(json.loads(done.stdout)["run_dir"])
+    assert TrialLog.load(run / "trial.npz").metadata["rig"] == "emulated"
+    assert json.loads((run / "record.json").read_text())["rig"] == "emulated"
+    assert "backend: dynamixel (emulated)" in (run / "report.md").read_text()
+    listed = subprocess.run([hilbench, "runs", "--out", str(out), "--json"], capture_output=True,
+                            text=True, timeout=60)
+    assert [r["rig"] for r in json.loads(listed.stdout)["runs"]] == ["emulated"]
+    table = subprocess.run([hilbench, "runs", "--out", str(out)], capture_output=True, text=True,
+                           timeout=60, env={**os.environ, "COLUMNS": "200"})
+    assert "dynamixel (emulated)" in table.stdout
