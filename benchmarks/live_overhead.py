@@ -49,7 +49,7 @@ def loop(live: bool) -> float:
     server = browser = None
     try:
         if live:
-            server = LiveServer(RunFollower(out, cfg), on_stop=lambda: None).start()
+            server = LiveServer(RunFollower(out, lambda: prep), on_stop=lambda: None).start()
             browser = subprocess.Popen([shutil.which("chromium") or "chromium", "--headless=new", "--no-sandbox",
                                         "--disable-gpu", f"--user-data-dir={out / 'profile'}", server.url],
                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

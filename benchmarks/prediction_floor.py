@@ -37,7 +37,8 @@ from bench.compare.prediction import tracking_gap  # noqa: E402
 from bench.compare.session import _plan_start_of, _starting_at, sim_counterpart  # noqa: E402
 from bench.config.models import load_trial_config  # noqa: E402
 from bench.core.log import TrialLog  # noqa: E402
-from bench.trial.run import run_trial  # noqa: E402
+from bench.trial.plan import prepare  # noqa: E402
+from bench.trial.run import TrialHooks, run_trial  # noqa: E402
 from drivers.dynamixel.units import RAD_PER_TICK  # noqa: E402
 
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
@@ -69,7 +70,8 @@ def floor_once(config: Path, model: str, repeats: int, tmp: Path, seed: int) -> 
         for name, value in start.items():
             if name != noisy.joint:  # an encoder joint: anywhere in its tick
                 start[name] = value + rng.uniform(-0.5, 0.5) * RAD_PER_TICK * table[name].ratio
-        res2 = run_trial(_starting_at(cfg, start), tmp / "again", report=False, plan_start=_plan_start_of(rig))
+        res2 = run_trial(prepare(_starting_at(cfg, start), plan_start=_plan_start_of(rig)), tmp / "again",
+                         TrialHooks(report=False))
         second.append(TrialLog.load(res2.run_dir / "trial.npz"))
     ideal_gap = tracking_gap(compare_logs(ideal, real))
     return res["prediction"]["tracking_gap_ratio"], tracking_gap(compare_logs(first, second)) / ideal_gap

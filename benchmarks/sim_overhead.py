@@ -110,11 +110,11 @@ def trials_per_minute(workers: int, trials: int) -> float:
 def _one_trial(i: int) -> bool:
     import tempfile
 
-    from bench.trial.run import run_trial
+    from bench.trial.run import TrialHooks, run_trial
 
     cfg = load_trial_config(CONFIG)
     with tempfile.TemporaryDirectory() as out:
-        return run_trial(cfg, Path(out), report=False).passed
+        return run_trial(prepare(cfg), Path(out), TrialHooks(report=False)).passed
 
 
 def main() -> None:

@@ -15,7 +15,8 @@ from bench.core.truth import GroundTruth
 from bench.faults import FaultWrapper, apply_faults
 from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_backend
-from bench.trial.run import run_trial
+from bench.trial.plan import prepare
+from bench.trial.run import TrialHooks, run_trial
 from drivers import ActuatorsWrapper
 from drivers.capabilities import BlockExecution, SafeStopReport, StartWarnings, find_capability
 
@@ -40,8 +41,8 @@ def _warning_backend(prep):
 def test_a_trial_records_the_backends_warnings_and_safe_stop_through_the_fault_stack(tmp_path):
     cfg = _config([{"name": "bias", "joints": ["theta4"], "bias_deg": 0.1}])
     stacks = []
-    res = run_trial(cfg, tmp_path, report=False, backend_factory=_warning_backend,
-                    wrap=lambda act: stacks.append(act) or act)
+    res = run_trial(prepare(cfg), tmp_path, TrialHooks(report=False, backend=_warning_backend,
+                                                       wrap=lambda act: stacks.append(act) or act))
     act = stacks[0]
     assert act is not act.unwrapped and find_capability(act, StartWarnings) is act.unwrapped
     log = TrialLog.load(res.log_path)

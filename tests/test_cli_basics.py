@@ -14,7 +14,8 @@ import pytest
 
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
-from bench.trial.run import run_trial
+from bench.trial.plan import prepare
+from bench.trial.run import TrialHooks, run_trial
 
 REPO = Path(__file__).resolve().parent.parent
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
@@ -45,11 +46,11 @@ def test_runs_lists_passed_stopped_and_killed_trials_with_their_verdicts(tmp_pat
     out = tmp_path / "runs"
     cfg = load_trial_config(SIM)
     phases: list[str] = []
-    passed = run_trial(cfg, out, phase=phases.append)
+    passed = run_trial(prepare(cfg), out, TrialHooks(phase=phases.append))
     # the progress display hears every phase in order, the plan's segments included
     assert phases == ["connecting", "planning", *passed_segments(passed.run_dir), "report"]
-    stopped = run_trial(cfg.model_copy(update={"name": "stopped", "safety": cfg.safety.model_copy(
-        update={"tracking_error_deg": 1e-6})}), out, report=False)
+    stopped = run_trial(prepare(cfg.model_copy(update={"name": "stopped", "safety": cfg.safety.model_copy(
+        update={"tracking_error_deg": 1e-6})})), out, TrialHooks(report=False))
     assert not stopped.completed
     killed = out / "20000101-000000-killed"  # what SIGKILL leaves: the journal only
     killed.mkdir()

@@ -197,7 +197,8 @@ def test_needle_placement_error_is_explained_by_the_right_joint(prep):
     s = c.summary()
     assert s["repeats"] == 3 and s["passed"] is True
     assert set(s) == {"repeats", "tip_deviation_mm", "depth_deviation_mm", "angle_deviation_deg",
-                      "passed", "completed", "reason", "worst_joint"}
+                      "passed", "completed", "reason", "worst_joint", "rig"}
+    assert s["rig"] == "?"  # synthetic logs record no rig
     assert s["completed"] == 3 and s["reason"] == ""
     # the first-order sum of the contributions predicts the tip deviation
     pred = np.mean([np.sum([x.tip_mm for x in rep], axis=0) for rep in c.subject.contributions], axis=0)

@@ -158,7 +158,7 @@ def test_unplug_mid_trial_aborts_within_a_second_and_keeps_the_log(tmp_path):
         update={"fast_sync_read": False, "timeout_ms": 200.0})})
     with EmulatedRig(cfg) as r:
         res_box = {}
-        t = threading.Thread(target=lambda: res_box.update(res=run_trial(r.retarget(cfg), tmp_path)))
+        t = threading.Thread(target=lambda: res_box.update(res=run_trial(prepare(r.retarget(cfg)), tmp_path)))
         t.start()
         start = r.bus.stats.packets
         deadline = time.monotonic() + 30.0

@@ -20,7 +20,7 @@ from bench.faults import FAULTS, Backlash, Deadband, FaultWrapper, apply_faults,
 from bench.kinematics.arc_train import JOINTS, TARGET_1, epsilon_from_d2, train_pose
 from bench.rig.backends import make_backend
 from bench.trial.plan import prepare
-from bench.trial.run import run_trial
+from bench.trial.run import TrialHooks, run_trial
 from drivers import Actuators, ActuatorsBase, ConfigurationError, JointLimits, JointState
 from trajectories import LSPB
 
@@ -82,7 +82,7 @@ def run_with_truth(cfg: TrialConfig, tmp_path: Path):
         holder["truth"] = GroundTruth(act)
         return holder["truth"]
 
-    res = run_trial(cfg, tmp_path, report=False, wrap=wrap)
+    res = run_trial(prepare(cfg), tmp_path, TrialHooks(report=False, wrap=wrap))
     return res, TrialLog.load(res.log_path), holder["truth"], holder["stack"]
 
 
@@ -263,7 +263,7 @@ def test_torque_limit_below_gravity_load_stalls_the_joint_and_fails(tmp_path, ar
     scale = round(0.5 * load[j], 3)  # half the torque gravity needs there
     faults = [{"name": "torque_limit", "joints": [name], "scale": scale}]
     # with the interlocks on, the sagging arm trips one and the trial stops: failed
-    guarded = run_trial(fast_config(faults), tmp_path, report=False)
+    guarded = run_trial(prepare(fast_config(faults)), tmp_path, TrialHooks(report=False))
     assert not guarded.completed and not guarded.passed and "interlock" in guarded.reason
     # without them, the trial runs to the end with the joint stalled and fails the acceptance
     cfg = fast_config(faults, safety={"enabled": False})
@@ -279,8 +279,8 @@ def test_torque_limit_below_gravity_load_stalls_the_joint_and_fails(tmp_path, ar
     lag = np.degrees(np.abs(log.q_cmd[approach] - log.q[approach]).max(axis=0))
     assert lag[j] > 5.0 and lag[j] > 5 * np.max(lag[others])
     # enough torque (but less than nominal): the same joint arrives
-    res_ok = run_trial(fast_config([{"name": "torque_limit", "joints": [name],
-                                     "scale": round(1.6 * load[j], 3)}]), tmp_path, report=False)
+    res_ok = run_trial(prepare(fast_config([{"name": "torque_limit", "joints": [name],
+                                             "scale": round(1.6 * load[j], 3)}])), tmp_path, TrialHooks(report=False))
     assert res_ok.passed
 
 

@@ -17,7 +17,8 @@ from bench.config.models import load_trial_config
 from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_dynamixel_backend
 from bench.rig.emulated import EmulatedRig, Planted
-from bench.trial.run import run_trial
+from bench.trial.plan import prepare
+from bench.trial.run import TrialHooks, run_trial
 from drivers import BenchError, ConfigurationError
 from drivers.dynamixel.settings import ServoSettings
 from drivers.dynamixel.control_table import x_series_table
@@ -64,7 +65,7 @@ def test_a_transmission_typo_never_reaches_the_bus(tmp_path, joint, change, says
     with EmulatedRig(cfg) as rig:
         goals = record_goals(rig)
         with pytest.raises(ConfigurationError) as err:
-            run_trial(rig.retarget(cfg), tmp_path / "runs", report=False)
+            run_trial(prepare(rig.retarget(cfg)), tmp_path / "runs", TrialHooks(report=False))
         assert says in str(err.value) and "torque not enabled" in str(err.value)
         assert not any(rig.bus.servo(i).torque_enabled for i in rig.bus.servos)
         lo, hi = mode_ticks(cfg.backend.servos[joint].mode)
@@ -116,7 +117,7 @@ def test_a_rig_reading_a_joint_beyond_its_limits_is_refused_before_torque(tmp_pa
         goals = record_goals(rig)
         with pytest.raises(ConfigurationError, match=r"theta4 reads -1\.(69|70)\d*, outside its limits "
                                                      r"\[-1\.5708, 1\.5708\]; torque not enabled"):
-            run_trial(rig.retarget(cfg), tmp_path / "runs", report=False)
+            run_trial(prepare(rig.retarget(cfg)), tmp_path / "runs", TrialHooks(report=False))
         assert not any(rig.bus.servo(i).torque_enabled for i in rig.bus.servos)
         assert not any(goals.values())
     assert not (tmp_path / "runs").exists()

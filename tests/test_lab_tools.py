@@ -295,7 +295,7 @@ def test_trial_record_names_its_calibration(tmp_path):
     from bench.core.log import TrialLog
     from bench.rig.backends import make_backend
     from bench.trial.plan import prepare
-    from bench.trial.run import run_trial
+    from bench.trial.run import TrialHooks, run_trial
 
     cal = save_calibration(CalibrationFile(
         config_name="lab-target1", created="2026-01-01T00:00:00+00:00",
@@ -305,7 +305,8 @@ def test_trial_record_names_its_calibration(tmp_path):
     (tmp_path / "lab.yaml").write_text(yaml.safe_dump(data))
     cfg = load_trial_config(tmp_path / "lab.yaml")
     sim = prepare(load_trial_config(REPO / "hil_configs" / "sim_target1_fast.yaml"))
-    res = run_trial(cfg, tmp_path / "runs", backend_factory=lambda prep: make_backend(sim.config, sim.robot), report=False)
+    res = run_trial(prepare(cfg), tmp_path / "runs",
+                    TrialHooks(backend=lambda prep: make_backend(sim.config, sim.robot), report=False))
     meta = TrialLog.load(res.log_path).metadata
     assert meta["calibration"]["path"] == str(cal)
     assert meta["calibration"]["content"]["servos"]["theta5"]["offset"] == 0.01

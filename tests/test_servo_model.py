@@ -212,10 +212,12 @@ def test_a_sim_started_holding_the_rigs_effort_reports_it_and_moves_off_it(tmp_p
 def test_a_datasheet_sim_trial_shows_the_rigs_gravity_sag_where_the_ideal_sim_has_none(tmp_path):
     """Target 1 with the lab's servo table: the tip lands mm away (seed 000 reports 1.5 mm-class
     errors on the rig), where PyBullet's ideal motors land within 0.2 mm; a read is a tick."""
-    from bench.trial.run import run_trial
+    from bench.trial.plan import prepare
+    from bench.trial.run import TrialHooks, run_trial
 
-    ideal = run_trial(load_trial_config(SIM), tmp_path / "ideal", report=False)
-    servo = run_trial(_sim_with(tmp_path, "datasheet", lab_servos=True), tmp_path / "servo", report=False)
+    ideal = run_trial(prepare(load_trial_config(SIM)), tmp_path / "ideal", TrialHooks(report=False))
+    servo = run_trial(prepare(_sim_with(tmp_path, "datasheet", lab_servos=True)), tmp_path / "servo",
+                      TrialHooks(report=False))
     assert ideal.completed and servo.completed
     ideal_tip = np.linalg.norm(ideal.outcome.tip_deviation_mm)
     servo_tip = np.linalg.norm(servo.outcome.tip_deviation_mm)
@@ -317,7 +319,8 @@ def test_a_current_based_servo_in_the_sim_is_capped_by_its_current_as_on_the_rig
     1 A (1.8 N·m through Kt) it cannot, and the tracking interlock stops the trial naming it."""
     import yaml
 
-    from bench.trial.run import run_trial
+    from bench.trial.plan import prepare
+    from bench.trial.run import TrialHooks, run_trial
 
     repo = Path(__file__).resolve().parents[1]
     data = yaml.safe_load((repo / "hil_configs" / "sim_target1_servo.yaml").read_text())
@@ -328,7 +331,7 @@ def test_a_current_based_servo_in_the_sim_is_capped_by_its_current_as_on_the_rig
     data["backend"].update(servos=servos, ultrasonic=lab["ultrasonic"])
     path = tmp_path / "weak.yaml"
     path.write_text(yaml.safe_dump(data))
-    res = run_trial(load_trial_config(path), tmp_path / "runs", report=False)
+    res = run_trial(prepare(load_trial_config(path)), tmp_path / "runs", TrialHooks(report=False))
     assert not res.completed and "theta5" in res.reason and "tracking" in res.reason
 
 

@@ -24,7 +24,8 @@ from typer.testing import CliRunner
 
 from bench.cli.app import app
 from bench.config.models import load_trial_config
-from bench.trial.run import run_trial
+from bench.trial.plan import prepare
+from bench.trial.run import TrialHooks, run_trial
 
 REPO = Path(__file__).resolve().parent.parent
 FAST = REPO / "hil_configs" / "sim_target1_fast.yaml"
@@ -32,7 +33,7 @@ FAST = REPO / "hil_configs" / "sim_target1_fast.yaml"
 
 @pytest.fixture(scope="module")
 def good_run(tmp_path_factory) -> Path:
-    res = run_trial(load_trial_config(FAST), tmp_path_factory.mktemp("good"), report=False)
+    res = run_trial(prepare(load_trial_config(FAST)), tmp_path_factory.mktemp("good"), TrialHooks(report=False))
     assert res.completed
     return res.run_dir
 

@@ -15,7 +15,7 @@ from bench.config.models import ConfigError, load_trial_config
 from bench.core.log import TrialLog
 from bench.core.result import TrialError
 from bench.trial.plan import prepare
-from bench.trial.run import run_trial
+from bench.trial.run import TrialHooks, run_trial
 
 REPO = Path(__file__).resolve().parent.parent
 SIM = REPO / "hil_configs" / "sim_target1.yaml"
@@ -38,7 +38,7 @@ def write_config(tmp_path: Path, **changes) -> Path:
 @pytest.mark.parametrize("trajectory", ["lspb", "ruckig", "ruckig-online"])
 def test_ideal_sim_trial_reaches_target_1(tmp_path, trajectory):
     cfg = load_trial_config(write_config(tmp_path, **{"plan.trajectory": trajectory}))
-    res = run_trial(cfg, tmp_path / "runs")
+    res = run_trial(prepare(cfg), tmp_path / "runs")
     assert res.completed and res.passed
     o = res.outcome
     assert np.max(np.abs(o.tip_deviation_mm)) < 0.5
@@ -105,7 +105,7 @@ def test_library_errors_are_typed(tmp_path):
 
 def test_report_rebuilt_from_the_record_equals_the_original(tmp_path):
     cfg = load_trial_config(SIM)
-    res = run_trial(cfg, tmp_path, note="rebuild check")
+    res = run_trial(prepare(cfg), tmp_path, TrialHooks(note="rebuild check"))
     d = res.run_dir
     originals = {name: (d / name).read_bytes() for name in ("report.md", "report.html", "joints.png",
                                                             "result.json")}
@@ -127,7 +127,7 @@ def test_a_trial_stopped_at_once_reports_what_stopped_it_and_draws_no_empty_plot
     cfg = load_trial_config(SIM)
     cfg = cfg.model_copy(update={"name": "stopped", "safety": cfg.safety.model_copy(
         update={"tracking_error_deg": 0.001})})
-    res = run_trial(cfg, tmp_path)
+    res = run_trial(prepare(cfg), tmp_path)
     assert not res.completed
     md = (res.run_dir / "report.md").read_text()
     stopped = md.split("## What stopped it")[1].split("##")[0]
@@ -141,7 +141,7 @@ def test_a_trial_stopped_at_once_reports_what_stopped_it_and_draws_no_empty_plot
 
 
 def test_report_refuses_a_modified_log(tmp_path):
-    res = run_trial(load_trial_config(SIM), tmp_path)
+    res = run_trial(prepare(load_trial_config(SIM)), tmp_path)
     with open(res.log_path, "ab") as f:
         f.write(b"tampered")
     out = subprocess.run([HILBENCH, "report", str(res.run_dir)], capture_output=True, text=True,
@@ -162,7 +162,7 @@ def test_a_bad_command_mid_trial_is_an_abort_event_and_a_kept_record(tmp_path):
                 position = np.full_like(np.asarray(position, dtype=float), np.nan)
             self.actuators.command(position, velocity)
 
-    res = run_trial(load_trial_config(SIM), tmp_path, wrap=NaNAfterASecond, report=False)
+    res = run_trial(prepare(load_trial_config(SIM)), tmp_path, TrialHooks(wrap=NaNAfterASecond, report=False))
     assert not res.completed and not res.passed
     assert CommandError.__name__ in res.reason and "not finite" in res.reason
     log = TrialLog.load(res.log_path)

@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike
 from bench.kinematics.arc_train import SERVO_TOL_DEG, TARGET_1
 from bench.kinematics.needle import UnreachableError
 from bench.kinematics.para_brachy import ParaBrachyRobot
-from bench.kinematics.transmission import servo_transmissions
+from bench.kinematics.transmission import servo_tolerances
 
 Distribution = Literal["uniform", "normal", "endpoints"]
 DISTRIBUTIONS: tuple[str, ...] = ("uniform", "normal", "endpoints")
@@ -76,10 +76,9 @@ def _check_limits(robot, q: np.ndarray) -> None:
 
 
 def default_tolerances(robot, tol_deg: float = SERVO_TOL_DEG) -> np.ndarray:
-    """±tolerance per joint (rad or m) for servos holding ±``tol_deg`` through their transmissions."""
-    if not (np.isfinite(tol_deg) and tol_deg >= 0.0):
-        raise ValueError(f"servo tolerance must be a non-negative number of degrees, got {tol_deg!r}")
-    return tol_deg * DEG * servo_transmissions(robot)
+    """±tolerance per joint (rad or m) for servos holding ±``tol_deg`` through their transmissions
+    (:func:`bench.kinematics.transmission.servo_tolerances`, the one derivation)."""
+    return servo_tolerances(robot, tol_deg)
 
 
 def per_joint(names: Sequence[str], defaults: np.ndarray, given, what: str, *, positive: bool = False) -> np.ndarray:

@@ -32,9 +32,9 @@ from typing import Any, Iterable, Protocol
 from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
 from bench.core.truth import GroundTruth, true_outcome
-from bench.kinematics.registry import get_robot
-from bench.trial.plan import target_of
-from bench.trial.run import run_trial
+from bench.rig.serving import rig_kind
+from bench.trial.plan import prepare
+from bench.trial.run import TrialHooks, run_trial
 
 __all__ = ["DaskPool", "InlinePool", "LocalPool", "Pool", "THREAD_ENV", "execute_trial", "start_forkserver",
            "worker_init"]
@@ -69,20 +69,21 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
             recorder.append(GroundTruth(act))
             return recorder[0]
 
-        res = run_trial(cfg, Path(task["stage"]), progress=None, wrap=wrap,
-                        report=bool(task.get("report", False)))
+        prep = prepare(cfg)
+        res = run_trial(prep, Path(task["stage"]), TrialHooks(wrap=wrap, report=bool(task.get("report", False))))
         measured = res.outcome
         outcome, truth = measured, "measured"
         if recorder and recorder[0].available:
             truth = "sim"
             try:
-                outcome = true_outcome(TrialLog.load(res.log_path), recorder[0], get_robot(cfg.robot),
-                                       target_of(cfg), cfg.acceptance.position_mm,
+                outcome = true_outcome(TrialLog.load(res.log_path), recorder[0], prep.robot,
+                                       prep.target, cfg.acceptance.position_mm,
                                        cfg.acceptance.angle_deg)
             except (KeyError, ValueError):  # stopped before the insertion: no placement
                 outcome = None
         metrics = {"outcome": outcome.as_dict() if outcome else None,
-                   "measured": measured.as_dict() if measured else None}
+                   "measured": measured.as_dict() if measured else None,
+                   "rig": rig_kind(prep.config)}  # sim, emulated or real: what the trial drove
         return {**base, "status": "done", "completed": res.completed,
                 "passed": bool(res.completed and outcome is not None and outcome.passed),
                 "reason": res.reason, "columns": _columns(outcome) if outcome else {},

@@ -294,6 +294,10 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
         wall = sum(s.get("wall_s", 0.0) for s in sessions)
         lines.append(f"- wall time {wall:.1f} s over {len(sessions)} session(s); last on "
                      f"{sessions[-1].get('pool', '?')}")
+    rigs = sorted({str((r.get("metrics") or {}).get("rig")) for r in done
+                   if (r.get("metrics") or {}).get("rig")})
+    if rigs:
+        lines.append(f"- rig: {', '.join(rigs)} (sim, emulated or real: what each trial's record says ran it)")
     if truth:
         lines.append("- placement measured on " + (
             "the simulator's true joint positions (as an external camera would; a biased or noisy "

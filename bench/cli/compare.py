@@ -143,6 +143,7 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
         TrialInterrupted,
     )
     from bench.core.result import TrialError  # deferred: --help and completion stay fast
+    from bench.trial.plan import prepare  # deferred: --help and completion stay fast
     from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     cfg = load_config(path)
@@ -153,7 +154,7 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
         def progress(what: str, fraction: float) -> None:
             bar.update(task, description=what, completed=min(1.0, fraction))
 
-        with SignalGuard() as guard, live_view(live, cfg, out, guard) as server:
+        with SignalGuard() as guard, live_view(live, lambda: prepare(cfg), out, guard) as server:
             try:
                 res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
                                      align=align, progress=progress, interrupts=guard, sim_model=sim_model)
@@ -211,7 +212,10 @@ def _from_runs(a: Path, b: Path, align: str, out: Path):
 
 def _label(log, fallback: str) -> str:
     backend = str(log.metadata.get("backend"))
-    if backend == "dynamixel":
+    rig = log.metadata.get("rig")  # what the record says ran it
+    if rig in ("emulated", "real"):
+        return f"{rig} rig"
+    if backend == "dynamixel":  # a log recorded before records said which rig
         port = str(((log.metadata.get("config") or {}).get("backend") or {}).get("port", ""))
         return "emulated rig" if port.startswith("/dev/pts/") else "real rig"
     return {"pybullet": "sim"}.get(backend, fallback)

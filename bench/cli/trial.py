@@ -98,34 +98,30 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
 
 def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, live: bool = False):
     from bench.core.result import TrialError  # deferred: --help and completion stay fast
+    from bench.trial.plan import prepare  # deferred: --help and completion stay fast
 
     cfg = load_config(config)
+    guard.check()
+    if emulate and cfg.backend.kind != "dynamixel":
+        fail(f"{config}: --emulate needs backend.kind: dynamixel (this config is {cfg.backend.kind})")
+    try:
+        prep = prepare(cfg)  # once; nothing starts for a trial that cannot run
+    except TrialError as e:
+        fail(str(e))
     guard.check()
     rig = None
     if emulate:
         from bench.rig.emulated import EmulatorProcess  # deferred: --help and completion stay fast
-        from bench.trial.plan import prepare  # deferred: --help and completion stay fast
 
-        if cfg.backend.kind != "dynamixel":
-            fail(f"{config}: --emulate needs backend.kind: dynamixel (this config is {cfg.backend.kind})")
         try:
-            prepare(cfg)  # nothing starts for a trial that cannot run
             rig = EmulatorProcess(config)
-        except (TrialError, RuntimeError) as e:
+        except RuntimeError as e:
             fail(str(e))
-        cfg = rig.retarget(cfg)
-    factory = None
-    if rig is not None:
-        from bench.rig.backends import make_backend  # deferred: --help and completion stay fast
-
-        def factory(prep):  # bus-level faults reach the emulator through the backend's hooks
-            backend = make_backend(prep.config, prep.robot)
-            backend.fault_hooks = rig.faults
-            return backend
-    try:
-        with live_view(live, cfg, out, guard) as server:
+        prep = prep.with_config(rig.retarget(cfg))
+    try:  # the backend builder attaches the emulated bus's fault hooks (bench.rig.serving)
+        with live_view(live, lambda: prep, out, guard) as server:
             try:
-                res = _run_with_progress(cfg, out, gui, note, factory, guard)
+                res = _run_with_progress(prep, out, gui, note, guard)
             except KeyboardInterrupt as e:
                 e.live_url = server.url if server else None
                 raise
@@ -157,14 +153,15 @@ def _interrupted(e, as_json: bool = False) -> None:
     raise typer.Exit(e.exit_code)
 
 
-def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=None, guard=None):
+def _run_with_progress(prep, out: Path, gui: bool, note: str, guard=None):
 
     from bench.config.models import ConfigError  # deferred: --help and completion stay fast
     from bench.core.interrupts import NO_SIGNALS  # deferred: --help and completion stay fast
     from bench.core.result import TrialError  # deferred: --help and completion stay fast
-    from bench.trial.run import run_trial  # deferred: --help and completion stay fast
+    from bench.trial.run import TrialHooks, run_trial  # deferred: --help and completion stay fast
     from drivers import ActuatorError  # deferred: --help and completion stay fast
 
+    cfg = prep.config
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeRemainingColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task(f"trial {cfg.name}: checking", total=None)
@@ -175,9 +172,9 @@ def _run_with_progress(cfg, out: Path, gui: bool, note: str, backend_factory=Non
                        total=1.0 if moving else None)
 
         try:
-            return run_trial(cfg, out, gui=gui, note=note, backend_factory=backend_factory,
-                             progress=lambda f: bar.update(task, completed=f),
-                             interrupts=guard or NO_SIGNALS, phase=on_phase)
+            return run_trial(prep, out, TrialHooks(
+                note=note, gui=gui, progress=lambda f: bar.update(task, completed=f),
+                interrupts=guard or NO_SIGNALS, phase=on_phase))
         except (TrialError, ConfigError, ActuatorError) as e:
             fail(str(e))
 
@@ -250,7 +247,8 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
     for r in found:
         tip = "" if r.tip_deviation_mm is None else f"{r.tip_deviation_mm:.2f}"
         angle = "" if r.angle_deviation_deg is None else f"{r.angle_deviation_deg:+.3f}"
-        t.add_row(Path(r.run_dir).name, r.backend or "?", f"[{colour[r.status]}]{r.status}[/]",
+        backend = f"{r.backend or '?'} ({r.rig})" if r.rig and r.rig != "sim" else (r.backend or "?")
+        t.add_row(Path(r.run_dir).name, backend, f"[{colour[r.status]}]{r.status}[/]",
                   tip, angle)
     console.print(t)
     for r in found:

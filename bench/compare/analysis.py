@@ -117,6 +117,8 @@ class Side:
     reasons: list[str]
     contributions: list[Optional[list[JointContribution]]]
     stats: dict = field(default_factory=dict)
+    #: What the logs say ran them: sim, emulated or real (their record's ``rig``; "?" for older logs).
+    rig: str = "?"
 
     @property
     def placed(self) -> list[NeedleOutcome]:
@@ -169,6 +171,7 @@ def _side(label: str, logs: Sequence[TrialLog], sources: Sequence[str], robot,
     side = Side(label, backend, list(logs), list(sources), tracking, outcomes, completed, reasons,
                 contribs)
     side.stats = repeat_statistics(side.placed)
+    side.rig = ", ".join(sorted({str(log.metadata.get("rig") or "?") for log in logs})) or "?"
     return side
 
 
@@ -219,7 +222,7 @@ class Comparison:
         sub = self.subject
         return {"repeats": len(sub.logs), "tip_deviation_mm": block("tip_mm", True),
                 "depth_deviation_mm": block("depth_mm", False),
-                "angle_deviation_deg": block("angle_deg", False), "passed": self.passed,
+                "angle_deviation_deg": block("angle_deg", False), "rig": sub.rig, "passed": self.passed,
                 "completed": sum(bool(c) for c in sub.completed), "reason": self.why_not(),
                 "worst_joint": self.worst_joint}
 
@@ -243,7 +246,7 @@ class Comparison:
         """A full machine-readable record (SI per joint, mm and degrees for the needle)."""
 
         def side(sd: Side) -> dict:
-            return {"label": sd.label, "backend": sd.backend, "sources": sd.sources,
+            return {"label": sd.label, "backend": sd.backend, "rig": sd.rig, "sources": sd.sources,
                     "completed": sd.completed, "reasons": sd.reasons, "passed": sd.passed,
                     "outcomes": [o.as_dict() if o else None for o in sd.outcomes],
                     "tracking": [[jt.as_dict() for jt in rep] for rep in sd.tracking],

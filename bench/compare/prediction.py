@@ -17,7 +17,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -115,6 +115,9 @@ class Prediction:
     tip_error_mm: list[float]
     gap_model: float
     gap_ideal: float
+    #: The same distance with each tip placed as its trial placed it for its verdict and as the
+    #: repeat tables show it (median over the last SETTLED_WINDOW_S of the settle), per repeat.
+    trial_tip_error_mm: list[float] = field(default_factory=list)
 
     @property
     def tracking_gap_ratio(self) -> float:
@@ -126,6 +129,7 @@ class Prediction:
         return {"tip_error_mm": {"mean": clean(tips.mean()) if tips.size else None,
                                  "max": clean(tips.max()) if tips.size else None,
                                  "per_repeat": [clean(v) for v in tips]},
+                "trial_tip_error_mm": [clean(v) for v in self.trial_tip_error_mm],
                 "tracking_gap_ratio": clean(self.tracking_gap_ratio),
                 "tracking_gap": {"model": clean(self.gap_model), "ideal": clean(self.gap_ideal)}}
 
@@ -138,4 +142,7 @@ def prediction(model_vs_rig: Comparison, ideal_vs_rig: Comparison) -> Prediction
     rig = [settled_tip_mm(log, robot, sensed) for log in model_vs_rig.subject.logs]
     tips = [float(np.linalg.norm(r - sim[min(i, len(sim) - 1)]))
             for i, r in enumerate(rig) if r is not None and sim[min(i, len(sim) - 1)] is not None]
-    return Prediction(tips, tracking_gap(model_vs_rig), tracking_gap(ideal_vs_rig))
+    placed = [(np.array(r.tip_mm), np.array(s.tip_mm)) for r, s in
+              zip(model_vs_rig.subject.outcomes, model_vs_rig.reference.outcomes) if r and s]
+    return Prediction(tips, tracking_gap(model_vs_rig), tracking_gap(ideal_vs_rig),
+                      [float(np.linalg.norm(r - s)) for r, s in placed])

@@ -31,6 +31,7 @@ from bench.compare.prediction import Prediction
 from bench.compare.prediction_report import plot_prediction, prediction_markdown
 from bench.compare.signals import nanmean
 from bench.core.log import TrialLog
+from bench.core.outcome import SETTLED_WINDOW_S
 from bench.kinematics.arc_train import TABLE3_MEASURED, TABLE3_TARGET, table3_deviations, train_pose
 from bench.report.trial import markdown_to_html
 from bench.scene.dynamics import gravity_torques
@@ -273,8 +274,8 @@ def render_markdown(comparison: Comparison, figures: dict[str, str], title: str,
              f"settle {plan.get('settle_s', '?')} s; control rate: {ref.label} "
              f"{1 / float(ref.logs[0].metadata.get('control_period', float('nan'))):g} Hz, {sub.label} "
              f"{1 / float(meta.get('control_period', float('nan'))):g} Hz",
-             f"- repeats: {len(ref.logs)} on {ref.label} ({ref.backend}), {len(sub.logs)} on {sub.label} "
-             f"({sub.backend})",
+             f"- repeats: {len(ref.logs)} on {ref.label} ({ref.backend}, {ref.rig}), {len(sub.logs)} on "
+             f"{sub.label} ({sub.backend}, {sub.rig}: what each trial's record says ran it)",
              f"- acceptance: {pos:g} mm per axis and depth, {ang:g}° in angle"]
     lines += [f"- {n}" for n in notes]
     for a in lost:
@@ -300,7 +301,8 @@ def render_markdown(comparison: Comparison, figures: dict[str, str], title: str,
         lines += _table3(side)
     lines += ["## Deviations over repeats", "",
               "Entry point (Table 3's X, Y, Z), insertion depth and angle, and the needle tip, achieved "
-              "minus target.", ""]
+              "minus target; each repeat placed as its trial placed it for its verdict (the median "
+              f"reading over the last {SETTLED_WINDOW_S:g} s of the insertion's settle).", ""]
     for side in (sub, ref):
         lines += _deviation_table(side)
     lines += ["## Average deviation (Table 4 layout)", ""] + _table4(comparison)
@@ -310,7 +312,8 @@ def render_markdown(comparison: Comparison, figures: dict[str, str], title: str,
               "Error = measured − commanded. Lag: delay of the measured velocity behind the commanded "
               "(cross-correlation peak, sub-sample); — for a joint whose command hardly moves. Settling: "
               "after the joint's last move that is followed by a hold, the time until |error| stays "
-              "within the band (the servo tolerance ±0.29°, through a 10 mm pinion for slides, widened "
+              "within the band (the servo tolerance ±0.29° through the joint's transmission: a 10 mm "
+              "pinion for slides, the same pinion on the 200 mm arc for the train (±0.0145°); widened "
               "to 3σ of the sample noise) for the rest of the hold; — when it never does or the joint "
               "never moves. Placement error: at the placement window, where the needle is measured.", ""]
     lines += _train_note(comparison)

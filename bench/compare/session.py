@@ -34,39 +34,42 @@ from typing import Callable, Optional
 import numpy as np
 
 from bench.compare.analysis import Comparison, compare_logs
+from bench.compare.homing import (
+    EMULATED_NOTE,
+    HOME_INTEGRATING_RAD,
+    HOME_SENSED_RAD,
+    HOME_STILL_S,
+    HOME_TIMEOUT_S,
+    HOME_TOLERANCE_M,
+    HOME_TOLERANCE_RAD,
+    home_rig,
+    plan_start_of,
+    start_of,
+    starting_at,
+)
 from bench.compare.prediction import Prediction, prediction
 from bench.compare.report import write_compare_report
 from bench.config.models import ConfigError, PyBulletBackendConfig, TrialConfig
 from bench.core.interrupts import NO_SIGNALS
 from bench.core.log import TrialLog
 from bench.core.record import new_run_dir
-from bench.core.result import TrialError
-from bench.core.runner import Interruptible, Runner, Segment
-from bench.kinematics.registry import get_robot
+from bench.core.result import PreparedTrial, TrialError
+from bench.core.runner import Interruptible
 from bench.rig.backends import make_backend
 from bench.rig.emulated import EmulatorProcess
 from bench.trial.plan import prepare
-from bench.trial.run import run_trial
-from drivers import ActuatorError, Actuators, BenchError, CommunicationError
-from trajectories import LSPB
+from bench.trial.run import TrialHooks, run_trial
+from drivers import ActuatorError, BenchError, CommunicationError
 
 __all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "home_rig",
            "run_comparison", "sim_counterpart"]
 
+# Kept under their former names for the callers that read a homing's start.
+_start_of, _plan_start_of, _starting_at = start_of, plan_start_of, starting_at
+
 #: Bus retries per transaction against the emulator (the most a config allows), so that a
 #: busy host's pauses of up to about 0.2 s do not end a repeat.
 EMULATED_RETRIES = 20
-
-HOME_TOLERANCE_RAD = np.radians(0.2)  #: at home: every revolute joint within this (rad) ...
-#: ... a revolute joint whose servo integrates (Position I Gain > 0) within this: about one encoder
-#: tick, the hunt of a holding servo. Its integrator takes the sag out over seconds; a repeat that
-#: starts before it has is planned from a pose the servo is still leaving, and its first command
-#: meets an integrator charged for home, a kick no sim started at rest can show ...
-HOME_INTEGRATING_RAD = np.radians(0.1)
-HOME_TOLERANCE_M = 0.2e-3  #: ... and every slide within this (m) ...
-HOME_SENSED_RAD = np.radians(0.5)  #: ... a joint read by the ultrasonic sensor (1 mm of d2) within this ...
-HOME_STILL_S = 0.5  #: ... for this long (s) ...
-HOME_TIMEOUT_S = 15.0  #: ... or at most this long after the homing move (s)
 
 ProgressFn = Callable[[str, float], None]  # (what is running, fraction of the whole session)
 
@@ -96,6 +99,8 @@ class SessionResult:
     #: With a servo model: the ideal sim against the rig, and how much better the model predicts it.
     ideal: Optional[Comparison] = None
     prediction: Optional[Prediction] = None
+    #: The emulated rig's counters when it stopped (packets, status packets dropped...); {} on hardware.
+    rig_stats: dict = field(default_factory=dict)
 
 
 def sim_counterpart(config: TrialConfig, servo_model: str = "ideal") -> TrialConfig:
@@ -136,145 +141,26 @@ def _with_safe_stop(config: TrialConfig, safe_stop: str) -> TrialConfig:
     return config.model_copy(update={"backend": config.backend.model_copy(update={"safe_stop": safe_stop})})
 
 
-def home_rig(config: TrialConfig, log_path: Optional[Path] = None) -> Actuators:
-    """Withdraw the needle, bring the arm home at the plan's speed and hold it there until
-    it has arrived (:func:`_hold_until_home`).
-
-    Returns the config's backend still enabled and holding home, for the trial
-    that follows to run in the same session (no hand-over between two drivers,
-    in which the arm would relax). The caller closes it; on an error it is
-    closed here. The homing log is saved to ``log_path``.
-    """
-
-    prep = prepare(config)
-    robot = prep.robot
-    home = robot.chain.home
-    ins = robot.joint_names.index(robot.insertion_joint)
-    p = config.plan
-    act = make_backend(prep.config, prep.robot)
-    log = TrialLog(list(robot.joint_names), metadata={"purpose": "homing before a repeat",
-                                                        "robot": config.robot})
-    try:
-        act.enable()
-        q0 = act.read().position
-        vmax = act.limits.velocity * p.velocity_scale
-        amax = vmax * p.acceleration_scale
-        withdrawn = q0.copy()
-        withdrawn[ins] = home[ins]
-        segs = [Segment("withdraw", LSPB(q0, withdrawn, vmax, amax), 0.0),
-                Segment("home", LSPB(withdrawn, home, vmax, amax), 0.0)]
-        Runner(act, config.control_period).run(segs, log)
-        tol = np.array([_home_tolerance(config, name, row.kind)
-                        for name, row in zip(robot.joint_names, robot.chain.rows)])
-        u = getattr(config.backend, "ultrasonic", None)
-        if u is not None:
-            tol[list(robot.joint_names).index(u.joint)] = HOME_SENSED_RAD
-        log.metadata["home_reached_s"] = _hold_until_home(act, home, tol, config.control_period, log)
-    except BaseException:
-        act.close()
-        raise
-    finally:
-        if log_path is not None:
-            log.save(log_path)
-    return act
-
-
-def _home_tolerance(config: TrialConfig, joint: str, kind: str) -> float:
-    """How close to home a joint must stay (rad or m): see HOME_TOLERANCE_RAD and what follows it."""
-    if kind != "revolute":
-        return HOME_TOLERANCE_M
-    servo = (getattr(config.backend, "servos", None) or {}).get(joint)
-    return HOME_INTEGRATING_RAD if servo is not None and (servo.position_i or 0) > 0 else HOME_TOLERANCE_RAD
-
-
-def _hold_until_home(act: Actuators, home: np.ndarray, tol: np.ndarray, period: float,
-                     log: TrialLog) -> float:
-    """Keep commanding home until every joint has stayed within HOME_TOLERANCE of it for
-    HOME_STILL_S (the servos' integrators take out the gravity sag), or HOME_TIMEOUT_S.
-
-    A trial plans from the measured start pose: starting it while a servo still sags
-    would move that servo's goal away from where its integrator is pushing, and the
-    kick would show up as tracking error that is not the plan's. Returns the time
-    taken (s), NaN on timeout.
-    """
-    zero = np.zeros_like(home)
-    t0 = t = act.now()
-    since: Optional[float] = None
-    while t - t0 < HOME_TIMEOUT_S:
-        st = act.read()
-        log.append(st.time, len(log.segment_names) - 1, home, zero, st.position, st.velocity, st.effort)
-        if np.all(np.abs(st.position - home) <= tol):
-            since = st.time if since is None else since
-            if st.time - since >= HOME_STILL_S:
-                return float(st.time - t0)
-        else:
-            since = None
-        act.command(home, zero)
-        t += period
-        act.wait_until(t)
-    return float("nan")
-
-
-def _homing_stillness(homing: Optional[TrialLog]) -> Optional[np.ndarray]:
-    """The rows of a homing log's last HOME_STILL_S, when it reached home (None otherwise)."""
-    reached = homing.metadata.get("home_reached_s") if homing is not None else None
-    if homing is None or not len(homing) or reached is None or not np.isfinite(reached):
-        return None
-    t = np.asarray(homing.time, dtype=float)
-    return t >= t[-1] - HOME_STILL_S
-
-
-def _mean_over(values: np.ndarray, rows: Optional[np.ndarray], fallback: np.ndarray) -> np.ndarray:
-    if rows is None or not rows.any():
-        return fallback
-    with np.errstate(all="ignore"):
-        mean = np.nanmean(np.asarray(values, dtype=float)[rows], axis=0)
-    return np.where(np.isfinite(mean), mean, fallback)
-
-
-def _start_of(log: TrialLog, homing: Optional[TrialLog] = None, channel: str = "q") -> dict[str, float]:
-    """How a rig repeat started, for the sim to start so too: per joint, the mean of ``channel``
-    over the homing's last HOME_STILL_S when it reached home, else the repeat's first row.
-
-    ``q``: where the shafts were (a holding servo hunts across the tick it sits at, and how often
-    it reads each side says where in the tick its shaft is; the train's ultrasonic noise averages
-    out the same way). ``effort``: what the servos held (a servo that crept home against friction
-    holds more or less than gravity alone; its integrator carries that into the first moves)."""
-    if not len(log):
-        return {}
-    source = homing if homing is not None else log
-    values = _mean_over(getattr(source, channel), _homing_stillness(homing),
-                        np.asarray(getattr(log, channel)[0], dtype=float))
-    return {n: float(v) for n, v in zip(log.joint_names, values) if np.isfinite(v)}
-
-
-def _plan_start_of(log: TrialLog) -> Optional[np.ndarray]:
-    """The pose a rig repeat planned from (its first command), for the sim to run the very same
-    plan: planned from the sim's own first reading, a start a tick or a millimetre of ultrasonic
-    noise apart gives segments of another length, and every later one starts out of step."""
-    if not len(log) or not np.all(np.isfinite(log.q_cmd[0])):
-        return None
-    return np.asarray(log.q_cmd[0], dtype=float)
-
-
-def _starting_at(config: TrialConfig, start: dict[str, float],
-                 effort: Optional[dict[str, float]] = None) -> TrialConfig:
-    """A sim config that starts at ``start`` (``backend.start``), its servos holding ``effort``
-    (``backend.start_effort``, for a servo model)."""
-    update: dict = {"start": dict(start)}
-    if effort and config.backend.servo_model != "ideal":
-        update["start_effort"] = dict(effort)
-    return config.model_copy(update={"backend": config.backend.model_copy(update=update)})
-
-
-def _safe_stop(config: TrialConfig) -> None:
+def _safe_stop(prep: PreparedTrial) -> None:
     """Apply the config's own safe stop to the rig (best effort: the bus may be gone)."""
 
     try:
-        act = make_backend(config, get_robot(config.robot))
+        act = make_backend(prep.config, prep.robot, calibration=prep.calibration)
         act.close()
     except Exception:  # noqa: BLE001 - nothing more can be done from here
         pass
+
+
+@dataclass
+class _Rig:
+    """What the rig side of a session did: its repeats, their homings, the attempts lost."""
+
+    out_dir: Path  #: where the session's folder goes, then that folder
+    runs: list[Path] = field(default_factory=list)
+    homings: list[Path] = field(default_factory=list)
+    lost: list[LostAttempt] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    stats: dict = field(default_factory=dict)  #: the emulator's counters, when it stopped
 
 
 def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bool = False,
@@ -287,7 +173,31 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     that lost the bus or its sensor is run again. Raises :class:`CompareError` (nothing moved)
     for a config or port that cannot be used.
     """
+    retries = _checked_request(config, repeats, emulate, retries)
+    rig_prep, sides = _prepared_sides(config, sim_model)
+    if not emulate:
+        check_real_ports(config)
+    progress = progress or (lambda what, f: None)
+    rig = _Rig(Path(out))
+    _run_rig(rig, rig_prep, repeats, emulate, retries, progress, interrupts)
+    found = [(TrialLog.load(p / "trial.npz"), TrialLog.load(h) if h.exists() else None)
+             for p, h in zip(rig.runs, rig.homings)]
+    runs = {label: _run_sim(cfg, where, found, label, k, len(sides), progress, interrupts)
+            for k, (label, cfg, where) in enumerate((lb, c, rig.out_dir / d) for lb, c, d in sides)}
+    progress("comparing", 1.0)
+    result = _analysed(rig, runs, [log for log, _ in found], emulate, align, sim_model)
+    result.rig_stats = rig.stats
+    result.notes = _notes(config, rig, emulate, sim_model) + rig.notes
+    if report:
+        real_label = "emulated rig" if emulate else "real rig"
+        write_compare_report(result.comparison, rig.out_dir, title=f"Sim vs {real_label}: {config.name}",
+                             notes=result.notes, lost=[a.__dict__ for a in rig.lost], ideal=result.ideal,
+                             prediction=result.prediction)
+    return result
 
+
+def _checked_request(config: TrialConfig, repeats: int, emulate: bool, retries: Optional[int]) -> int:
+    """The retries to allow; CompareError for a request that cannot run (nothing moved)."""
     if repeats < 1:
         raise CompareError(f"--repeats must be at least 1, got {repeats}")
     if config.backend.kind != "dynamixel":
@@ -297,155 +207,161 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     retries = (3 if emulate else 0) if retries is None else int(retries)
     if retries < 0:
         raise CompareError(f"--retries must be 0 or more, got {retries}")
-    sim_cfg = sim_counterpart(config)
-    model_cfg = sim_counterpart(config, sim_model) if sim_model else None
-    try:
-        prepare(config)
-        prepare(sim_cfg)
-        if model_cfg is not None:
-            prepare(model_cfg)
-    except TrialError as e:
-        raise CompareError(str(e)) from None
-    if not emulate:
-        check_real_ports(config)
     if emulate and config.source is None:
         raise CompareError("--emulate needs a config read from a file (the emulator is started from it)")
+    return retries
 
-    progress = progress or (lambda what, f: None)
-    # rough shares of the wall time: the rig runs in real time, the sim about 8x faster
-    w_real, w_sim = 0.88 / repeats, 0.12 / repeats
-    lost: list[LostAttempt] = []
-    real_runs: list[Path] = []
-    homings: list[Path] = []
-    notes: list[str] = []
-    rig = None
-    base_cfg = config
+
+def _prepared_sides(config: TrialConfig, sim_model: Optional[str]):
+    """The rig's trial, prepared once for every repeat, and the sim sides (label, config, folder),
+    each checked before anything moves."""
+    sides = [("sim", sim_counterpart(config), "sim")]
+    if sim_model:
+        sides.append(("model sim", sim_counterpart(config, sim_model), "model"))
+    try:
+        rig = prepare(config)
+        for _, cfg, _ in sides:
+            prepare(cfg)  # a sim side that cannot run is refused before the rig moves
+    except TrialError as e:
+        raise CompareError(str(e)) from None
+    return rig, sides
+
+
+def _run_rig(rig: _Rig, prep: PreparedTrial, repeats: int, emulate: bool, retries: int,
+             progress: ProgressFn, interrupts: Interruptible) -> None:
+    """Every rig repeat, each after its homing, the emulator (``emulate``) started once for all;
+    the config's safe stop after the last, or whenever the session ends early."""
+    w_real = 0.88 / repeats  # rough share of the wall time: the rig runs in real time, the sim ~8x faster
+    emulator = None
     res = None
     touched = stopped = False  # touched: the rig may have moved; stopped: its safe stop was applied
     try:
         if emulate:
-
             progress("starting the emulated rig", 0.0)
-            try:
-                rig = EmulatorProcess(Path(config.source))
-            except RuntimeError as e:
-                raise CompareError(str(e)) from None
-            base_cfg = rig.retarget(config)
-            # The emulator shares the host's CPU: after a pause it catches its physics up
-            # before it answers again. Ride that out per transaction as the lab tools do.
-            base_cfg = base_cfg.model_copy(update={"backend": base_cfg.backend.model_copy(
-                update={"retries": max(base_cfg.backend.retries, EMULATED_RETRIES)})})
-        out_dir = new_run_dir(out, f"compare-{config.name}")
-        real_dir, sim_dir, home_dir = out_dir / "real", out_dir / "sim", out_dir / "homing"
-        hold_cfg = _with_safe_stop(base_cfg, "hold")
+            emulator, prep = _emulated(prep)
+        rig.out_dir = new_run_dir(rig.out_dir, f"compare-{prep.config.name}")
         touched = True
         for i in range(repeats):
-            res, homing = _rig_repeat(i, repeats, base_cfg, hold_cfg, real_dir, home_dir, retries, lost,
+            res, homing = _rig_repeat(i, repeats, prep, rig.out_dir / "real", rig.out_dir / "homing",
+                                      retries, rig.lost,
                                       lambda what, f, i=i: progress(what, w_real * (i + f)), interrupts)
-            real_runs.append(res.run_dir)
-            homings.append(homing)
+            rig.runs.append(res.run_dir)
+            rig.homings.append(homing)
             if not res.completed:
-                notes.append(f"rig repeat {i + 1} stopped early: {res.reason}; the session ended there")
+                rig.notes.append(f"rig repeat {i + 1} stopped early: {res.reason}; the session ended there")
                 break
     except BaseException:
         if touched:
             with interrupts.deferred():
-                _safe_stop(base_cfg)
+                _safe_stop(prep)
             stopped = True
         raise
     finally:
         if not stopped and res is not None and not res.completed:
-            _safe_stop(base_cfg)  # that repeat held the arm; stop as the config says
-        if rig is not None:
-            rig.close()
+            _safe_stop(prep)  # that repeat held the arm; stop as the config says
+        if emulator is not None:
+            emulator.close()
+            rig.stats = dict(emulator.stats)
 
-    n_sim = len(real_runs)
-    found = [(TrialLog.load(p / "trial.npz"), TrialLog.load(h) if h.exists() else None)
-             for p, h in zip(real_runs, homings)]
-    plan_starts = [_plan_start_of(log) for log, _ in found]
-    starts = [_start_of(log, homing) for log, homing in found]
-    efforts = [_start_of(log, homing, "effort") for log, homing in found]
-    sides = [("sim", sim_cfg, sim_dir)] + ([("model sim", model_cfg, out_dir / "model")] if model_cfg else [])
-    runs: dict[str, list[Path]] = {}
-    for k, (label, cfg, where) in enumerate(sides):
-        runs[label] = []
-        share = w_sim / len(sides)
-        for i in range(n_sim):
-            what = f"{label} repeat {i + 1}/{n_sim}"
-            res_s = run_trial(_starting_at(cfg, starts[i], efforts[i]), where, report=False, note=f"compare repeat {i + 1}",
-                              plan_start=plan_starts[i],
-                              progress=lambda f, i=i, k=k, what=what: progress(
-                                  what, 0.88 + 0.12 * k / len(sides) + share * (i + f)),
-                              interrupts=interrupts)
-            runs[label].append(res_s.run_dir)
-    progress("comparing", 1.0)
-    real_logs = [log for log, _ in found]
+
+def _emulated(prep: PreparedTrial) -> tuple[EmulatorProcess, PreparedTrial]:
+    """The emulated rig (``hilbench emulate`` in a child process) and the trial pointed at it."""
+    try:
+        emulator = EmulatorProcess(Path(prep.config.source))
+    except RuntimeError as e:
+        raise CompareError(str(e)) from None
+    cfg = emulator.retarget(prep.config)
+    # The emulator shares the host's CPU: after a pause it catches its physics up before it
+    # answers again. Ride that out per transaction as the lab tools do.
+    cfg = cfg.model_copy(update={"backend": cfg.backend.model_copy(
+        update={"retries": max(cfg.backend.retries, EMULATED_RETRIES)})})
+    return emulator, prep.with_config(cfg)
+
+
+def _run_sim(config: TrialConfig, where: Path, found: list, label: str, k: int, n_sides: int,
+             progress: ProgressFn, interrupts: Interruptible) -> list[Path]:
+    """One sim side: each repeat starts where the rig's repeat did and runs its very plan."""
+    n, share = len(found), 0.12 / max(len(found), 1) / n_sides
+    runs = []
+    for i, (log, homing) in enumerate(found):
+        what = f"{label} repeat {i + 1}/{n}"
+        cfg = starting_at(config, start_of(log, homing), start_of(log, homing, "effort"))
+        try:
+            prep = prepare(cfg, plan_start=plan_start_of(log))
+        except TrialError as e:
+            raise CompareError(f"{what}: {e}") from None
+        res = run_trial(prep, where, TrialHooks(
+            note=f"compare repeat {i + 1}", report=False, interrupts=interrupts,
+            progress=lambda f, i=i, what=what: progress(what, 0.88 + 0.12 * k / n_sides + share * (i + f))))
+        runs.append(res.run_dir)
+    return runs
+
+
+def _analysed(rig: _Rig, runs: dict[str, list[Path]], real_logs: list[TrialLog], emulate: bool,
+              align: str, sim_model: Optional[str]) -> SessionResult:
+    """Each sim side against the rig; with a servo model, how well it predicts the rig."""
     real_label = "emulated rig" if emulate else "real rig"
 
     def against_rig(label: str) -> Comparison:
         logs = [TrialLog.load(p / "trial.npz") for p in runs[label]]
         return compare_logs(logs, real_logs, labels=(label, real_label),
-                            sources=([str(p.relative_to(out_dir)) for p in runs[label]],
-                                     [str(p.relative_to(out_dir)) for p in real_runs]),
+                            sources=([str(p.relative_to(rig.out_dir)) for p in runs[label]],
+                                     [str(p.relative_to(rig.out_dir)) for p in rig.runs]),
                             align=align)  # type: ignore[arg-type]
 
-    ideal_cmp = against_rig("sim")
-    cmp = against_rig("model sim") if model_cfg is not None else ideal_cmp
-    predicted = prediction(cmp, ideal_cmp) if model_cfg is not None else None
-    sim_runs = runs["model sim" if model_cfg is not None else "sim"]
-    reached = [TrialLog.load(p).metadata.get("home_reached_s") for p in sorted(home_dir.glob("*.npz"))]
+    ideal = against_rig("sim")
+    if not sim_model:
+        return SessionResult(rig.out_dir, ideal, runs["sim"], rig.runs, rig.lost, emulate)
+    model = against_rig("model sim")
+    return SessionResult(rig.out_dir, model, runs["model sim"], rig.runs, rig.lost, emulate,
+                         ideal=ideal, prediction=prediction(model, ideal))
+
+
+def _notes(config: TrialConfig, rig: _Rig, emulate: bool, sim_model: Optional[str]) -> list[str]:
+    """What the report says about how the session ran."""
+    reached = [TrialLog.load(p).metadata.get("home_reached_s")
+               for p in sorted((rig.out_dir / "homing").glob("*.npz"))]
     late = sum(1 for r in reached if r is None or not np.isfinite(r))
-    head = ["The sim side is the same config with its backend replaced by the PyBullet defaults (same "
-            "name, robot, target, plan, control rate and acceptance limits)"
-            + (", running the rig's servo table through the servo model" if model_cfg is not None else "")
-            + "; each sim repeat starts where the rig's repeat started (its mean reading over the "
-            "homing's last stillness, which places a servo within its tick by how it hunts), so a "
-            "homing that left a joint a tick off home is no difference between them."]
+    notes = ["The sim side is the same config with its backend replaced by the PyBullet defaults (same "
+             "name, robot, target, plan, control rate and acceptance limits)"
+             + (", running the rig's servo table through the servo model" if sim_model else "")
+             + "; each sim repeat starts where the rig's repeat started (its mean reading over the "
+             "homing's last stillness, which places a servo within its tick by how it hunts), so a "
+             "homing that left a joint a tick off home is no difference between them."]
+    if sim_model:
+        notes.append(f"The model sim runs the rig's servo table through the servo model "
+                     f"({sim_model}); the ideal sim (PyBullet's position motors) is run beside it for "
+                     f"the prediction figures.")
     if emulate:
-        head.append(f"The rig is the bench's emulator (`hilbench emulate`, one process for all repeats) "
-                    f"on this host; the driver retries each bus transaction up to {EMULATED_RETRIES} "
-                    f"times against it, so that the host's pauses do not end a repeat.")
-    head.append("Every rig repeat starts from home: the needle is withdrawn and the arm brought home at "
-                f"the plan's speed and held until every joint is within {np.degrees(HOME_TOLERANCE_RAD):g}° "
-                f"({np.degrees(HOME_INTEGRATING_RAD):g}° where its servo integrates) / "
-                f"{HOME_TOLERANCE_M * 1e3:g} mm of home (the sensed train {np.degrees(HOME_SENSED_RAD):g}°) "
-                f"for {HOME_STILL_S:g} s"
-                + (f" ({late} homing(s) timed out after {HOME_TIMEOUT_S:g} s and went on)" if late else "")
-                + "; the servos hold between repeats and the config's safe stop "
-                f"({config.backend.safe_stop}) is applied after the last one.")
-    notes = head + notes
-    if model_cfg is not None:
-        notes.insert(1, f"The model sim runs the rig's servo table through the servo model "
-                        f"({sim_model}); the ideal sim (PyBullet's position motors) is run beside it for "
-                        f"the prediction figures.")
-    result = SessionResult(out_dir, cmp, sim_runs, real_runs, lost, emulate, notes,
-                           ideal=ideal_cmp if model_cfg is not None else None, prediction=predicted)
-    if report:
-
-        write_compare_report(result.comparison, out_dir, title=f"Sim vs {real_label}: {config.name}",
-                             notes=notes, lost=[a.__dict__ for a in lost], ideal=result.ideal,
-                             prediction=result.prediction)
-    return result
+        notes.append(EMULATED_NOTE.format(retries=EMULATED_RETRIES))
+    notes.append("Every rig repeat starts from home: the needle is withdrawn and the arm brought home at "
+                 f"the plan's speed and held until every joint is within {np.degrees(HOME_TOLERANCE_RAD):g}° "
+                 f"({np.degrees(HOME_INTEGRATING_RAD):g}° where its servo integrates) / "
+                 f"{HOME_TOLERANCE_M * 1e3:g} mm of home (the sensed train {np.degrees(HOME_SENSED_RAD):g}°) "
+                 f"for {HOME_STILL_S:g} s"
+                 + (f" ({late} homing(s) timed out after {HOME_TIMEOUT_S:g} s and went on)" if late else "")
+                 + "; the servos hold between repeats and the config's safe stop "
+                 f"({config.backend.safe_stop}) is applied after the last one.")
+    return notes
 
 
-def _rig_repeat(i: int, repeats: int, base_cfg: TrialConfig, hold_cfg: TrialConfig, real_dir: Path,
-                home_dir: Path, retries: int, lost: list[LostAttempt], progress: ProgressFn,
-                interrupts: Interruptible = NO_SIGNALS):
-    """Home, then one trial (the last with the config's safe stop); a lost bus is retried.
-    Returns the trial's result and the log of the homing before it."""
+def _rig_repeat(i: int, repeats: int, rig: PreparedTrial, real_dir: Path, home_dir: Path, retries: int,
+                lost: list[LostAttempt], progress: ProgressFn, interrupts: Interruptible = NO_SIGNALS):
+    """Home, then one trial (the last with the config's safe stop, the others holding); a lost
+    bus is retried. Returns the trial's result and the log of the homing before it."""
 
-    cfg = base_cfg if i == repeats - 1 else hold_cfg
+    prep = rig if i == repeats - 1 else rig.with_config(_with_safe_stop(rig.config, "hold"))
     attempt = 0
     while True:
         what = f"rig repeat {i + 1}/{repeats}" + (f" (attempt {attempt + 1})" if attempt else "")
         progress(f"{what}: homing", 0.0)
         home_log = _unique(home_dir / f"homing-{i + 1}.npz")
         try:
-            act = home_rig(cfg, home_log)
+            act = home_rig(prep, home_log)
             try:
-                res = run_trial(cfg, real_dir, report=False, note=f"compare repeat {i + 1}",
-                                progress=lambda f: progress(what, f), backend_factory=lambda prep: act,
-                                interrupts=interrupts)
+                res = run_trial(prep, real_dir, TrialHooks(
+                    note=f"compare repeat {i + 1}", report=False, progress=lambda f: progress(what, f),
+                    interrupts=interrupts, backend=lambda _: act))
             finally:
                 act.close()  # already closed by the trial, unless it failed before starting
         except CommunicationError as e:

@@ -23,8 +23,8 @@ from bench.compare.signals import (
 )
 from bench.core.log import TrialLog
 from bench.core.outcome import SETTLED_WINDOW_S, settle_rows
-from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG
 from bench.kinematics.registry import get_robot
+from bench.kinematics.transmission import servo_tolerances
 
 MIN_HOLD_S = 0.1  #: a joint's hold must last this long to time the settling in it
 
@@ -42,9 +42,9 @@ def robot_of_log(log: TrialLog):
 
 
 def default_band(robot) -> np.ndarray:
-    """Settling band per joint (SI): the servo tolerance ±0.29°, through a 10 mm pinion for slides."""
-    tol = math.radians(SERVO_TOL_DEG)
-    return np.array([tol if r.kind == "revolute" else tol * PINION_RADIUS for r in robot.chain.rows])
+    """Settling band per joint (SI): the servo tolerance ±0.29° through each joint's transmission
+    (:func:`bench.kinematics.transmission.servo_tolerances`: the train ±0.0145° of arc)."""
+    return servo_tolerances(robot)
 
 
 @dataclass(frozen=True)

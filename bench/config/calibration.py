@@ -11,8 +11,9 @@ A calibration file (YAML, one per calibration run, dated) holds for one config:
   per mm of d2), which replace the config's ``standoff_mm``, with the stops
   they were fitted to and the fit's residual.
 
-A trial config names it with ``calibration: PATH``; the Dynamixel backend
-applies it and the trial log keeps its path and content.
+A trial config names it with ``calibration: PATH``; a trial reads it once
+(:func:`applied_calibration`), the Dynamixel backend applies that content and
+the trial's record keeps its path and that same content.
 """
 
 from __future__ import annotations
@@ -29,8 +30,9 @@ from bench.config.base import ConfigError, Strict, describe_validation_error, re
 from bench.config.crossref import transmission_refusal
 from bench.kinematics.registry import get_robot
 
-__all__ = ["CalibratedConfig", "CalibrationFile", "ServoCalibration", "UltrasonicCalibration",
-           "UltrasonicStop", "calibration_of", "calibration_record", "check_calibration", "load_calibration",
+__all__ = ["CalibratedConfig", "CalibrationFile", "ServoCalibration", "UltrasonicCalibration", "UltrasonicStop",
+           "applied_calibration", "calibration_of", "calibration_path", "calibration_record", "check_calibration",
+           "load_calibration",
            "save_calibration"]
 
 
@@ -144,16 +146,29 @@ def calibration_of(config: CalibratedConfig) -> Optional[CalibrationFile]:
     return load_calibration(path) if path is not None else None
 
 
-def calibration_record(config: CalibratedConfig) -> Optional[dict]:
-    """Path and content of the config's calibration, for the trial log's metadata."""
-    path = calibration_path(config)
-    if path is None:
+def calibration_record(calibration: Optional[CalibrationFile], path: Optional[Path]) -> Optional[dict]:
+    """Path and content of the calibration a trial applied, for its record (nothing is read)."""
+    if calibration is None:
         return None
-    return {"path": str(path), "content": load_calibration(path).model_dump(mode="json")}
+    return {"path": str(path), "content": calibration.model_dump(mode="json")}
 
 
-def check_calibration(config: CalibratedConfig) -> None:
-    """Refuse a calibration that cannot apply to this config (ConfigError, one line)."""
+def applied_calibration(config: CalibratedConfig) -> Optional[CalibrationFile]:
+    """The calibration a trial of this config applies, read once: the content checked when the
+    config was loaded (:func:`bench.config.models.load_trial_config` keeps it), else read and
+    checked now. None for a config that names none, or for a simulator (nothing to apply)."""
+    path = calibration_path(config)
+    if path is None or config.backend.kind != "dynamixel":
+        return None
+    kept = getattr(config, "_calibration_read", None)
+    if kept is not None and kept[0] == path:
+        return kept[1]
+    return check_calibration(config)
+
+
+def check_calibration(config: CalibratedConfig) -> CalibrationFile:
+    """Read the config's calibration and refuse one that cannot apply to it (ConfigError, one
+    line); the calibration as read."""
     where = f"{config.source}: calibration" if config.source else "calibration"
     if config.backend.kind != "dynamixel":
         raise ConfigError(f"{where}: applies to the dynamixel backend, not {config.backend.kind}")
@@ -176,3 +191,4 @@ def check_calibration(config: CalibratedConfig) -> None:
     if cal.ultrasonic is not None and config.backend.ultrasonic is None:
         raise ConfigError(f"{where}: {config.calibration} calibrates an ultrasonic sensor the "
                           f"config does not have (backend.ultrasonic)")
+    return cal

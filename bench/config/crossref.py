@@ -34,14 +34,14 @@ class CrossReferenced(Protocol):
     safety: Any
 
 
-def check_cross_references(config: CrossReferenced) -> None:
-    """Raise ValueError (one line, naming the field) for the first reference that does not hold."""
+def check_cross_references(config: CrossReferenced) -> list:
+    """Raise ValueError (one line, naming the field) for the first reference that does not hold;
+    the faults as parsed (checked against the robot's joints), for the trial to keep."""
     robot = get_robot(config.robot)
     names = list(robot.joint_names)
     _joint_names(config, names)
     _backend(config, robot, names)
-    if config.faults:
-        parse_faults(config.faults, names)  # raises ValueError naming the bad fault
+    return parse_faults(config.faults, names) if config.faults else []  # ValueError names a bad one
 
 
 def _unknown(where: str, keys, names: list[str], config: CrossReferenced, extra: frozenset = frozenset()):

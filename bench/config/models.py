@@ -11,13 +11,14 @@ import json
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 from bench.config.calibration import check_calibration
 from bench.config.crossref import check_cross_references
 from bench.config.servo_model import ServoPhysics, load_servo_model_file, physics_for
-from bench.kinematics.registry import trial_refusal
+from bench.faults import parse_faults
+from bench.kinematics.registry import get_robot, trial_refusal
 from bench.paths import REPO_ROOT, robot_urdf
 from drivers.dynamixel.control_table import supported_models
 from drivers.dynamixel.units import BAUD_RATES
@@ -345,6 +346,12 @@ class SafetyConfig(Strict):
 class TrialConfig(Strict):
     """One trial: a robot, a target, a plan, the limits it is judged by and where it runs."""
 
+    #: (path, content) of the calibration read when the config was loaded, so a trial applies
+    #: and records that one reading (copies of the config keep it).
+    _calibration_read: Any = PrivateAttr(default=None)
+    #: (the faults list, its parse) from validation, so a trial parses its faults once.
+    _faults_parsed: Any = PrivateAttr(default=None)
+
     name: str = Field(pattern=NAME_PATTERN, description="letters, digits, . _ - (the run's folder)")
     robot: Literal["arc-train"] = Field(default="arc-train", description="the robot driven (trials run "
                                         "arc-train; `hilbench robot` lists what zerobot and para-brachy lack)")
@@ -418,7 +425,9 @@ class TrialConfig(Strict):
     @model_validator(mode="after")
     def _cross_references(self) -> "TrialConfig":
         """What fields say about each other: joints named, sensor, ports, start, transmissions."""
-        check_cross_references(self)
+        faults = check_cross_references(self)
+        if self.faults:  # kept for the trial: parsed once
+            self._faults_parsed = (self.faults, faults)
         if self.backend.kind == "pybullet":
             steps = self.backend.physics_hz / self.control_hz
             if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
@@ -430,6 +439,13 @@ class TrialConfig(Strict):
     @property
     def control_period(self) -> float:
         return 1.0 / self.control_hz
+
+    def fault_specs(self) -> list:
+        """The faults, parsed once (at validation; again only for a copy given other faults)."""
+        kept = self._faults_parsed
+        if kept is not None and kept[0] is self.faults:
+            return list(kept[1])
+        return parse_faults(self.faults, get_robot(self.robot).joint_names) if self.faults else []
 
     def resolve(self, path: Path) -> Path:
         """A path from the config, relative to the repository root if not absolute."""
@@ -452,6 +468,6 @@ def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialC
         config = TrialConfig.model_validate({**data, "source": path})
     except ValidationError as e:
         raise ConfigError(describe_validation_error(e, TrialConfig, path)) from None
-    if config.calibration is not None:
-        check_calibration(config)  # raises ConfigError naming the problem
+    if config.calibration is not None:  # read once: a trial applies and records this content
+        config._calibration_read = (config.resolve(config.calibration), check_calibration(config))
     return config

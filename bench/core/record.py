@@ -51,9 +51,11 @@ def sha256_of(path: Path) -> str:
     return h.hexdigest()
 
 
-def write_record(run_dir: Path, log_path: Path) -> Path:
-    """record.json: the log's checksum, so a report is only ever rebuilt from the true log."""
-    rec = {"log": log_path.name, "sha256": sha256_of(log_path), "bytes": log_path.stat().st_size}
+def write_record(run_dir: Path, log_path: Path, fields: dict | None = None) -> Path:
+    """record.json: the log's checksum, so a report is only ever rebuilt from the true log, and
+    ``fields`` (what ran: the config, the calibration as applied, servos, versions...)."""
+    rec = {"log": log_path.name, "sha256": sha256_of(log_path), "bytes": log_path.stat().st_size,
+           **(fields or {})}
     path = Path(run_dir) / "record.json"
     path.write_text(json.dumps(rec, indent=2) + "\n")
     return path

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -30,13 +30,31 @@ class TrialError(BenchError, RuntimeError):
 
 @dataclass
 class PreparedTrial:
-    """A trial that passed every check that can be made before anything moves."""
+    """A trial that passed every check that can be made before anything moves, loaded once:
+    what the backend will apply (calibration, faults, limits), the interlocks, and the plan
+    from ``start`` that was checked through them. The run and the record take it from here."""
 
     config: TrialConfig
     robot: object
     target: NeedleTarget
     q_entry: np.ndarray
     q_insert: np.ndarray
+    #: The calibration file as read (once) and applied, and its path; None when none applies.
+    calibration: Optional[Any] = None
+    calibration_path: Optional[Path] = None
+    faults: list = field(default_factory=list)  #: the config's faults, parsed (FaultSpec)
+    limits: Optional[Any] = None  #: the joint limits the backend will have (JointLimits)
+    interlocks: Optional[Any] = None  #: the configured interlocks (None when disabled)
+    start: Optional[np.ndarray] = None  #: the pose the prepared plan starts from
+    #: False when the plan's start was given (a comparison runs the rig's very plan on the sim):
+    #: the run keeps it; True: the plan's moves from the start are re-aimed at the first reading.
+    aim_at_reading: bool = True
+    segments: list = field(default_factory=list)  #: the checked plan from ``start``
+
+    def with_config(self, config: TrialConfig) -> "PreparedTrial":
+        """The same trial on a config that differs only in how the backend is reached or stops
+        (ports, timeouts, retries, safe stop): nothing prepared depends on those."""
+        return replace(self, config=config)
 
 
 @dataclass

@@ -29,7 +29,8 @@ from bench.faults.comms import DroppedStatus, EmulatorStatusFault, LateStatus, e
 from bench.faults.tolerance import Backlash, Bias, Deadband, Noise, Quantisation
 from bench.faults.torque import TorqueLimit, check_effort_limit
 from bench.faults.ultrasonic import UltrasonicDropout, UltrasonicNoise, UltrasonicStuck
-from bench.kinematics.arc_train import PINION_RADIUS, SERVO_TOL_DEG
+from bench.kinematics.arc_train import PINION_RADIUS
+from bench.kinematics.transmission import SERVO_TOL_DEG, slide_tolerance_m, transmissions_for_names
 from drivers import Actuators, ConfigurationError
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import TICKS_PER_REV
@@ -149,7 +150,11 @@ def _per_joint(spec: FaultSpec, idx: np.ndarray, kinds: list, n: int, deg_key: s
 
 
 def _deadband(act, spec, idx, kinds, rng):
-    return Deadband(act, _per_joint(spec, idx, kinds, len(kinds), "tol_deg", "tol_mm"), rng)
+    """``tol_deg`` is the servo's: a revolute joint strays by it through its transmission (the
+    train, on the arc's rack, by R_pinion/R_arc of it); ``tol_mm`` is a slide's travel."""
+    tol = _per_joint(spec, idx, kinds, len(kinds), "tol_deg", "tol_mm")
+    ratio = transmissions_for_names(act.joint_names, kinds)
+    return Deadband(act, np.where(np.asarray(kinds) == "revolute", tol * ratio, tol), rng)
 
 
 def _bias(act, spec, idx, kinds, rng):
@@ -256,9 +261,10 @@ _PROB = dict(lo=0.0, hi=1.0)
 _LEVEL = Param("level", "auto", choices=("auto", "wrapper", "bus"))
 
 FAULTS: dict[str, FaultDef] = {f.name: f for f in (
-    FaultDef("deadband", "a servo settles anywhere within ±tol of its goal (a new draw every move)",
+    FaultDef("deadband", "a servo settles anywhere within ±tol of its goal (a new draw every move; "
+             "tol_deg through each joint's transmission: the train ±tol·10/200 of arc)",
              (Param("tol_deg", SERVO_TOL_DEG, "deg", lo=0.0, kind="revolute"),
-              Param("tol_mm", round(PINION_RADIUS_MM * math.radians(SERVO_TOL_DEG), 6), "mm", lo=0.0,
+              Param("tol_mm", slide_tolerance_m() * 1e3, "mm", lo=0.0,
                     kind="prismatic")), _deadband),
     FaultDef("bias", "encoder offset: reads truth + bias, so the goal is reached at goal − bias",
              (Param("bias_deg", 0.0, "deg", kind="revolute"),

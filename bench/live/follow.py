@@ -16,13 +16,13 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
-from bench.config.models import TrialConfig
+from bench.core.result import PreparedTrial
 from bench.trial.margins import MarginMeter
-from bench.trial.plan import prepare
 
 __all__ = ["RunFollower", "Snapshot", "MAX_POINTS_HZ", "decimate"]
 
@@ -66,9 +66,9 @@ class Snapshot:
 class RunFollower:
     """Follows the newest run directory under ``out`` created after it started."""
 
-    def __init__(self, out: Path, config: TrialConfig) -> None:
+    def __init__(self, out: Path, prepared: Callable[[], PreparedTrial]) -> None:
         self.out = Path(out)
-        self.config = config
+        self._prepared = prepared  # called once, at the first row (the trial's interlocks' figures)
         self._meter: MarginMeter | None = None
         self.kinds: list[str] = []
         self._started = time.time() - 1.0
@@ -164,7 +164,7 @@ class RunFollower:
     def meter(self) -> MarginMeter:
         """The trial's interlock margins, built at the first row (off the control loop's start)."""
         if self._meter is None:
-            prep = prepare(self.config)
+            prep = self._prepared()
             self._meter = MarginMeter(prep)
             self.kinds = [r.kind for r in prep.robot.chain.rows]
         return self._meter

@@ -164,7 +164,8 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
     meta = log.metadata
     verdict = ("PASSED" if result.passed else "FAILED")
     lines = [f"# Trial {cfg.name}: {verdict}", "",
-             f"- robot: {cfg.robot}, backend: {cfg.backend.kind}, trajectory: {cfg.plan.trajectory}, "
+             f"- robot: {cfg.robot}, backend: {cfg.backend.kind} ({meta.get('rig') or 'rig not recorded'}), "
+             f"trajectory: {cfg.plan.trajectory}, "
              f"control rate: {cfg.control_hz:g} Hz, seed: {cfg.seed}",
              f"- started: {meta.get('start_time', '?')}; log: `{result.log_path.name}`",
              f"- acceptance: {cfg.acceptance.position_mm:g} mm per axis and depth, "

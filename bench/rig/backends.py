@@ -7,18 +7,19 @@ open a backend: a trial, a comparison, the lab tools.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
-from bench.config.calibration import calibration_of
+from bench.config.calibration import CalibrationFile, calibration_of
 from bench.config.models import ConfigError, ServoConfig, TrialConfig, load_servo_model_file, model_number
 from bench.kinematics.arc_train import epsilon_from_d2, train_pose
 from bench.kinematics.transmission import servo_transmissions
+from bench.rig.serving import hooks_for
 from drivers import Actuators, ConfigurationError, JointLimits
 from drivers.dynamixel.backend import DynamixelActuators
-from drivers.dynamixel.settings import DynamixelSettings, ServoSettings, UltrasonicSettings
 from drivers.dynamixel.goals import outside_limits
+from drivers.dynamixel.settings import DynamixelSettings, ServoSettings, UltrasonicSettings
 from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings, SceneObject
 from drivers.pybullet.servo_sim import ServoSimActuators, ServoSimSettings, TrainSensor
 from drivers.servo import ServoParams
@@ -145,8 +146,13 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
     return ServoSimActuators(settings)
 
 
-def make_backend(config: TrialConfig, robot, gui: bool = False) -> Actuators:
-    """The configured backend, inactive (reading allowed, commands refused)."""
+def make_backend(config: TrialConfig, robot, gui: bool = False,
+                 calibration: Optional[CalibrationFile] = None) -> Actuators:
+    """The configured backend, inactive (reading allowed, commands refused).
+
+    ``calibration``: what a trial read once and records; without it a Dynamixel backend reads
+    the config's own. A Dynamixel backend on a bus this process emulates carries that bus's
+    fault hooks (:mod:`bench.rig.serving`)."""
     cfg = config
     if cfg.backend.kind == "pybullet" and cfg.backend.servo_model != "ideal":
         if gui:
@@ -169,7 +175,7 @@ def make_backend(config: TrialConfig, robot, gui: bool = False) -> Actuators:
             solver_iterations=b.solver_iterations)
         return PyBulletActuators(settings)
     if cfg.backend.kind == "dynamixel":
-        return refuse_start_outside_limits(make_dynamixel_backend(cfg, robot),
+        return refuse_start_outside_limits(make_dynamixel_backend(cfg, robot, calibration),
                                            cfg.safety.joint_limit_tolerance)
     raise ConfigError(f"backend.kind: unknown backend {cfg.backend.kind!r}")
 
@@ -185,11 +191,13 @@ def refuse_start_outside_limits(act: Actuators, tolerance: float) -> Actuators:
     return act
 
 
-def make_dynamixel_backend(config: TrialConfig, robot) -> Actuators:
+def make_dynamixel_backend(config: TrialConfig, robot,
+                           calibration: Optional[CalibrationFile] = None) -> Actuators:
     """The Dynamixel backend from a config (ports, IDs, models, transmissions)."""
 
     b = config.backend
-    cal = calibration_of(config)  # zero offsets and ultrasonic mapping, if the config names one
+    # zero offsets and ultrasonic mapping: as given, else the config's own, if it names one
+    cal = calibration if calibration is not None else calibration_of(config)
     rows = robot.chain.rows
     servos = [ServoSettings(joint=n, id=sc.id, model=model_number(sc.model), mode=sc.mode,
                             ratio=sc.ratio, offset=cal.offset(n, sc.offset) if cal else sc.offset,
@@ -217,4 +225,8 @@ def make_dynamixel_backend(config: TrialConfig, robot) -> Actuators:
         timeout_s=b.timeout_ms * 1e-3 if b.timeout_ms else None,
         safe_stop=b.safe_stop, reboot_on_hardware_error=b.reboot_on_hardware_error,
         ultrasonic=ultra, limit_tolerance=config.safety.joint_limit_tolerance)
-    return DynamixelActuators(settings)
+    backend = DynamixelActuators(settings)
+    hooks = hooks_for(b.port)
+    if hooks is not None:  # an emulated bus: bus-level faults reach the wire through its hooks
+        backend.fault_hooks = hooks
+    return backend

@@ -28,6 +28,7 @@ import numpy as np
 from bench.config.models import DynamixelBackendConfig, EmulatorConfig, TrialConfig, model_number
 from bench.kinematics.arc_train import train_pose
 from bench.kinematics.registry import get_robot
+from bench.rig import serving
 from bench.rig.backends import with_physics
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import BAUD_RATES, OPERATING_MODES
@@ -154,9 +155,11 @@ class EmulatedRig:
         self.bus.start()
         if self.ultrasonic is not None:
             self.ultrasonic.start()
+        serving.attach(self.bus.port, self.bus.faults)  # backends built on this port get its hooks
         return self
 
     def close(self) -> None:
+        serving.detach(self.bus.port)
         if self.ultrasonic is not None:
             self.ultrasonic.stop()
         self.bus.stop()
@@ -294,6 +297,7 @@ class EmulatorProcess:
             why = err[-1].removeprefix("error: ") if err else f"it exited with {self.proc.returncode}"
             raise RuntimeError(f"the emulator did not start: {why}") from None
         self.ports = RigPorts(ports["dynamixel_port"], ports.get("ultrasonic_port"))
+        serving.attach(self.ports.dynamixel_port, self.faults)  # backends built on this port get its hooks
         #: The bus's counters, read when the emulator has stopped (see :func:`serve`).
         self.stats: dict = {}
 
@@ -319,6 +323,8 @@ class EmulatorProcess:
         self.proc.send_signal(signal.SIGUSR2)
 
     def close(self) -> None:
+        if getattr(self, "ports", None) is not None:
+            serving.detach(self.ports.dynamixel_port)
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:

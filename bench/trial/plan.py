@@ -7,9 +7,12 @@ backend is built, so a bad trial never moves anything.
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 
-from bench.config.models import MAX_PLAN_S, TrialConfig
+from bench.config.calibration import applied_calibration, calibration_path
+from bench.config.models import MAX_PLAN_S, ConfigError, TrialConfig
 from bench.core.result import PreparedTrial, TrialError
 from bench.core.runner import Segment
 from bench.core.safety import (
@@ -35,7 +38,7 @@ from trajectories import (
     TrajectoryError,
 )
 
-__all__ = ["excitation_of", "interlocks_for", "plan", "planned_limits", "prepare", "target_of"]
+__all__ = ["aimed_plan", "excitation_of", "interlocks_for", "plan", "planned_limits", "prepare", "target_of"]
 
 
 def target_of(config: TrialConfig) -> NeedleTarget:
@@ -44,8 +47,10 @@ def target_of(config: TrialConfig) -> NeedleTarget:
                         np.radians(t.angle_deg), np.radians(t.tilt_deg))
 
 
-def prepare(config: TrialConfig) -> PreparedTrial:
-    """Check the URDF and solve the target; raise TrialError naming the problem."""
+def prepare(config: TrialConfig, plan_start: Optional[np.ndarray] = None) -> PreparedTrial:
+    """Check the URDF, solve the target, load what the backend will apply (the calibration, read
+    once; the faults, parsed once; the limits) and build the interlocks and the plan from home
+    (or ``plan_start``), checked through them; raise TrialError naming the problem."""
 
     robot = get_robot(config.robot)
     if not config.robot_urdf.is_file():
@@ -65,21 +70,30 @@ def prepare(config: TrialConfig) -> PreparedTrial:
         raise TrialError(f"target: {e}") from None
     q_entry = q_insert.copy()
     q_entry[robot.joint_names.index(robot.insertion_joint)] = 0.0
-    prep = PreparedTrial(config, robot, target, q_entry, q_insert)
     problem = needle_direction_problem(robot, q_insert, config.target.angle_deg)
     if problem:
         raise TrialError(problem)
-    _check_plan(prep)
+    try:
+        calibration = applied_calibration(config)
+        faults = config.fault_specs()
+    except (ConfigError, ValueError) as e:
+        raise TrialError(str(e)) from None
+    prep = PreparedTrial(config, robot, target, q_entry, q_insert, calibration=calibration,
+                         calibration_path=calibration_path(config) if calibration is not None else None,
+                         faults=faults, limits=backend_limits(config, robot))
+    prep.interlocks = interlocks_for(prep, prep.limits)
+    prep.start = np.array(robot.chain.home if plan_start is None else plan_start, dtype=float)
+    prep.aim_at_reading = plan_start is None
+    prep.segments = _checked_plan(prep, prep.start)
     return prep
 
 
-def _check_plan(prep: PreparedTrial) -> None:
-    """Refuse a plan that would run longer than MAX_PLAN_S from home (a typo, not a trial),
-    or whose path from home, followed perfectly, would trip the trial's interlocks."""
+def _checked_plan(prep: PreparedTrial, start: np.ndarray) -> list[Segment]:
+    """The plan from ``start``, refused if it would run longer than MAX_PLAN_S (a typo, not a
+    trial) or if its path, followed perfectly, would trip the trial's interlocks."""
 
-    limits = planned_limits(prep)
     try:
-        segments = plan(prep, prep.robot.chain.home, limits.velocity)
+        segments = plan(prep, start, prep.limits.velocity)
     except (TrajectoryError, ValueError) as e:
         raise TrialError(f"plan: {e}") from None
     total = sum(s.trajectory.duration + s.settle for s in segments)
@@ -87,21 +101,61 @@ def _check_plan(prep: PreparedTrial) -> None:
         raise TrialError(f"plan: the trial would last {total:.0f} s from home, more than the "
                          f"{MAX_PLAN_S:.0f} s allowed; raise plan.velocity_scale or "
                          f"plan.acceleration_scale, or shorten plan.settle_s")
-    if not prep.config.safety.refuse_planned_trips:
-        return
-    trip = planned_path_trip(segments, interlocks_for(prep, limits), prep.config.control_period)
-    if trip is not None:
-        raise TrialError(trip.message())
+    if prep.config.safety.refuse_planned_trips:
+        trip = planned_path_trip(segments, prep.interlocks, prep.config.control_period)
+        if trip is not None:
+            raise TrialError(trip.message())
+    for seg in segments:  # the replay stepped the online generators: start them over for the run
+        reset = getattr(seg.trajectory, "reset", None)
+        if reset is not None:
+            reset()
+    return segments
+
+
+def aimed_plan(prep: PreparedTrial, q_start: np.ndarray) -> list[Segment]:
+    """The prepared plan, its moves from and back to the start re-aimed at ``q_start`` (the
+    backend's first reading) when the robot is not exactly where the plan starts; the rest of the
+    plan is the one prepared and checked. A plan prepared from a given start is kept as it is."""
+    q_start = np.asarray(q_start, dtype=float)
+    if not prep.aim_at_reading or (prep.start is not None and np.array_equal(q_start, prep.start)):
+        return list(prep.segments)
+    traj = _trajectories(prep, prep.limits.velocity)
+    out = []
+    for seg in prep.segments:
+        if seg.name == "approach":
+            seg = Segment(seg.name, traj(q_start, prep.q_entry), seg.settle)
+        elif seg.name == "home":  # an excitation run returns to where it started
+            seg = Segment(seg.name, traj(prep.q_entry, q_start), seg.settle)
+        out.append(seg)
+    return out
 
 
 def planned_limits(prep: PreparedTrial) -> JointLimits:
     """The joint limits the backend will have: the robot's, with the backend's overrides."""
-    return backend_limits(prep.config, prep.robot)
+    return prep.limits if prep.limits is not None else backend_limits(prep.config, prep.robot)
 
 
 def plan(prep: PreparedTrial, q_start: np.ndarray, limits_velocity: np.ndarray) -> list[Segment]:
     """home -> entry pose -> insertion along the needle axis -> retract."""
 
+    p = prep.config.plan
+    vmax = limits_velocity * p.velocity_scale
+    amax = vmax * p.acceleration_scale
+    traj = _trajectories(prep, limits_velocity)
+
+    if prep.config.excitation is not None:
+        return [Segment("approach", traj(q_start, prep.q_entry), p.settle_s),
+                Segment("excite", excitation_of(prep, Limits(vmax, amax)), p.settle_s),
+                Segment("home", traj(prep.q_entry, q_start), 0.0)]
+    segs = [Segment("approach", traj(q_start, prep.q_entry), p.settle_s),
+            Segment("insert", traj(prep.q_entry, prep.q_insert), p.settle_s)]
+    if p.retract:
+        segs.append(Segment("retract", traj(prep.q_insert, prep.q_entry), 0.0))
+    return segs
+
+
+def _trajectories(prep: PreparedTrial, limits_velocity: np.ndarray):
+    """The plan's trajectory between two poses, at the plan's share of the joint limits."""
     p = prep.config.plan
     vmax = limits_velocity * p.velocity_scale
     amax = vmax * p.acceleration_scale
@@ -115,15 +169,7 @@ def plan(prep: PreparedTrial, q_start: np.ndarray, limits_velocity: np.ndarray) 
             return RuckigTrajectory(a, b, Limits(vmax, amax, jmax))
         return RuckigOnline(a, b, Limits(vmax, amax, jmax), dt_ctrl)
 
-    if prep.config.excitation is not None:
-        return [Segment("approach", traj(q_start, prep.q_entry), p.settle_s),
-                Segment("excite", excitation_of(prep, Limits(vmax, amax)), p.settle_s),
-                Segment("home", traj(prep.q_entry, q_start), 0.0)]
-    segs = [Segment("approach", traj(q_start, prep.q_entry), p.settle_s),
-            Segment("insert", traj(prep.q_entry, prep.q_insert), p.settle_s)]
-    if p.retract:
-        segs.append(Segment("retract", traj(prep.q_insert, prep.q_entry), 0.0))
-    return segs
+    return traj
 
 
 def excitation_of(prep: PreparedTrial, limits: Limits) -> Excitation:

@@ -10,20 +10,28 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from bench.config.base import describe_validation_error
-from bench.config.calibration import calibration_record
+from bench.config.calibration import CalibrationFile, calibration_path, calibration_record
 from bench.config.models import TrialConfig
 from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
 from bench.core.record import package_versions, write_record
 from bench.core.result import PreparedTrial, TrialResult, result_from_log, write_result_json
 from bench.core.rundir import RECORD, RunDirError, SavedRun, load_run, read_journal, refuse_links
 from bench.report.trial import write_trial_report
+from bench.rig.serving import rig_kind
 from bench.trial.plan import prepare
 from drivers import BenchError
 
 #: What rebuilding a report writes into the run directory.
 REPORT_FILES = ("result.json", "report.md", "report.html", "joints.png", "robot.png")
 
-__all__ = ["finish_record", "load_checked", "load_record", "rebuild_report", "recover_run", "trial_metadata"]
+__all__ = ["RECORD_FIELDS", "finish_record", "load_checked", "load_record", "rebuild_report", "record_fields",
+           "recover_run", "trial_metadata"]
+
+
+#: What record.json holds beside the log's checksum, copied from the log's metadata: the config,
+#: the calibration as applied, the servos read from the bus, the versions, and what ran it.
+RECORD_FIELDS = ("config", "config_file", "calibration", "servos", "versions", "robot", "backend",
+                 "rig", "seed", "start_time", "note")
 
 
 def trial_metadata(prep: PreparedTrial, note: str) -> dict:
@@ -31,8 +39,10 @@ def trial_metadata(prep: PreparedTrial, note: str) -> dict:
     return {
         "config": json.loads(config.model_dump_json()),
         "config_file": str(config.source) if config.source else None,
-        "calibration": calibration_record(config),  # path and content, or None
+        # path and the content read once, applied by the backend; None when none applies
+        "calibration": calibration_record(prep.calibration, prep.calibration_path),
         "robot": config.robot, "backend": config.backend.kind, "seed": config.seed,
+        "rig": rig_kind(config),  # sim, emulated or real: what the backend drove
         "start_time": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(), "note": note,
         "target": {"entry_m": prep.target.entry.tolist(), "depth_m": prep.target.depth,
@@ -42,11 +52,17 @@ def trial_metadata(prep: PreparedTrial, note: str) -> dict:
     }
 
 
-def finish_record(run_dir: Path, log: TrialLog, log_path: Path, prep: PreparedTrial) -> TrialResult:
+def record_fields(metadata: dict) -> dict:
+    """What record.json holds beside the log's checksum (:data:`RECORD_FIELDS`)."""
+    return {k: metadata.get(k) for k in RECORD_FIELDS}
+
+
+def finish_record(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialResult:
     """The log, record.json and result.json on disk; the journal removed once they are."""
+    log_path = Path(run_dir) / "trial.npz"
     log.flush()
     log.save(log_path)
-    write_record(run_dir, log_path)
+    write_record(run_dir, log_path, record_fields(log.metadata))
     log.close_journal()
     res = result_from_log(run_dir, log, prep)
     write_result_json(res)
@@ -74,6 +90,12 @@ def load_checked(run_dir: Path) -> tuple[SavedRun, PreparedTrial]:
                           f"{describe_validation_error(e, TrialConfig)}") from None
     except (BenchError, ValueError, TypeError) as e:
         raise RunDirError(f"{run_dir}: the config stored in the log is not readable: {e}") from None
+    cal = log.metadata.get("calibration")
+    if cal:  # the calibration as the trial applied it, not the file as it is now
+        try:
+            config._calibration_read = (calibration_path(config), CalibrationFile.model_validate(cal["content"]))
+        except (ValidationError, KeyError, TypeError) as e:
+            raise RunDirError(f"{run_dir}: the calibration stored in the log is not readable: {e}") from None
     try:
         prep = prepare(config)
     except BenchError as e:
@@ -94,7 +116,7 @@ def recover_run(run_dir: Path) -> Path:
                   "recovered from the journal")
     log_path = Path(run_dir) / "trial.npz"
     log.save(log_path)
-    write_record(run_dir, log_path)
+    write_record(run_dir, log_path, record_fields(log.metadata))
     for name in (JOURNAL_ROWS, JOURNAL_META):
         (Path(run_dir) / name).unlink(missing_ok=True)
     return log_path

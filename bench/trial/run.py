@@ -1,129 +1,88 @@
-"""One trial end to end: config -> checks -> backend -> plan -> run -> outcome -> run directory.
+"""One prepared trial end to end: build the backend -> run the plan -> record the run directory.
 
-Everything that can be wrong with a trial (the config, the URDF, the target)
-is checked by :func:`prepare` before a backend is built, so a bad trial never
-moves anything. Whatever happens during the run, the log so far is saved.
+Everything that can be wrong with a trial (the config, the URDF, the target, the plan) was
+found by :func:`bench.trial.plan.prepare`, which also loaded what the run applies (the
+calibration, the faults, the limits, the interlocks, the checked plan). This module only
+builds, runs and records; whatever happens during the run, the log so far is saved.
 """
 
 from __future__ import annotations
 
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional
 
 import numpy as np
 
-from bench.config.models import ConfigError, TrialConfig
+from bench.config.models import ConfigError
 from bench.core.interrupts import NO_SIGNALS, TrialInterrupted
 from bench.core.log import TrialLog
 from bench.core.record import new_run_dir
 from bench.core.result import PreparedTrial, TrialError, TrialResult
 from bench.core.runner import Interruptible, Runner, abort_reason
-from bench.faults import apply_faults, parse_faults
+from bench.faults import apply_faults
 from bench.report.trial import write_trial_report
 from bench.rig.backends import make_backend
-from bench.trial.plan import interlocks_for, plan, prepare
+from bench.trial.plan import aimed_plan
 from bench.trial.record import finish_record, trial_metadata
 from drivers import ActuatorError, Actuators
 from drivers.capabilities import SafeStopReport, ServoInfo, StartWarnings, find_capability
 
-__all__ = ["run_trial"]
+__all__ = ["TrialHooks", "run_trial"]
 
 
-def run_trial(config: TrialConfig, out: Path, gui: bool = False,
-              progress: Optional[Callable[[float], None]] = None,
-              backend_factory: Optional[Callable[[PreparedTrial], Actuators]] = None,
-              wrap: Optional[Callable[[Actuators], Actuators]] = None,
-              note: str = "", report: bool = True,
-              interrupts: Interruptible = NO_SIGNALS,
-              phase: Optional[Callable[[str], None]] = None,
-              plan_start: Optional[np.ndarray] = None) -> TrialResult:
-    """Run one trial and write its run directory; the log is saved on every exit path.
+@dataclass
+class TrialHooks:
+    """What a caller adds to a trial: how it is told and reported, and what it wraps.
 
-    ``phase`` hears what the trial is doing ("connecting", "planning", each segment's
-    name, "report"), for a progress display.
-
-    ``report=False`` writes only the log and ``result.json`` (no figures), for campaigns.
-    ``interrupts`` (a :class:`bench.core.interrupts.SignalGuard`) turns stop signals into
+    ``progress`` hears the fraction of the current segment; ``phase`` what the trial is doing
+    ("connecting", "planning", each segment's name, "report"). ``interrupts`` (a
+    :class:`bench.core.interrupts.SignalGuard`) turns stop signals into
     :class:`TrialInterrupted`, raised once the actuators are safe and the record written.
-    ``plan_start``: plan from this pose instead of the first reading, so that a comparison runs
-    the rig's very plan on the sim.
-    """
-    tell = phase or (lambda _: None)
-    prep = prepare(config)
+    ``report=False`` writes only the log, the record and ``result.json`` (no figures).
+    ``backend``: an already-open backend to run on (a comparison's homed rig) instead of
+    building the config's; ``wrap``: the outermost layer around the fault stack (a campaign's
+    ground-truth recorder)."""
+
+    note: str = ""
+    report: bool = True
+    gui: bool = False
+    progress: Optional[Callable[[float], None]] = None
+    phase: Optional[Callable[[str], None]] = None
+    interrupts: Interruptible = NO_SIGNALS
+    backend: Optional[Callable[[PreparedTrial], Actuators]] = None
+    wrap: Optional[Callable[[Actuators], Actuators]] = None
+
+    def tell(self, what: str) -> None:
+        if self.phase is not None:
+            self.phase(what)
+
+
+def run_trial(prep: PreparedTrial, out: Path, hooks: Optional[TrialHooks] = None) -> TrialResult:
+    """Run one prepared trial and write its run directory; the log is saved on every exit path."""
+    hooks = hooks or TrialHooks()
+    interrupts = hooks.interrupts
     interrupts.check()
-    log = TrialLog(list(prep.robot.joint_names), metadata=trial_metadata(prep, note))
+    log = TrialLog(list(prep.robot.joint_names), metadata=trial_metadata(prep, hooks.note))
     out_existed = Path(out).exists()
     with interrupts.deferred():  # a run directory is never left without its journal
-        run_dir = new_run_dir(out, config.name)
-        log_path = run_dir / "trial.npz"
+        run_dir = new_run_dir(out, prep.config.name)
         log.journal_to(run_dir)
-    backend = None
-    tell("connecting")
-    try:
-        backend = (backend_factory or (lambda p: make_backend(p.config, p.robot, gui)))(prep)
-        act = _wrapped(backend, prep, wrap)
-    except (ActuatorError, ConfigError, TrialError, ValueError):
-        if backend is not None:
-            backend.close()
-        log.close_journal()
-        shutil.rmtree(run_dir, ignore_errors=True)  # refused before anything moved: nothing to keep
-        if not out_existed:
-            shutil.rmtree(out, ignore_errors=True)
-        raise
-    except BaseException as e:  # interrupted while the backend was being built
-        with interrupts.deferred():
-            if backend is not None:
-                backend.close()
-            log.event(0.0, "abort", abort_reason(e))
-            finish_record(run_dir, log, log_path, prep)
-        e.run_dir, e.safe_stop = run_dir, "the actuators were never enabled"
-        raise
-    interrupted: Optional[BaseException] = None
-    try:
-        try:
-            interrupts.check()
-            servos = find_capability(act, ServoInfo)
-            if servos is not None:
-                log.metadata["servos"] = servos.servo_info()
-            warned = find_capability(act, StartWarnings)
-            if warned is not None and warned.start_warnings:
-                log.metadata["warnings"] = list(warned.start_warnings)
-            tell("planning")
-            q_start = act.read().position if plan_start is None else np.asarray(plan_start, dtype=float)
-            segments = plan(prep, q_start, act.limits.velocity)
-            interlocks = interlocks_for(prep, act)  # built (and imported) before anything moves
-            interrupts.check()  # a signal swallowed during the set-up still stops here
-            runner = Runner(act, config.control_period, interlocks=interlocks,
-                            on_trip=config.safety.on_trip, progress=progress, interrupts=interrupts,
-                            phase=phase)
-            runner.run(segments, log)
-        finally:
-            with interrupts.deferred():  # the safe stop always runs to its end
-                act.close()
-    except KeyboardInterrupt as e:
-        interrupted = e
-        _abort_once(log, abort_reason(e))
-    except (ActuatorError, ValueError, ArithmeticError) as e:  # lost bus, hardware fault, bad command
-        _abort_once(log, abort_reason(e))
-    except BaseException as e:
-        with interrupts.deferred():
-            _abort_once(log, abort_reason(e))
-            _note_safe_stop(log, backend)
-            finish_record(run_dir, log, log_path, prep)
-        raise
+    hooks.tell("connecting")
+    backend, act = _build(prep, hooks, run_dir, log, Path(out), out_existed)
+    interrupted = _run(prep, hooks, act, backend, log, run_dir)
     with interrupts.deferred():
         _note_safe_stop(log, backend)
         if interrupted is None and interrupts.interrupted:  # noted while stopping safely
             interrupted = TrialInterrupted(interrupts.signum)
             _abort_once(log, abort_reason(interrupted))
-        res = finish_record(run_dir, log, log_path, prep)
+        res = finish_record(run_dir, log, prep)
     try:
         if interrupted is not None:
             raise interrupted
-        if report:
-
-            tell("report")
+        if hooks.report:
+            hooks.tell("report")
             write_trial_report(res, log, prep)
         interrupts.check()
     except KeyboardInterrupt as e:  # the record is complete; the report can be rebuilt from it
@@ -133,15 +92,74 @@ def run_trial(config: TrialConfig, out: Path, gui: bool = False,
     return res
 
 
-def _wrapped(backend: Actuators, prep: PreparedTrial,
-             wrap: Optional[Callable[[Actuators], Actuators]]) -> Actuators:
-    """The backend inside the config's fault wrappers (a fault it cannot host is refused)."""
-    act = backend
-    if prep.config.faults:
+def _build(prep: PreparedTrial, hooks: TrialHooks, run_dir: Path, log: TrialLog, out: Path,
+           out_existed: bool) -> tuple[Actuators, Actuators]:
+    """The backend (inactive) and the stack the trial drives: the prepared faults around it, the
+    caller's wrap outermost. Refused before anything moved: the run directory is removed."""
+    backend = None
+    try:
+        if hooks.backend is not None:
+            backend = hooks.backend(prep)
+        else:
+            backend = make_backend(prep.config, prep.robot, hooks.gui, calibration=prep.calibration)
+        act = backend
+        if prep.faults:  # a fault the backend cannot host is refused here
+            act = apply_faults(act, prep.faults, np.random.default_rng(prep.config.seed))
+        return backend, (hooks.wrap(act) if hooks.wrap else act)
+    except (ActuatorError, ConfigError, TrialError, ValueError):
+        if backend is not None:
+            backend.close()
+        log.close_journal()
+        shutil.rmtree(run_dir, ignore_errors=True)  # refused before anything moved: nothing to keep
+        if not out_existed:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    except BaseException as e:  # interrupted while the backend was being built
+        with hooks.interrupts.deferred():
+            if backend is not None:
+                backend.close()
+            log.event(0.0, "abort", abort_reason(e))
+            finish_record(run_dir, log, prep)
+        e.run_dir, e.safe_stop = run_dir, "the actuators were never enabled"
+        raise
 
-        specs = parse_faults(prep.config.faults, prep.robot.joint_names)
-        act = apply_faults(act, specs, np.random.default_rng(prep.config.seed))
-    return wrap(act) if wrap else act
+
+def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuators, log: TrialLog,
+         run_dir: Path) -> Optional[BaseException]:
+    """Run the prepared plan from the first reading; the actuators are always closed (their safe
+    stop). Returns the interrupt that stopped it, if one did; other failures are logged."""
+    interrupts = hooks.interrupts
+    try:
+        try:
+            interrupts.check()
+            servos = find_capability(act, ServoInfo)
+            if servos is not None:
+                log.metadata["servos"] = servos.servo_info()
+            warned = find_capability(act, StartWarnings)
+            if warned is not None and warned.start_warnings:
+                log.metadata["warnings"] = list(warned.start_warnings)
+            hooks.tell("planning")
+            segments = aimed_plan(prep, act.read().position)
+            interrupts.check()  # a signal swallowed during the set-up still stops here
+            runner = Runner(act, prep.config.control_period, interlocks=prep.interlocks,
+                            on_trip=prep.config.safety.on_trip, progress=hooks.progress,
+                            interrupts=interrupts, phase=hooks.phase)
+            runner.run(segments, log)
+        finally:
+            with interrupts.deferred():  # the safe stop always runs to its end
+                act.close()
+    except KeyboardInterrupt as e:
+        _abort_once(log, abort_reason(e))
+        return e
+    except (ActuatorError, ValueError, ArithmeticError) as e:  # lost bus, hardware fault, bad command
+        _abort_once(log, abort_reason(e))
+    except BaseException as e:
+        with interrupts.deferred():
+            _abort_once(log, abort_reason(e))
+            _note_safe_stop(log, backend)
+            finish_record(run_dir, log, prep)
+        raise
+    return None
 
 
 def _abort_once(log: TrialLog, reason: str) -> None:

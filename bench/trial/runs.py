@@ -33,6 +33,7 @@ class RunSummary:
     tip_deviation_mm: Optional[float]  # length of the tip deviation vector
     angle_deviation_deg: Optional[float]
     report: Optional[str]  # report.html when it was drawn
+    rig: Optional[str] = None  # sim, emulated or real: what the record says ran it (None: older runs)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -80,4 +81,4 @@ def _checked_summary(run_dir: Path) -> RunSummary:
     return RunSummary(str(run_dir), meta.get("start_time"), name if isinstance(name, str) else None,
                       meta.get("backend"), status, reason, None if tip is None else round(tip, 3),
                       None if angle is None else round(float(angle), 4),
-                      str(report) if report.is_file() else None)
+                      str(report) if report.is_file() else None, meta.get("rig"))
