@@ -16,12 +16,12 @@ import numpy as np
 from drivers import (
     ActuatorError,
     Actuators,
-    BenchError,
     CommandError,
     JointLimits,
     JointState,
     NotEnabledError,
 )
+from drivers.errors import ContractViolation
 from drivers.capabilities import (
     EffortLimited,
     EmulatorHooks,
@@ -37,10 +37,6 @@ from drivers.capabilities import (
 __all__ = ["ContractViolation", "check_actuators"]
 
 CAPABILITIES = (EffortLimited, EmulatorHooks, JointKinds, LinkPoses, PositionReset, ServoInfo, TruePosition)
-
-
-class ContractViolation(BenchError, AssertionError):
-    """The actuators break a rule of the :class:`~drivers.Actuators` contract; the message says which."""
 
 
 def _require(ok: bool, what: str) -> None:

@@ -37,12 +37,12 @@ _STATUS = {"pass": "[green]PASS[/]", "warn": "[yellow]WARN[/]", "fail": "[bold r
 def _load(config: Path, tool: str) -> "TrialConfig":
     """The config, or exit 2 with one line (unreadable, or not the Dynamixel backend)."""
     from bench.lab.session import require_dynamixel  # deferred: --help and completion stay fast
-    from drivers import ConfigurationError  # deferred: --help and completion stay fast
+    from drivers import BackendSetupError  # deferred: --help and completion stay fast
 
     cfg = load_config(config)
     try:
         require_dynamixel(cfg, tool)
-    except ConfigurationError as e:
+    except BackendSetupError as e:
         fail(str(e))
     return cfg
 

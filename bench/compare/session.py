@@ -48,6 +48,7 @@ from bench.rig.emulated import EmulatorProcess
 from bench.trial.plan import prepare
 from bench.trial.run import run_trial
 from drivers import ActuatorError, Actuators, BenchError, CommunicationError
+from drivers.errors import CompareError
 from trajectories import LSPB
 
 __all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "home_rig",
@@ -69,10 +70,6 @@ HOME_STILL_S = 0.5  #: ... for this long (s) ...
 HOME_TIMEOUT_S = 15.0  #: ... or at most this long after the homing move (s)
 
 ProgressFn = Callable[[str, float], None]  # (what is running, fraction of the whole session)
-
-
-class CompareError(BenchError, RuntimeError):
-    """The comparison could not run; nothing moved (or the rig was stopped safely)."""
 
 
 @dataclass(frozen=True)

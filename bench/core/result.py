@@ -17,14 +17,10 @@ from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
 from bench.core.outcome import NeedleOutcome, needle_outcome, settled_position
 from bench.kinematics.needle import NeedleTarget
-from drivers import BenchError
+from drivers.errors import TrialError
 
 __all__ = ["PreparedTrial", "TrialError", "TrialResult", "result_from_log", "status_from_log",
            "write_result_json"]
-
-
-class TrialError(BenchError, RuntimeError):
-    """The trial could not start; nothing moved."""
 
 
 @dataclass

@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from bench.kinematics.registry import ROBOTS
-from drivers import Actuators, ConfigurationError, JointLimits, JointState, validate_command
+from drivers import Actuators, BackendSetupError, JointLimits, JointState, validate_command
 from drivers.capabilities import JointKinds, find_capability
 
 __all__ = ["FaultWrapper", "joint_kinds", "kinds_for_names"]
@@ -90,7 +90,7 @@ class FaultWrapper:
         names = list(self.joint_names)
         missing = [j for j in joints if j not in names]
         if missing:
-            raise ConfigurationError(f"{type(self).__name__}: unknown joint(s) {missing}; "
+            raise BackendSetupError(f"{type(self).__name__}: unknown joint(s) {missing}; "
                                      f"the actuators have {names}")
         return np.array([names.index(j) for j in joints], dtype=int)
 
@@ -112,7 +112,7 @@ def joint_kinds(actuators: Actuators) -> list[str]:
     if kinds is None:
         kinds = kinds_for_names(tuple(actuators.joint_names))
     if kinds is None:
-        raise ConfigurationError(
+        raise BackendSetupError(
             f"cannot tell revolute from prismatic joints among {list(actuators.joint_names)}: "
             "the backend has no joint_kinds and no known robot has these joints")
     return list(kinds)

@@ -38,7 +38,7 @@ def scan_bus(port: str, bauds: Iterable[int], max_id: int = MAX_ID,
     """Every servo answering on ``port`` at any of ``bauds``, by baud rate then ID.
 
     ``progress(done, total)`` is called after each rate. Raises
-    :class:`~drivers.ConfigurationError` (one line) when the port cannot be used.
+    :class:`~drivers.BackendSetupError` (one line) when the port cannot be used.
     """
     rates = check_bauds(bauds)
     found: list[ServoStatus] = []

@@ -35,7 +35,7 @@ import numpy as np
 from drivers import (
     ActuatorsBase,
     CommunicationError,
-    ConfigurationError,
+    BackendSetupError,
     HardwareFault,
     JointLimits,
     JointState,
@@ -168,12 +168,12 @@ class DynamixelActuators(ActuatorsBase):
             try:
                 opened = self.port.openPort()
             except Exception as e:  # pyserial's SerialException: no such device, permissions
-                raise ConfigurationError(
+                raise BackendSetupError(
                     f"cannot open servo port {s.port}: {e}" + _port_hint(s.port)) from None
             if not opened:
-                raise ConfigurationError(f"cannot open servo port {s.port}" + _port_hint(s.port))
+                raise BackendSetupError(f"cannot open servo port {s.port}" + _port_hint(s.port))
             if not self.port.setBaudRate(s.baud):
-                raise ConfigurationError(f"cannot set {s.baud} bps on {s.port}")
+                raise BackendSetupError(f"cannot set {s.baud} bps on {s.port}")
             self._check_latency()
             self._check_servos()
             self._configure()
@@ -199,17 +199,17 @@ class DynamixelActuators(ActuatorsBase):
         if sorted(joints) != sorted(names):
             missing = sorted(set(names) - set(joints))
             extra = sorted(set(joints) - set(names))
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"servos must cover every joint once: missing {missing}, unknown {extra}")
         ids = [sv.id for sv in s.servos]
         if len(set(ids)) != len(ids):
-            raise ConfigurationError(f"duplicate servo IDs in {ids}")
+            raise BackendSetupError(f"duplicate servo IDs in {ids}")
         for sv in s.servos:
             if sv.mode not in OPERATING_MODES:
-                raise ConfigurationError(
+                raise BackendSetupError(
                     f"servo {sv.id} ({sv.joint}): unknown mode {sv.mode!r}; modes: {sorted(OPERATING_MODES)}")
             if sv.ratio == 0 or not math.isfinite(sv.ratio):
-                raise ConfigurationError(f"servo {sv.id} ({sv.joint}): ratio must be non-zero")
+                raise BackendSetupError(f"servo {sv.id} ({sv.joint}): ratio must be non-zero")
 
     def _check_latency(self) -> None:
         ms = latency_timer_ms(self.settings.port)
@@ -233,13 +233,13 @@ class DynamixelActuators(ActuatorsBase):
                                                           if self.ph.last_problem != "no reply" else ""))
                 continue
             if model != sv.model:
-                raise ConfigurationError(
+                raise BackendSetupError(
                     f"servo ID {sv.id} ({sv.joint}) is model {model} ({_model_name(model)}), the "
                     f"config says {sv.model} ({_model_name(sv.model)}); torque not enabled")
             self.models[sv.id] = model
             self.firmware[sv.id] = self._read(sv.id, "Firmware Version")
         if missing:
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"servo ID(s) {', '.join(missing)} did not answer a ping on {s.port} at {s.baud} "
                 f"bps; torque not enabled")
         faulty = {}
@@ -449,7 +449,7 @@ class DynamixelActuators(ActuatorsBase):
         """Limit a joint's torque/force through Goal Current (current-based position mode)."""
         sv = self.settings.servos[self._index.index(joint)]
         if sv.mode != "current_based_position":
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"joint {sv.joint}: effort limits need mode current_based_position (servo {sv.id} "
                 f"is in {sv.mode})")
         current = abs(effort * sv.ratio) / _kt(sv.model)

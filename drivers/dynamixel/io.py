@@ -51,7 +51,7 @@ from dynamixel_sdk.robotis_def import (
     MAX_ID,
 )
 
-from drivers import CommunicationError, ConfigurationError
+from drivers import CommunicationError, BackendSetupError
 from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch, reply_params_expected
 from drivers.dynamixel.protocol import HEADER, Instruction, build_instruction
 from drivers.timing import drain_until_quiet
@@ -266,7 +266,7 @@ class RegisterAccess:
 
     A read returns the value the servo sent for exactly that register, or raises
     :class:`~drivers.CommunicationError` saying what was wrong with the replies;
-    a servo refusing a write is a :class:`~drivers.ConfigurationError`.
+    a servo refusing a write is a :class:`~drivers.BackendSetupError`.
     """
 
     def __init__(self, port: PortHandler, handler: StuffingPacketHandler, retries: int) -> None:
@@ -297,7 +297,7 @@ class RegisterAccess:
             result, err = self.ph.writeTxRx(self.port, sid, address, size, data)
             if result == COMM_SUCCESS:
                 if err & 0x7F:
-                    raise ConfigurationError(f"servo ID {sid}: writing {what} = {value} refused: "
+                    raise BackendSetupError(f"servo ID {sid}: writing {what} = {value} refused: "
                                              f"{self.ph.getRxPacketError(err)}")
                 return
         raise CommunicationError(f"servo ID {sid}: writing {what} failed after {self.tries} "
