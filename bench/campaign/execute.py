@@ -35,6 +35,7 @@ from bench.core.truth import GroundTruth, true_outcome
 from bench.kinematics.registry import get_robot
 from bench.trial.plan import target_of
 from bench.trial.run import run_trial
+from drivers.errors import ExitCode
 
 __all__ = ["DaskPool", "InlinePool", "LocalPool", "Pool", "THREAD_ENV", "execute_trial", "start_forkserver",
            "worker_init"]
@@ -120,7 +121,7 @@ def _die_with(lifeline: Any) -> None:
         while True:
             lifeline.recv()
     except BaseException:  # EOF: every writer (the campaign process) is gone
-        os._exit(70)
+        os._exit(ExitCode.ORPHANED_WORKER)
 
 
 # ---------------------------------------------------------------------------

@@ -93,6 +93,8 @@ class SessionResult:
     #: With a servo model: the ideal sim against the rig, and how much better the model predicts it.
     ideal: Optional[Comparison] = None
     prediction: Optional[Prediction] = None
+    #: How the rig was left at the end, in its backend's words ("" if it never moved).
+    safe_stop: str = ""
 
 
 def sim_counterpart(config: TrialConfig, servo_model: str = "ideal") -> TrialConfig:
@@ -264,14 +266,17 @@ def _starting_at(config: TrialConfig, start: dict[str, float],
     return config.model_copy(update={"backend": config.backend.model_copy(update=update)})
 
 
-def _safe_stop(config: TrialConfig) -> None:
-    """Apply the config's own safe stop to the rig (best effort: the bus may be gone)."""
+def _safe_stop(config: TrialConfig) -> str:
+    """Apply the config's own safe stop to the rig (best effort: the bus may be gone); how the
+    rig was left, in the backend's words, or that the stop could not be confirmed."""
 
     try:
         act = make_backend(config, get_robot(config.robot))
         act.close()
-    except Exception:  # noqa: BLE001 - nothing more can be done from here
-        pass
+    except Exception as e:  # noqa: BLE001 - nothing more can be done from here
+        what = "hold" if config.backend.safe_stop == "hold" else "torque off"
+        return f"{what} not confirmed: the rig could not be reached for its safe stop ({e})"
+    return getattr(act, "safe_stop_report", None) or config.backend.safe_stop
 
 
 def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bool = False,
@@ -319,6 +324,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     base_cfg = config
     res = None
     touched = stopped = False  # touched: the rig may have moved; stopped: its safe stop was applied
+    last_stop = ""  # how the rig was left, in its backend's words
     try:
         if emulate:
 
@@ -344,15 +350,17 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
             if not res.completed:
                 notes.append(f"rig repeat {i + 1} stopped early: {res.reason}; the session ended there")
                 break
-    except BaseException:
+    except BaseException as e:
         if touched:
             with interrupts.deferred():
-                _safe_stop(base_cfg)
+                e.safe_stop = _safe_stop(base_cfg)  # type: ignore[attr-defined]
             stopped = True
         raise
     finally:
+        if res is not None:
+            last_stop = res.safe_stop
         if not stopped and res is not None and not res.completed:
-            _safe_stop(base_cfg)  # that repeat held the arm; stop as the config says
+            last_stop = _safe_stop(base_cfg)  # that repeat held the arm; stop as the config says
         if rig is not None:
             rig.close()
 
@@ -416,7 +424,8 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
                         f"({sim_model}); the ideal sim (PyBullet's position motors) is run beside it for "
                         f"the prediction figures.")
     result = SessionResult(out_dir, cmp, sim_runs, real_runs, lost, emulate, notes,
-                           ideal=ideal_cmp if model_cfg is not None else None, prediction=predicted)
+                           ideal=ideal_cmp if model_cfg is not None else None, prediction=predicted,
+                           safe_stop=last_stop)
     if report:
 
         write_compare_report(result.comparison, out_dir, title=f"Sim vs {real_label}: {config.name}",
