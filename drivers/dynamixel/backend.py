@@ -227,10 +227,10 @@ class DynamixelActuators(ActuatorsBase):
         s = self.settings
         missing = []
         for sv in s.servos:
-            model, _ = self._regs.ping(sv.id, tries=max(s.retries, 3) + 1)
+            model, why = self._regs.ping(sv.id, tries=max(s.retries, 3) + 1)
             if model is None:
-                missing.append(f"{sv.id} ({sv.joint})" + (f" [{self.ph.last_problem}]"
-                                                          if self.ph.last_problem != "no reply" else ""))
+                problem = why if why.startswith("a reply with error bits") else self.ph.last_problem
+                missing.append(f"{sv.id} ({sv.joint})" + (f" [{problem}]" if problem != "no reply" else ""))
                 continue
             if model != sv.model:
                 raise BackendSetupError(
