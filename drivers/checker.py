@@ -21,7 +21,6 @@ from drivers import (
     JointState,
     NotEnabledError,
 )
-from drivers.errors import ContractViolation
 from drivers.capabilities import (
     EffortLimited,
     EmulatorHooks,
@@ -33,6 +32,7 @@ from drivers.capabilities import (
     find_capability,
     layers,
 )
+from drivers.errors import ContractViolation
 
 __all__ = ["ContractViolation", "check_actuators"]
 

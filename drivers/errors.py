@@ -50,8 +50,8 @@ class ExitCode(IntEnum):
     #: Stopped, but the safe stop was not confirmed (a servo did not read back torque off,
     #: or the hold could not be commanded): the rig may still be powered; check it first.
     STOP_UNCONFIRMED = 3
-    #: A campaign's worker process whose campaign is gone (BSD's EX_SOFTWARE).
-    ORPHANED_WORKER = 70
+    #: A child process whose parent is gone: a campaign's worker, the emulated rig (EX_SOFTWARE).
+    ORPHANED = 70
     #: Stopped by signal N: exit SIGNAL_BASE + N (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP).
     SIGNAL_BASE = 128
 

@@ -121,7 +121,7 @@ def _die_with(lifeline: Any) -> None:
         while True:
             lifeline.recv()
     except BaseException:  # EOF: every writer (the campaign process) is gone
-        os._exit(ExitCode.ORPHANED_WORKER)
+        os._exit(ExitCode.ORPHANED)
 
 
 # ---------------------------------------------------------------------------
