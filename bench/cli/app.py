@@ -45,14 +45,15 @@ def main() -> NoReturn:  # pragma: no cover - console entry point (tests run it 
 
 def _final_code(code: Any, guard: SignalGuard, started: bool) -> int:
     """The exit code, and the one line for a signal no command has spoken of."""
+    code = _as_int(code)
     common = sys.modules.get("bench.cli.common")
     if getattr(common, "said_interrupted", False):
-        return _as_int(code)
+        return code
     signum = guard.signum
-    if signum is None and _as_int(code) == signal_exit_code(signal.SIGINT):
+    if signum is None and code == signal_exit_code(signal.SIGINT):
         signum = signal.SIGINT  # a Ctrl-C raised by a handler of the command's own (typer's 130)
     if signum is None:
-        return _as_int(code)
+        return code
     what = " ".join(a for a in sys.argv[1:2] if not a.startswith("-")) or "command"
     where = "" if started else " while it was still starting; nothing had moved"
     sys.stderr.write(f"interrupted by {signal_name(signum)}: hilbench {what} stopped{where}\n")
