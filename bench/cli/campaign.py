@@ -23,7 +23,7 @@ from rich.progress import (
 )
 from typer.core import TyperGroup
 
-from bench.cli.common import console, emit_json, err_console, fail, interrupted, say
+from bench.cli.common import console, emit_json, err_console, fail, say, stopped
 from drivers.errors import CampaignError, CampaignSpecError, ExitCode
 
 __all__ = ["campaign_app"]
@@ -83,10 +83,10 @@ def _run(campaign_dir: Path, workers: Optional[int], scheduler: Optional[str], a
                       + (f" on {summary.pool}" if summary.pool else ""), highlight=False)
         if (campaign_dir / "report.html").is_file():
             console.print(f"report: {campaign_dir / 'report.html'}", highlight=False)
-    if summary.interrupted:
-        interrupted(signal.SIGINT, f"campaign incomplete: {summary.reason}")
     if summary.reason:
         say("[bold red]campaign incomplete:[/] {}", summary.reason)
+    if summary.interrupted:  # the line above says so and how to resume
+        stopped(signal.SIGINT)
     raise typer.Exit(ExitCode.PASSED if summary.completed == summary.planned else ExitCode.FAILED)
 
 

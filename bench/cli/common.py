@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from bench.config.models import TrialConfig
 
 __all__ = ["console", "emit_json", "err_console", "fail", "interrupted", "load_config", "say",
-           "signum_of", "styled"]
+           "signum_of", "stopped", "styled"]
 
 console = Console(markup=False)
 err_console = Console(stderr=True, highlight=False, markup=False)
@@ -64,9 +64,14 @@ def signum_of(e: BaseException) -> int:
 def interrupted(signum: int, message: str) -> NoReturn:
     """The one line of a command stopped by signal ``signum`` (``interrupted by SIGTERM: …``),
     then exit 128 + N."""
+    say("[bold red]interrupted by {}:[/] {}", signal_name(signum), message)
+    stopped(signum)
+
+
+def stopped(signum: int) -> NoReturn:
+    """Exit 128 + N for a stop signal that the command's own line has spoken of."""
     global said_interrupted
     said_interrupted = True
-    say("[bold red]interrupted by {}:[/] {}", signal_name(signum), message)
     raise typer.Exit(signal_exit_code(signum))
 
 
