@@ -25,7 +25,7 @@ from rich.table import Table
 from rich.text import Text
 
 from bench.cli.common import emit_json, err_console, fail, interrupted, load_config, say, signum_of, styled
-from drivers.errors import ActuatorError, BackendSetupError, ExitCode
+from drivers.errors import ActuatorError, BackendSetupError, ExitCode, safe_stop_unconfirmed
 
 if TYPE_CHECKING:
     from bench.config.models import TrialConfig
@@ -322,6 +322,7 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
     robot = get_robot(cfg.robot)
     revolute = [row.kind == "revolute" for row in robot.chain.rows]
     reason = "error"
+    act = None
     try:
         with _rig(config, cfg, emulate) as cfg, \
                 open_backend(cfg) as act:  # torque off when this block is left, however it is left
@@ -331,7 +332,17 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
                 reason = run_jog(act, keys, lambda s, st: live.update(jog_view(s, st, f"jog {cfg.name}"),
                                                                         refresh=True), revolute)
     except KeyboardInterrupt as e:
+        _unconfirmed_stop(act, "jog stopped")
         interrupted(signum_of(e), "jog stopped; torque off")
     except ActuatorError as e:
+        _unconfirmed_stop(act, str(e))
         fail(f"{e}; torque off", ExitCode.FAILED)
+    _unconfirmed_stop(act, f"jog ended ({reason})")
     err_console.print(f"jog ended ({reason}): torque off on every servo", highlight=False)
+
+
+def _unconfirmed_stop(act, what: str) -> None:
+    """One line and exit 3 when the servos did not all read back torque off."""
+    report = getattr(act, "safe_stop_report", None)
+    if safe_stop_unconfirmed(report):
+        fail(f"{what}; {report}", ExitCode.STOP_UNCONFIRMED)
