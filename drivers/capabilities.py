@@ -15,7 +15,7 @@ from typing import Any, Iterator, Protocol, Sequence, TypeVar, runtime_checkable
 
 import numpy as np
 
-from drivers import Actuators, ConfigurationError, JointState
+from drivers import Actuators, BackendSetupError, JointState
 
 __all__ = ["CAPABILITIES", "BlockExecution", "EffortLimited", "EmulatorHooks", "HostLoop", "JointKinds",
            "LinkPoses", "PositionReset", "SafeStopReport", "ServoInfo", "StartWarnings", "TruePosition",
@@ -139,7 +139,7 @@ def require_capability(actuators: Actuators, capability: type[C], what: str) -> 
     """The layer implementing ``capability``; else one line saying ``what`` needs it and which backend lacks it."""
     found = find_capability(actuators, capability)
     if found is None:
-        raise ConfigurationError(f"{what} needs a backend with {members(capability)} ({capability.__name__}: "
+        raise BackendSetupError(f"{what} needs a backend with {members(capability)} ({capability.__name__}: "
                                  f"{_summary(capability)}); {type(actuators.unwrapped).__name__} has none")
     return found
 

@@ -40,15 +40,12 @@ from drivers.capabilities import (
     find_capability,
     layers,
 )
+from drivers.errors import ContractViolation
 
 __all__ = ["ContractViolation", "check_actuators"]
 
 #: An edit no reading could hold: if it shows up anywhere, the edit got through.
 EDIT = 1.0e3
-
-
-class ContractViolation(BenchError, AssertionError):
-    """The actuators break a rule of the :class:`~drivers.Actuators` contract; the message says which."""
 
 
 def _require(ok: bool, what: str) -> None:

@@ -33,7 +33,8 @@ from dataclasses import dataclass
 
 import serial
 
-from drivers import CommunicationError, ConfigurationError
+from drivers import CommunicationError, BackendSetupError
+from drivers.errors import StaleReadingError
 
 __all__ = [
     "DEFAULT_RATE_HZ",
@@ -55,10 +56,6 @@ _MAX_LINE = 16  # 'R####' plus slack: anything longer without a CR is garbage
 def stale_after(rate_hz: float) -> float:
     """The default staleness timeout for a sensor reading at ``rate_hz`` (s)."""
     return STALE_PERIODS / rate_hz + 0.05
-
-
-class StaleReadingError(CommunicationError):
-    """No fresh reading within the staleness timeout (sensor silent or unplugged)."""
 
 
 @dataclass
@@ -93,15 +90,15 @@ class UltrasonicSensor:
         no_target_m: float = 5.0,
     ) -> None:
         if not expected_rate_hz > 0:
-            raise ConfigurationError(f"expected_rate_hz must be > 0 Hz, got {expected_rate_hz}")
+            raise BackendSetupError(f"expected_rate_hz must be > 0 Hz, got {expected_rate_hz}")
         if stale_after_s is None:
             stale_after_s = stale_after(expected_rate_hz)
         if median_window < 1:
-            raise ConfigurationError(f"median_window must be >= 1, got {median_window}")
+            raise BackendSetupError(f"median_window must be >= 1, got {median_window}")
         if stale_after_s <= 0:
-            raise ConfigurationError(f"stale_after_s must be > 0 s, got {stale_after_s}")
+            raise BackendSetupError(f"stale_after_s must be > 0 s, got {stale_after_s}")
         if not 0 <= range_m[0] < range_m[1]:
-            raise ConfigurationError(f"range_m must be (low, high) with 0 <= low < high, got {range_m}")
+            raise BackendSetupError(f"range_m must be (low, high) with 0 <= low < high, got {range_m}")
         self.port = port
         self.no_target_m = float(no_target_m)
         self.stale_after_s = float(stale_after_s)

@@ -19,7 +19,7 @@ from bench.rig.backends import make_dynamixel_backend
 from bench.rig.emulated import EmulatedRig
 from bench.trial.plan import prepare
 from bench.trial.run import run_trial
-from drivers import CommunicationError, ConfigurationError, HardwareFault, NotEnabledError
+from drivers import CommunicationError, BackendSetupError, HardwareFault, NotEnabledError
 
 REPO = Path(__file__).resolve().parent.parent
 LAB = REPO / "hil_configs" / "lab_real.yaml"
@@ -95,7 +95,7 @@ def test_missing_id_stops_before_torque(cold_rig):
     servos = dict(cfg.backend.servos)
     servos["theta5"] = servos["theta5"].model_copy(update={"id": 42})
     bad = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"servos": servos})})
-    with pytest.raises(ConfigurationError, match=r"42 \(theta5\) did not answer"):
+    with pytest.raises(BackendSetupError, match=r"42 \(theta5\) did not answer"):
         backend_for(bad)
     assert not any(s.torque_enabled for s in r.bus.servos.values())
 
@@ -105,7 +105,7 @@ def test_wrong_model_stops_before_torque(cold_rig):
     servos = dict(cfg.backend.servos)
     servos["theta7"] = servos["theta7"].model_copy(update={"model": "XM540-W270"})
     bad = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"servos": servos})})
-    with pytest.raises(ConfigurationError, match="ID 6 .theta7. is model 1020 .XM430-W350."):
+    with pytest.raises(BackendSetupError, match="ID 6 .theta7. is model 1020 .XM430-W350."):
         backend_for(bad)
     assert not any(s.torque_enabled for s in r.bus.servos.values())
 

@@ -21,7 +21,7 @@ from bench.kinematics.arc_train import JOINTS, TARGET_1, epsilon_from_d2, train_
 from bench.rig.backends import make_backend
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
-from drivers import Actuators, ActuatorsBase, ConfigurationError, JointLimits, JointState
+from drivers import Actuators, ActuatorsBase, BackendSetupError, JointLimits, JointState
 from trajectories import LSPB
 
 REPO = Path(__file__).resolve().parent.parent
@@ -286,7 +286,7 @@ def test_torque_limit_below_gravity_load_stalls_the_joint_and_fails(tmp_path, ar
 
 def test_torque_limit_needs_a_backend_that_can_limit_effort():
     spec = parse_faults([{"name": "torque_limit", "joints": ["theta5"], "scale": 0.2}], JOINTS)
-    with pytest.raises(ConfigurationError, match=r"set_effort_limit.*Kinematic has none"):
+    with pytest.raises(BackendSetupError, match=r"set_effort_limit.*Kinematic has none"):
         apply_faults(Kinematic(), spec, np.random.default_rng(0))
 
 
@@ -396,11 +396,11 @@ def test_crc_faults_are_refused_on_the_sim_backend(target_prep):
     backend = make_backend(target_prep.config, target_prep.robot)
     try:
         spec = parse_faults([{"name": "corrupt_crc", "prob": 0.1}], JOINTS)
-        with pytest.raises(ConfigurationError, match="corrupt_crc needs a backend with emulator hooks.*"
+        with pytest.raises(BackendSetupError, match="corrupt_crc needs a backend with emulator hooks.*"
                                                      "PyBulletActuators has none"):
             apply_faults(backend, spec, np.random.default_rng(0))
         spec = parse_faults([{"name": "dropped_status", "level": "bus"}], JOINTS)
-        with pytest.raises(ConfigurationError, match="level: wrapper or auto"):
+        with pytest.raises(BackendSetupError, match="level: wrapper or auto"):
             apply_faults(backend, spec, np.random.default_rng(0))
     finally:
         backend.close()

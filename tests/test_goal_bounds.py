@@ -19,7 +19,7 @@ from bench.rig.backends import make_dynamixel_backend
 from bench.rig.emulated import EmulatedRig, Planted
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
-from drivers import BenchError, ConfigurationError
+from drivers import BenchError, BackendSetupError
 from drivers.dynamixel.settings import ServoSettings
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.goals import GoalBounds, GoalOutOfRange, mode_ticks, transmission_problem
@@ -64,7 +64,7 @@ def test_a_transmission_typo_never_reaches_the_bus(tmp_path, joint, change, says
     cfg = _cold(_servo_changed(load_trial_config(LAB), joint, **change))
     with EmulatedRig(cfg) as rig:
         goals = record_goals(rig)
-        with pytest.raises(ConfigurationError) as err:
+        with pytest.raises(BackendSetupError) as err:
             run_trial(prepare(rig.retarget(cfg)), tmp_path / "runs", TrialHooks(report=False))
         assert says in str(err.value) and "torque not enabled" in str(err.value)
         assert not any(rig.bus.servo(i).torque_enabled for i in rig.bus.servos)
@@ -115,7 +115,7 @@ def test_a_rig_reading_a_joint_beyond_its_limits_is_refused_before_torque(tmp_pa
     cfg = _cold(load_trial_config(LAB))
     with EmulatedRig(cfg, planted=Planted(zero_errors={"theta4": 1.7})) as rig:
         goals = record_goals(rig)
-        with pytest.raises(ConfigurationError, match=r"theta4 reads -1\.(69|70)\d*, outside its limits "
+        with pytest.raises(BackendSetupError, match=r"theta4 reads -1\.(69|70)\d*, outside its limits "
                                                      r"\[-1\.5708, 1\.5708\]; torque not enabled"):
             run_trial(prepare(rig.retarget(cfg)), tmp_path / "runs", TrialHooks(report=False))
         assert not any(rig.bus.servo(i).torque_enabled for i in rig.bus.servos)
@@ -142,10 +142,10 @@ def test_goal_bounds_refuse_what_cannot_be_sent_and_never_wrap():
 
 
 def test_a_servos_own_position_limits_narrow_what_its_joint_may_need():
-    with pytest.raises(ConfigurationError, match="servo ID 3, theta4: .* takes 1,500 to 2,600"):
+    with pytest.raises(BackendSetupError, match="servo ID 3, theta4: .* takes 1,500 to 2,600"):
         _bounds(limits=(1500, 2600))  # the servo's Min/Max Position Limit, as read from it
     assert 3700 < _bounds(ratio=0.6).hi[0] < 3800  # a smaller ratio: more ticks, still in range
-    with pytest.raises(ConfigurationError, match="extended_position mode takes -1,048,575"):
+    with pytest.raises(BackendSetupError, match="extended_position mode takes -1,048,575"):
         _bounds(ratio=1e-4, mode="extended_position")
 
 

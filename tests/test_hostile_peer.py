@@ -43,6 +43,8 @@ MODEL, FIRMWARE = 1020, 52  # XM430-W350, a firmware with Fast Sync Read
 BAUD = 1_000_000
 HOSTILE = ("garbage", "truncated", "wrong_id", "short", "long", "duplicated", "stray", "bad_crc",
            "silent", "late", "echo")
+#: Behaviours only a test's policy asks for (the random mix above keeps its measured figures).
+ON_REQUEST = ("error_bits",)
 
 
 class HostilePeer:
@@ -163,6 +165,9 @@ class HostilePeer:
             return bytes(bad)
         if behaviour == "late":
             return b""  # held back: see _answer
+        if behaviour == "error_bits":  # the servo's own refusal (ERR byte 1-7), alert bit set
+            pkt = next(p for p in PacketParser().feed(honest) if isinstance(p, Packet))
+            return build_status(pkt.id, 0x80 | rng.randrange(1, 8), pkt.params)
         return self._reshaped(behaviour, request, honest)
 
     def _reshaped(self, behaviour: str, request: Packet, honest: bytes) -> bytes:

@@ -459,6 +459,25 @@ def test_jog_ctrl_c_leaves_torque_off(jog_rig):
     assert not any(s.torque_enabled for s in rig.bus.servos.values())
 
 
+def test_jog_whose_bus_dies_says_torque_off_not_confirmed(jog_rig):
+    """The cable pulled while jogging: one line naming the servos that did not confirm, exit 3."""
+    import pexpect
+
+    rig, path = jog_rig
+    child, screen = spawn_jog(path)
+    try:
+        screen.wait_for(r"torque ON")
+        rig.bus.unplug()
+        child.expect(pexpect.EOF, timeout=60)
+    finally:
+        child.close(force=True)
+    text = ANSI.sub("", screen.text + (child.before or b"").decode(errors="replace"))
+    assert "Traceback" not in text
+    assert child.exitstatus == 3, text[-1500:]
+    last = [x for x in text.splitlines() if x.strip()][-1]
+    assert last.startswith("error: ") and "torque off NOT confirmed for servo ID(s)" in last, last
+
+
 def test_jog_keys():
     from bench.lab.jog import JogState, parse_keys
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench.scene.room import URDF_DIR, default_scene
-from drivers import Actuators, ConfigurationError, NotEnabledError
+from drivers import Actuators, BackendSetupError, NotEnabledError
 from drivers.pybullet.backend import PyBulletActuators, PyBulletSettings
 
 
@@ -37,12 +37,12 @@ def test_is_an_actuators_and_refuses_commands_before_enable(arc_train):
 
 
 def test_control_period_must_be_whole_physics_steps(arc_train):
-    with pytest.raises(ConfigurationError, match="integer multiple"):
+    with pytest.raises(BackendSetupError, match="integer multiple"):
         PyBulletActuators(settings(arc_train, physics_hz=1000.0, control_period=0.0025))
 
 
 def test_missing_urdf_is_named(arc_train, tmp_path):
-    with pytest.raises(ConfigurationError, match="nowhere.urdf"):
+    with pytest.raises(BackendSetupError, match="nowhere.urdf"):
         PyBulletActuators(settings(arc_train, robot_urdf=tmp_path / "nowhere.urdf"))
 
 

@@ -123,12 +123,57 @@ def test_an_interrupted_trial_with_json_says_why_on_stdout(tmp_path):
     assert line["run_dir"] == str(_run_dir(out)) and line["safe_stop"] == "holding the measured position"
 
 
-def test_signal_before_the_trial_starts_moves_nothing_and_writes_nothing(tmp_path):
-    proc = _start(SIM, tmp_path / "out")
-    time.sleep(0.05)  # still importing
-    rc, err = _finish(proc, signal.SIGTERM)
-    assert rc in (128 + signal.SIGTERM, -signal.SIGTERM)
-    assert "Traceback" not in err and _run_dir(tmp_path / "out") is None
+def _catches_sigterm(pid: int) -> bool:
+    """Whether ``pid`` has its own SIGTERM handler: hilbench's are in place (Python's start-up,
+    before the first line of hilbench runs, catches SIGINT alone)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    mask = next(int(x.split()[1], 16) for x in status.splitlines() if x.startswith("SigCgt:"))
+    return bool(mask >> (signal.SIGTERM - 1) & 1)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_while_the_command_loads_gives_one_line_and_128_plus_n(tmp_path, sig):
+    """From the command's first line on — its modules still importing, typer, rich and numpy
+    not yet loaded — a stop signal ends it with one line and 128 + N, and writes nothing.
+
+    Each delay counts from the spawn, but never from before the handlers are in place: the
+    interpreter's own start-up before that (tens of ms, more on a loaded machine) is Python's."""
+    name = signal.Signals(sig).name
+    for delay in (0.0, 0.05, 0.15):
+        out = tmp_path / f"out-{delay}"
+        proc = _start(SIM, out)
+        t0 = time.monotonic()
+        _wait_for(lambda: _catches_sigterm(proc.pid), timeout=20, what="hilbench's handlers", proc=proc)
+        time.sleep(max(0.0, delay - (time.monotonic() - t0)))
+        rc, err = _finish(proc, sig)
+        lines = [ln for ln in err.splitlines() if ln.strip()]
+        assert rc == 128 + sig, (delay, err)
+        assert "Traceback" not in err and len(lines) == 1, (delay, err)
+        assert lines[0].startswith(f"interrupted by {name}: "), (delay, err)
+        if _run_dir(out) is None:
+            assert "nothing had moved" in lines[0], (delay, err)
+        else:  # on a quick machine the trial got going: then it is a trial's own stop
+            assert "trial stopped" in lines[0], (delay, err)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_a_tool_without_a_safe_stop_of_its_own_also_ends_in_one_line(tmp_path, sig):
+    """`hilbench emulate` serves until stopped; SIGHUP (not one it waits for) still ends it in
+    one line and 128 + N."""
+    proc = subprocess.Popen([HILBENCH, "emulate", str(LAB), "--json"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    assert "dynamixel_port" in proc.stdout.readline()  # serving
+    rc, err = _finish(proc, sig)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    if sig == signal.SIGTERM:  # the emulator's own stop: it reports its counters and exits 0
+        assert rc == 0 and "Traceback" not in err, err
+    else:
+        assert rc == 128 + sig and len(lines) == 1, err
+        assert lines[0] == f"interrupted by {signal.Signals(sig).name}: hilbench emulate stopped"
 
 
 def test_signal_while_the_report_is_drawn(tmp_path, monkeypatch):

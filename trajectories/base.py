@@ -13,11 +13,9 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike
 
+from drivers.errors import TrajectoryError
+
 __all__ = ["Limits", "Trajectory", "TrajectoryError", "as_joint_vector", "as_times"]
-
-
-class TrajectoryError(ValueError):
-    """The requested motion is invalid or cannot be achieved within the limits."""
 
 
 def as_joint_vector(name: str, value: ArrayLike, dof: int | None = None) -> np.ndarray:

@@ -35,6 +35,7 @@ from bench.core.truth import GroundTruth, true_outcome
 from bench.rig.serving import rig_kind
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
+from drivers.errors import ExitCode
 
 __all__ = ["DaskPool", "InlinePool", "LocalPool", "Pool", "THREAD_ENV", "execute_trial", "start_forkserver",
            "worker_init"]
@@ -121,7 +122,7 @@ def _die_with(lifeline: Any) -> None:
         while True:
             lifeline.recv()
     except BaseException:  # EOF: every writer (the campaign process) is gone
-        os._exit(70)
+        os._exit(ExitCode.ORPHANED)
 
 
 # ---------------------------------------------------------------------------

@@ -42,7 +42,7 @@ from bench.campaign.lock import CampaignBusy, CampaignLock
 from bench.campaign.report import write_campaign_report
 from bench.campaign.spec import find_axes, load_campaign_spec, plan_trials, resolve_base
 from bench.campaign.store import METRIC_COLUMNS, CampaignStore, CampaignStoreError
-from drivers import BenchError
+from drivers.errors import CampaignError
 
 __all__ = ["CampaignBusy", "CampaignError", "CampaignProgress", "CampaignSummary", "DB_NAME",
            "create_campaign", "export_csv", "rerun_trial", "run_campaign", "summarize"]
@@ -50,10 +50,6 @@ __all__ = ["CampaignBusy", "CampaignError", "CampaignProgress", "CampaignSummary
 DB_NAME = "campaign.db"
 TRIALS_DIR = "trials"
 STAGING = ".staging"
-
-
-class CampaignError(BenchError, RuntimeError):
-    """A campaign that cannot be created, found or run; the message says what to do."""
 
 
 @dataclass

@@ -34,15 +34,12 @@ from bench.config.base import describe_validation_error
 from bench.config.models import REPO_ROOT, AcceptanceConfig, ConfigError, TrialConfig, read_yaml_mapping
 from bench.faults import parse_fault
 from bench.kinematics.registry import get_robot
+from drivers.errors import CampaignSpecError
 
 __all__ = ["Axis", "CampaignSpec", "CampaignSpecError", "PlannedTrial", "load_campaign_spec",
            "plan_trials", "trial_seed", "DISTRIBUTIONS"]
 
 DISTRIBUTIONS = ("grid", "uniform", "loguniform", "normal", "choice", "integers")
-
-
-class CampaignSpecError(ConfigError):
-    """A campaign spec that cannot be used; the message names the field path."""
 
 
 class _Strict(BaseModel):

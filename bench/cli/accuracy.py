@@ -16,7 +16,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from bench.cli.common import console, emit_json, fail
+from bench.cli.common import console, emit_json, fail, styled
 
 __all__ = ["accuracy", "workspace"]
 
@@ -87,8 +87,8 @@ def accuracy(
 
 
 def _print_human(s: dict) -> None:
-    console.print(f"[bold]{s['robot']}[/] at {s['pose_note']}; ±{s['tol_deg']:g}° servos, "
-                   f"{s['distribution']} errors, {s['samples']} draws (seed {s['seed']})")
+    console.print(styled("[bold]{}[/] at {}; ±{}° servos, {} errors, {} draws (seed {})", s["robot"],
+                         s["pose_note"], f"{s['tol_deg']:g}", s["distribution"], s["samples"], s["seed"]))
     t = Table(title="needle error budget (mm, °)")
     for col in ("quantity", "mean", "std", "p95", "max", "worst case"):
         t.add_column(col, justify="right")

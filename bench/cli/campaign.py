@@ -3,11 +3,12 @@
 ``hilbench campaign SPEC`` is short for ``hilbench campaign run SPEC``: the
 group rewrites a first argument that is not one of its commands into a
 ``run``. Bad input ends with one line on stderr and exit code 2; a Ctrl-C
-ends with 130 after the trials in flight are recorded.
+ends with 130 (128 + SIGINT) after the trials in flight are recorded.
 """
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Optional
 
@@ -22,7 +23,8 @@ from rich.progress import (
 )
 from typer.core import TyperGroup
 
-from bench.cli.common import console, emit_json, err_console, fail
+from bench.cli.common import console, emit_json, err_console, fail, say, stopped
+from drivers.errors import CampaignError, CampaignSpecError, ExitCode
 
 __all__ = ["campaign_app"]
 
@@ -48,7 +50,7 @@ campaign_app = typer.Typer(
 
 def _progress_bar():
 
-    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+    return Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
                     TextColumn("[red]{task.fields[failed]} failed[/] · {task.fields[errors]} errors"),
                     TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
                     console=err_console, transient=False)
@@ -74,7 +76,7 @@ def _run(campaign_dir: Path, workers: Optional[int], scheduler: Optional[str], a
         try:
             summary = run_campaign(campaign_dir, workers=workers, scheduler=scheduler,
                                    progress=on_progress, report=report,
-                                   notify=lambda m: err_console.print(f"[yellow]note:[/] {m}", highlight=False))
+                                   notify=lambda m: say("[yellow]note:[/] {}", m))
         except (CampaignError, RuntimeError, ValueError) as e:
             fail(str(e))
     if as_json:
@@ -88,11 +90,10 @@ def _run(campaign_dir: Path, workers: Optional[int], scheduler: Optional[str], a
         if (campaign_dir / "report.html").is_file():
             console.print(f"report: {campaign_dir / 'report.html'}", highlight=False)
     if summary.reason:
-        err_console.print(f"[bold red]campaign incomplete:[/] {summary.reason}", highlight=False,
-                          soft_wrap=True)
-    if summary.interrupted:
-        raise typer.Exit(130)
-    raise typer.Exit(0 if summary.completed == summary.planned else 1)
+        say("[bold red]campaign incomplete:[/] {}", summary.reason)
+    if summary.interrupted:  # the line above says so and how to resume
+        stopped(signal.SIGINT)
+    raise typer.Exit(ExitCode.PASSED if summary.completed == summary.planned else ExitCode.FAILED)
 
 
 _WORKERS = typer.Option(None, "--workers", min=1, help="Local worker processes (default: one per core).")
@@ -107,8 +108,7 @@ def run(spec: Path = typer.Argument(..., help="A campaign spec, e.g. hil_configs
         as_json: bool = _JSON,
         report: bool = typer.Option(True, "--report/--no-report", help="Write report.md/.html at the end.")) -> None:
     """Plan a campaign into DIR/campaign.db and run it."""
-    from bench.campaign.run import CampaignError, create_campaign  # deferred: --help and completion stay fast
-    from bench.campaign.spec import CampaignSpecError  # deferred: --help and completion stay fast
+    from bench.campaign.run import create_campaign  # deferred: --help and completion stay fast
 
     try:
         campaign_dir = create_campaign(spec, out)
@@ -131,7 +131,7 @@ def rerun(campaign_dir: Path = typer.Argument(...), trial_id: int = typer.Argume
           out: Optional[Path] = typer.Option(None, "--out", help="Where the run directory goes (default DIR/reruns)."),
           as_json: bool = typer.Option(False, "--json")) -> None:
     """Run one trial again from its stored config and seed, with its full report; compare the numbers."""
-    from bench.campaign.run import CampaignError, rerun_trial  # deferred: --help and completion stay fast
+    from bench.campaign.run import rerun_trial  # deferred: --help and completion stay fast
 
     try:
         res = rerun_trial(campaign_dir, trial_id, out)
@@ -151,7 +151,7 @@ def rerun(campaign_dir: Path = typer.Argument(...), trial_id: int = typer.Argume
         if unmeasured:
             console.print(f"  not measured in either: {', '.join(unmeasured)}", highlight=False)
         console.print(f"report: {Path(res['run_dir']) / 'report.html'}", highlight=False)
-    raise typer.Exit(0 if res["identical"] else 1)
+    raise typer.Exit(ExitCode.PASSED if res["identical"] else ExitCode.FAILED)
 
 
 @campaign_app.command("export")
@@ -160,7 +160,7 @@ def export(campaign_dir: Path = typer.Argument(...),
            as_json: bool = typer.Option(False, "--json", help='Print {"csv": PATH}.')) -> None:
     """Write the trials table as CSV: one row per trial, one column per varying parameter,
     times in ISO 8601 UTC."""
-    from bench.campaign.run import CampaignError, export_csv  # deferred: --help and completion stay fast
+    from bench.campaign.run import export_csv  # deferred: --help and completion stay fast
 
     try:
         path = export_csv(campaign_dir, csv)
@@ -198,7 +198,7 @@ def report_cmd(campaign_dir: Path = typer.Argument(...),
 @campaign_app.command("status")
 def status(campaign_dir: Path = typer.Argument(...), as_json: bool = _JSON) -> None:
     """Counts of the campaign's trials (pending, running, done, error, passed)."""
-    from bench.campaign.run import CampaignError, summarize  # deferred: --help and completion stay fast
+    from bench.campaign.run import summarize  # deferred: --help and completion stay fast
 
     try:
         s = summarize(campaign_dir)

@@ -9,11 +9,21 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from bench.cli.common import console, emit_json, err_console, fail, load_config
+from bench.cli.common import console, emit_json, err_console, fail, load_config, say, stopped, styled
 from bench.cli.live import LIVE_HELP, live_view
+from bench.core.interrupts import SignalGuard, TrialInterrupted
+from drivers.errors import (
+    ActuatorError,
+    BenchError,
+    CompareError,
+    ConfigError,
+    ExitCode,
+    PlanMismatchError,
+    TrialError,
+    safe_stop_unconfirmed,
+)
 
 __all__ = ["compare"]
 
@@ -63,7 +73,6 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
             fail(f"{second}: a second argument only goes with a run as the first (got a config, {first})")
         if sim_model is not None and sim_model != "datasheet":
             from bench.config.models import (  # deferred: --help and completion stay fast
-                ConfigError,
                 load_servo_model_file,
             )
 
@@ -74,8 +83,8 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
             except ConfigError as e:
                 fail(f"--sim-model: {e}")
             sim_model = str(Path(sim_model).resolve())
-        result, out_dir, predicted, live_url = _from_config(first, repeats, emulate, retries, align, out,
-                                                             sim_model, as_json, live)
+        result, out_dir, predicted, stop, live_url = _from_config(first, repeats, emulate, retries, align,
+                                                                   out, sim_model, as_json, live)
     else:
         if second is None:
             fail(f"{first}: give two runs to compare (RUN_A RUN_B), or a trial config (.yaml)")
@@ -83,9 +92,14 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
             fail("--repeats, --emulate, --retries, --sim-model and --live go with a config, not with two "
                  "saved runs")
         result, out_dir = _from_runs(first, second, align, out)
-        predicted, live_url = None, None
+        predicted, stop, live_url = None, "", None
     summary = result.summary()
     summary["report"] = str(out_dir / "report.html")
+    unconfirmed = safe_stop_unconfirmed(stop)
+    if stop:
+        summary["safe_stop"] = stop
+    if unconfirmed:  # what the technician must see first, whatever the verdict
+        summary["reason"] = "; ".join(x for x in (stop, summary.get("reason")) if x)
     if predicted is not None:
         summary["prediction"] = predicted.as_dict()
     if live_url:
@@ -95,10 +109,10 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
     else:
         verdict = "[green]PASSED[/]" if result.passed else "[red]FAILED[/]"
         sub = result.subject
-        console.print(f"{sub.label}: {verdict} over {len(sub.logs)} repeat(s) "
-                       f"({result.acceptance[0]:g} mm / {result.acceptance[1]:g}°)")
+        console.print(styled("{}: " + verdict + " over {} repeat(s) ({} mm / {}°)", sub.label,
+                             len(sub.logs), f"{result.acceptance[0]:g}", f"{result.acceptance[1]:g}"))
         for line in _deviation_lines(summary):
-            console.print(line, highlight=False, markup=False)
+            console.print(line, highlight=False)
         console.print(f"worst joint: {summary['worst_joint']}")
         if predicted is not None:
             pr = summary["prediction"]
@@ -106,10 +120,12 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
                           f"{pr['tip_error_mm']['max']} mm max; tracking gap {pr['tracking_gap_ratio']} "
                           f"of the ideal sim's")
         console.print(f"report: {out_dir / 'report.html'}")
+    if unconfirmed:
+        say("[bold red]check the rig:[/] {}", summary["reason"])
+        raise typer.Exit(ExitCode.STOP_UNCONFIRMED)
     if not result.passed:
-        err_console.print(f"[bold red]compare failed:[/] {summary['reason']}", highlight=False,
-                   soft_wrap=True)
-    raise typer.Exit(0 if result.passed else 1)
+        say("[bold red]compare failed:[/] {}", summary["reason"])
+    raise typer.Exit(ExitCode.PASSED if result.passed else ExitCode.FAILED)
 
 
 def _xyz(values) -> str:
@@ -132,22 +148,11 @@ def _deviation_lines(summary: dict) -> list[str]:
 def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path,
                  sim_model: Optional[str] = None, as_json: bool = False, live: bool = False):
 
-    from bench.compare.session import (  # deferred: --help and completion stay fast
-        CompareError,
-        run_comparison,
-    )
-    from bench.compare.signals import PlanMismatchError  # deferred: --help and completion stay fast
-    from bench.config.models import ConfigError  # deferred: --help and completion stay fast
-    from bench.core.interrupts import (  # deferred: --help and completion stay fast
-        SignalGuard,
-        TrialInterrupted,
-    )
-    from bench.core.result import TrialError  # deferred: --help and completion stay fast
+    from bench.compare.session import run_comparison  # deferred: --help and completion stay fast
     from bench.trial.plan import prepare  # deferred: --help and completion stay fast
-    from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     cfg = load_config(path)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+    with Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeElapsedColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task(f"compare {cfg.name}", total=1.0)
 
@@ -159,18 +164,38 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
                 res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
                                      align=align, progress=progress, interrupts=guard, sim_model=sim_model)
             except (CompareError, ConfigError, TrialError, PlanMismatchError, ActuatorError) as e:
-                fail(str(e))
+                bar.stop()
+                _refused_or_unconfirmed(e, as_json)
             except TrialInterrupted as e:
                 bar.stop()
-                err_console.print(f"[bold red]{escape(str(e))}:[/] compare stopped; "
-                           f"the rig got its safe stop ({cfg.backend.safe_stop}); the runs so far "
-                           f"are under {out}", highlight=False, soft_wrap=True)
+                stop = getattr(e, "safe_stop", None) or f"the rig got its safe stop ({cfg.backend.safe_stop})"
+                unconfirmed = safe_stop_unconfirmed(stop)
+                code = ExitCode.STOP_UNCONFIRMED if unconfirmed else e.exit_code
+                said = str(e)  # "interrupted by SIGINT", and who asked when it was not a signal from outside
+                reason = said + (f"; {stop}" if unconfirmed else "")
                 if as_json:
-                    emit_json({"passed": False, "completed": False, "reason": str(e), "runs": str(out),
-                               "safe_stop": cfg.backend.safe_stop, "exit_code": e.exit_code}
+                    emit_json({"passed": False, "completed": False, "reason": reason, "runs": str(out),
+                               "safe_stop": stop, "exit_code": int(code)}
                               | ({"live_url": server.url} if server else {}))
-                raise typer.Exit(e.exit_code)
-    return res.comparison, res.out_dir, res.prediction, server.url if server else None
+                line = f"compare stopped; {stop}; the runs so far are under {out}"
+                if unconfirmed:
+                    fail(f"{said}: {line}", code)
+                say("[bold red]{}:[/] {}", said, line)
+                stopped(e.signum)
+    return res.comparison, res.out_dir, res.prediction, res.safe_stop, server.url if server else None
+
+
+def _refused_or_unconfirmed(e: BenchError, as_json: bool) -> None:
+    """A comparison that could not go on: refused (exit 2) if nothing moved, else its one line;
+    a safe stop that was not confirmed is said first, with exit 3."""
+    stop = getattr(e, "safe_stop", None)
+    if not safe_stop_unconfirmed(stop):
+        fail(str(e))
+    reason = f"{stop}; {e}"
+    if as_json:
+        emit_json({"passed": False, "completed": False, "reason": reason, "safe_stop": stop,
+                   "exit_code": int(ExitCode.STOP_UNCONFIRMED)})
+    fail(reason, ExitCode.STOP_UNCONFIRMED)
 
 
 def _from_runs(a: Path, b: Path, align: str, out: Path):
@@ -178,7 +203,6 @@ def _from_runs(a: Path, b: Path, align: str, out: Path):
     from bench.compare.alignment import load_saved_trial  # deferred: --help and completion stay fast
     from bench.compare.analysis import compare_logs  # deferred: --help and completion stay fast
     from bench.compare.report import write_compare_report  # deferred: --help and completion stay fast
-    from bench.compare.signals import PlanMismatchError  # deferred: --help and completion stay fast
     from bench.core.rundir import RunDirError  # deferred: --help and completion stay fast
 
     pa, pb = _log_path(a), _log_path(b)
@@ -198,7 +222,6 @@ def _from_runs(a: Path, b: Path, align: str, out: Path):
     except (PlanMismatchError, ValueError, KeyError) as e:
         fail(str(e).replace("\n", " "))
     from bench.core.record import new_run_dir  # deferred: --help and completion stay fast
-    from drivers import BenchError  # deferred: --help and completion stay fast
 
     name = (la.metadata.get("config") or {}).get("name", "runs")
     try:

@@ -10,6 +10,7 @@ from typing import Optional
 import typer
 
 from bench.cli.common import console, err_console, fail
+from drivers.errors import ExitCode
 
 __all__ = ["schema", "urdf_build"]
 
@@ -43,7 +44,7 @@ def urdf_build(check: bool = typer.Option(False, "--check", help="Fail if the fi
         stale = [rel for rel, text in generated_files().items()
                  if not (URDF_DIR / rel).exists() or (URDF_DIR / rel).read_text() != text]
         if stale:
-            fail(f"out of date: {', '.join(stale)}; run `hilbench urdf build`", 1)
+            fail(f"out of date: {', '.join(stale)}; run `hilbench urdf build`", ExitCode.FAILED)
         console.print("urdf/ is up to date")
         return
     for p in write_scene():

@@ -13,6 +13,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from bench.cli.common import console, emit_json, err_console, fail
+from drivers.errors import IdentifyError
 
 __all__ = ["identify"]
 
@@ -31,12 +32,11 @@ def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR",
                                             help="Most Levenberg-Marquardt steps that polish the search's best."),
              as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Fit each joint's servo physics (motor constant, armature, friction) to the rig's logs."""
-    from bench.identify.errors import IdentifyError  # deferred: --help and completion stay fast
     from bench.identify.run import identify as run_identify  # deferred: --help and completion stay fast
     from bench.identify.run import joint_rows  # deferred: --help and completion stay fast
 
     refused: IdentifyError | None = None
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+    with Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeElapsedColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task("reading logs", total=1.0)
 

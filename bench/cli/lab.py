@@ -22,8 +22,10 @@ from rich.live import Live
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.status import Status
 from rich.table import Table
+from rich.text import Text
 
-from bench.cli.common import emit_json, err_console, fail, load_config
+from bench.cli.common import emit_json, err_console, fail, interrupted, load_config, say, signum_of, styled
+from drivers.errors import ActuatorError, BackendSetupError, ExitCode, safe_stop_unconfirmed
 
 if TYPE_CHECKING:
     from bench.config.models import TrialConfig
@@ -37,12 +39,11 @@ _STATUS = {"pass": "[green]PASS[/]", "warn": "[yellow]WARN[/]", "fail": "[bold r
 def _load(config: Path, tool: str) -> "TrialConfig":
     """The config, or exit 2 with one line (unreadable, or not the Dynamixel backend)."""
     from bench.lab.session import require_dynamixel  # deferred: --help and completion stay fast
-    from drivers import ConfigurationError  # deferred: --help and completion stay fast
 
     cfg = load_config(config)
     try:
         require_dynamixel(cfg, tool)
-    except ConfigurationError as e:
+    except BackendSetupError as e:
         fail(str(e))
     return cfg
 
@@ -92,7 +93,6 @@ def scan(port: str = typer.Option(..., "--port", help="Serial port of the servo 
         scan_bus,
         servo_row,
     )
-    from drivers import ActuatorError  # deferred: --help and completion stay fast
     from drivers.dynamixel.bus import open_error  # deferred: --help and completion stay fast
 
     if baud and all_bauds:
@@ -116,9 +116,9 @@ def scan(port: str = typer.Option(..., "--port", help="Serial port of the servo 
             progress.update(task, description=f"{port} at {rates[0]} bps")
             found = scan_bus(port, rates, max_id, progress=step)
     except ActuatorError as e:
-        fail(str(e), 1 if os.path.exists(port) else 2)
-    except KeyboardInterrupt:
-        fail("interrupted", 130)
+        fail(str(e), ExitCode.FAILED if os.path.exists(port) else ExitCode.REFUSED)
+    except KeyboardInterrupt as e:
+        interrupted(signum_of(e), "scan stopped; nothing was written to the servos")
     if as_json:
         emit_json([servo_row(s) for s in found])
         return
@@ -133,7 +133,7 @@ def scan(port: str = typer.Option(..., "--port", help="Serial port of the servo 
                   f"{s.temperature_c:.0f}" if s.temperature_c is not None else "?",
                   style="red" if s.hardware_error else None)
     err_console.print(t)
-    err_console.print(f"scanned {', '.join(str(r) for r in rates)} bps, IDs 0–{max_id}")
+    err_console.print(f"scanned {', '.join(str(r) for r in rates)} bps, IDs 0–{max_id}", highlight=False)
 
 
 # ---------------------------------------------------------------------------
@@ -159,31 +159,37 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
 
     cfg = _load(config, "doctor")
     counts = {"pass": 0, "warn": 0, "fail": 0}
-    spinner = Status("doctor: checking", console=err_console) if not as_json else contextlib.nullcontext()
+    spinner = Status(Text("doctor: checking"), console=err_console) if not as_json else contextlib.nullcontext()
 
     def show(c) -> None:
         counts[c.status] += 1
         if as_json:
             return
-        spinner.update(f"doctor: {sum(counts.values())} checks, last: {c.name}")
+        spinner.update(Text(f"doctor: {sum(counts.values())} checks, last: {c.name}"))
         if verbose or c.status != "pass":
-            err_console.print(f"{_STATUS[c.status]}  {c.name}: {c.detail}", soft_wrap=True)
+            say(_STATUS[c.status] + "  {}: {}", c.name, c.detail)
 
     try:
         with _rig(config, cfg, emulate) as cfg, spinner:
             checks = run_doctor(cfg, listen_s=listen_s, on_check=show)
-    except KeyboardInterrupt:
-        fail("interrupted", 130)
+    except KeyboardInterrupt as e:
+        interrupted(signum_of(e), "doctor stopped; nothing was written to the servos")
+    except ActuatorError as e:  # the rig itself failed in a way no check could name
+        if as_json:
+            emit_json({"checks": [], "ok": False, "reason": str(e)})
+        fail(f"{e}; nothing was written to the servos", ExitCode.FAILED)
     ok = not any(c.status == "fail" for c in checks)
     failed = [c for c in checks if c.status == "fail"]
     reason = "; ".join(f"{c.name}: {c.detail}" for c in failed)
     if as_json:
         emit_json({"checks": [c.as_dict() for c in checks], "ok": ok, "reason": reason})
+        if not ok:
+            say("[bold red]not ready:[/] {}", reason)
     else:
         n = {s: sum(c.status == s for c in checks) for s in ("pass", "warn", "fail")}
         verdict = "[green]ready for a trial[/]" if ok else "[bold red]not ready[/]"
-        err_console.print(f"{verdict}: {n['fail']} failed, {n['warn']} warning(s), {n['pass']} passed")
-    raise typer.Exit(0 if ok else 1)
+        say(verdict + ": {} failed, {} warning(s), {} passed", n["fail"], n["warn"], n["pass"])
+    raise typer.Exit(ExitCode.PASSED if ok else ExitCode.FAILED)
 
 
 # ---------------------------------------------------------------------------
@@ -217,7 +223,6 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
     from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
     from bench.lab.calibrate import calibrate as run_calibration  # deferred: --help and completion stay fast
     from bench.lab.session import check_ports  # deferred: --help and completion stay fast
-    from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     cfg = _load(config, "calibrate")
     if write not in ("config", "homing"):
@@ -235,17 +240,17 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
     def confirm(message: str) -> bool:
         if yes:
             return True
-        answer = err_console.input(f"[bold]{message}[/] — Enter when ready, s to skip: ")
+        answer = err_console.input(styled("[bold]{}[/] — Enter when ready, s to skip: ", message))
         return answer.strip().lower() not in ("s", "skip")
 
     def note(message: str) -> None:
         if not as_json:
-            err_console.print(message, soft_wrap=True)
+            err_console.print(message, soft_wrap=True, highlight=False)
 
     if write == "homing" and not yes and not confirm(
             "--write homing stores the zeros in each servo's Homing Offset (EEPROM, torque off "
             "for the write); the calibration file then holds no joint offsets"):
-        fail("calibration cancelled; nothing written", 1)
+        fail("calibration cancelled; nothing written", ExitCode.FAILED)
     if out is None and emulate:  # an emulated rig's calibration is not the rig's: keep them apart
         from bench.lab.calibrate import default_output  # deferred: --help and completion stay fast
 
@@ -256,10 +261,10 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
             res = run_calibration(rig_cfg, write=write, stops=stops, samples=samples, out=out,
                                   confirm=confirm, note=note, accept_large=accept_large,
                                   span=math.radians(span_deg) if span_deg is not None else None)
-    except KeyboardInterrupt:
-        fail("interrupted: no calibration file written", 130)
+    except KeyboardInterrupt as e:
+        interrupted(signum_of(e), "calibration stopped; no calibration file written")
     except (ActuatorError, ValueError) as e:
-        fail(f"{e}; no calibration file written", 1)
+        fail(f"{e}; no calibration file written", ExitCode.FAILED)
     f = res.file
     if as_json:
         emit_json({"file": str(res.path), "write": write,
@@ -281,15 +286,15 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
             return f"{math.degrees(v):{sign}.3f}°" if rev else f"{v * 1e3:{sign}.3f} mm"
 
         t.add_row(j, fmt(z.configured), fmt(z.offset),
-                  fmt(z.change, "+") + (" [yellow](not written)[/]" if j in res.refused else ""))
+                  Text.assemble(fmt(z.change, "+"), (" (not written)", "yellow") if j in res.refused else ""))
     err_console.print(t)
     if f.ultrasonic is not None:
         err_console.print(f"ultrasonic: reading = {f.ultrasonic.offset_mm:.2f} mm + {f.ultrasonic.scale:.5f} · d2 "
                   f"(config standoff {cfg.backend.ultrasonic.standoff_mm:.1f} mm), residual "
                   f"{f.ultrasonic.residual_mm:.2f} mm RMS over {len(f.ultrasonic.stops)} stops")
     for joint, why in res.refused.items():
-        err_console.print(f"[yellow]warning:[/] {joint}: zero not written: {why}", soft_wrap=True)
-    err_console.print(f"calibration written: [bold]{res.path}[/]; use it with `calibration: {res.path}` in {config}")
+        say("[yellow]warning:[/] {}: zero not written: {}", joint, why)
+    say("calibration written: [bold]{}[/]; use it with `calibration: {}` in {}", res.path, res.path, config)
 
 
 # ---------------------------------------------------------------------------
@@ -304,7 +309,6 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
     from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
     from bench.lab.jog import RawKeys, jog_view, run_jog  # deferred: --help and completion stay fast
     from bench.lab.session import check_ports, open_backend  # deferred: --help and completion stay fast
-    from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     cfg = _load(config, "jog")
     if not (sys.stdin.isatty() and sys.stderr.isatty()):
@@ -318,6 +322,7 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
     robot = get_robot(cfg.robot)
     revolute = [row.kind == "revolute" for row in robot.chain.rows]
     reason = "error"
+    act = None
     try:
         with _rig(config, cfg, emulate) as cfg, \
                 open_backend(cfg) as act:  # torque off when this block is left, however it is left
@@ -326,8 +331,18 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
                     Live(console=err_console, auto_refresh=False, transient=False) as live:
                 reason = run_jog(act, keys, lambda s, st: live.update(jog_view(s, st, f"jog {cfg.name}"),
                                                                         refresh=True), revolute)
-    except KeyboardInterrupt:
-        fail("interrupted: torque off", 130)
+    except KeyboardInterrupt as e:
+        _unconfirmed_stop(act, "jog stopped")
+        interrupted(signum_of(e), "jog stopped; torque off")
     except ActuatorError as e:
-        fail(f"{e}; torque off", 1)
-    err_console.print(f"jog ended ({reason}): torque off on every servo")
+        _unconfirmed_stop(act, str(e))
+        fail(f"{e}; torque off", ExitCode.FAILED)
+    _unconfirmed_stop(act, f"jog ended ({reason})")
+    err_console.print(f"jog ended ({reason}): torque off on every servo", highlight=False)
+
+
+def _unconfirmed_stop(act, what: str) -> None:
+    """One line and exit 3 when the servos did not all read back torque off."""
+    report = getattr(act, "safe_stop_report", None)
+    if safe_stop_unconfirmed(report):
+        fail(f"{what}; {report}", ExitCode.STOP_UNCONFIRMED)

@@ -8,12 +8,21 @@ import sys
 from pathlib import Path
 
 import typer
-from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
+from rich.text import Text
 
-from bench.cli.common import console, emit_json, err_console, fail, load_config
+from bench.cli.common import console, emit_json, err_console, fail, load_config, say, stopped, styled
 from bench.cli.live import LIVE_HELP, live_view
+from bench.core.interrupts import NO_SIGNALS, SignalGuard, TrialInterrupted
+from drivers.errors import (
+    ActuatorError,
+    ConfigError,
+    ExitCode,
+    TrialError,
+    safe_stop_unconfirmed,
+    signal_exit_code,
+)
 
 __all__ = ["check", "emulate", "report", "runs", "trial"]
 
@@ -44,11 +53,9 @@ def check(config: Path = typer.Argument(..., help="A trial config to check."),
     else:
         for r in results:
             mark = "[green]ok[/]  " if r.ok else "[red]FAIL[/]"
-            console.print(f"{mark} {r.name}: {r.detail}", highlight=False)
+            console.print(styled(mark + " {}: {}", r.name, r.detail), highlight=False)
     if failed is not None:
-        line = failed.detail if as_json else f"a trial would be refused ({failed.name}, above)"
-        err_console.print(f"[bold red]error:[/] {line}", highlight=False, soft_wrap=True)
-        raise typer.Exit(2)
+        fail(failed.detail if as_json else f"a trial would be refused ({failed.name}, above)")
 
 
 def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_configs/sim_target1.yaml."),
@@ -60,14 +67,10 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
           as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Run one trial: home -> Target -> insertion -> retract, with its log and report.
 
-    Exit codes: 0 passed, 1 ran and failed, 2 refused before anything moved,
-    128 + N when stopped by signal N (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP).
+    Exit codes: 0 passed, 1 ran and failed, 2 refused before anything moved, 3 the safe
+    stop was not confirmed (check the rig), 128 + N when stopped by signal N (130 Ctrl-C,
+    143 SIGTERM, 129 SIGHUP).
     """
-    from bench.core.interrupts import (  # deferred: --help and completion stay fast
-        SignalGuard,
-        TrialInterrupted,
-    )
-
     if gui and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
                                                          or os.environ.get("WAYLAND_DISPLAY")):
         fail("--gui needs a display and DISPLAY is not set; run without --gui (the report has "
@@ -77,27 +80,29 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
             res, name, live_url = _trial(config, out, gui, note, emulate, guard, live)
         except TrialInterrupted as e:
             _interrupted(e, as_json)
-    if not res.passed:
-        err_console.print(f"[bold red]trial failed:[/] {res.why_not}", highlight=False, soft_wrap=True)
+    if not res.stop_confirmed:
+        say("[bold red]check the rig:[/] {}", res.why_not)
+    elif not res.passed:
+        say("[bold red]trial failed:[/] {}", res.why_not)
     if as_json:
         emit_json(res.summary() | ({"live_url": live_url} if live_url else {}))
     else:
         o = res.outcome
         verdict = "[green]PASSED[/]" if res.passed else "[red]FAILED[/]"
-        console.print(f"trial {name}: {verdict}  ({res.run_dir})")
+        console.print(styled("trial {}: " + verdict + "  ({})", name, res.run_dir))
         if not res.completed:
-            console.print(f"[red]stopped early:[/] {res.reason}")
+            console.print(styled("[red]stopped early:[/] {}", res.reason))
         if o is not None:  # short lines: an 80-column terminal never splits a value from its name
             x, y, z = (round(v, 3) + 0.0 for v in o.tip_deviation_mm)
             console.print(f"tip deviation: X {x:+.3f}  Y {y:+.3f}  Z {z:+.3f} mm", highlight=False)
             console.print(f"depth {round(o.depth_deviation_mm, 3) + 0.0:+.3f} mm, angle "
                           f"{round(o.angle_deviation_deg, 4) + 0.0:+.4f}°", highlight=False)
         console.print(f"report: {res.run_dir / 'report.html'}")
-    raise typer.Exit(0 if res.passed else 1)
+    raise typer.Exit(ExitCode.STOP_UNCONFIRMED if not res.stop_confirmed
+                     else ExitCode.PASSED if res.passed else ExitCode.FAILED)
 
 
 def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, live: bool = False):
-    from bench.core.result import TrialError  # deferred: --help and completion stay fast
     from bench.trial.plan import prepare  # deferred: --help and completion stay fast
 
     cfg = load_config(config)
@@ -131,38 +136,39 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, 
             rig.close()
             skipped = rig.stats.get("physics_skipped_s", 0.0)
             if skipped:
-                err_console.print(f"warning: the emulated rig's physics fell behind real time and "
-                                  f"skipped {skipped:.2f} s; the machine was too busy for a faithful "
-                                  f"rehearsal", highlight=False, soft_wrap=True)
+                say("warning: the emulated rig's physics fell behind real time and skipped {} s; "
+                    "the machine was too busy for a faithful rehearsal", f"{skipped:.2f}")
 
 
 def _interrupted(e, as_json: bool = False) -> None:
     """One line on stderr for a trial stopped by a signal (and with ``--json`` the result line
-    saying so), then exit 128 + N."""
+    saying so), then exit 128 + N, or 3 when the safe stop was not confirmed."""
     run_dir = getattr(e, "run_dir", None)
     stop = getattr(e, "safe_stop", None)
     where = f"log saved in {run_dir}" if run_dir else "nothing had moved; no log"
     what = f"; {stop}" if stop else ""
-    err_console.print(f"[bold red]{escape(str(e))}:[/] trial stopped{what}; "
-                      f"{where}", highlight=False, soft_wrap=True)
+    unconfirmed = safe_stop_unconfirmed(stop)
+    code = ExitCode.STOP_UNCONFIRMED if unconfirmed else signal_exit_code(e.signum)
+    said = str(e)  # "interrupted by SIGINT", and who asked when it was not a signal from outside
+    reason = said + (f"; {stop}" if unconfirmed else "")
     if as_json:
         live_url = getattr(e, "live_url", None)
         emit_json({"run_dir": str(run_dir) if run_dir else None, "passed": False, "completed": False,
-                   "reason": str(e), "safe_stop": stop, "exit_code": e.exit_code}
+                   "reason": reason, "safe_stop": stop, "exit_code": int(code)}
                   | ({"live_url": live_url} if live_url else {}))
-    raise typer.Exit(e.exit_code)
+    if unconfirmed:
+        fail(f"{said}: trial stopped{what}; {where}", code)
+    say("[bold red]{}:[/] trial stopped{}; {}", said, what, where)
+    stopped(e.signum)
 
 
 def _run_with_progress(prep, out: Path, gui: bool, note: str, guard=None):
 
-    from bench.config.models import ConfigError  # deferred: --help and completion stay fast
-    from bench.core.interrupts import NO_SIGNALS  # deferred: --help and completion stay fast
-    from bench.core.result import TrialError  # deferred: --help and completion stay fast
     from bench.trial.run import TrialHooks, run_trial  # deferred: --help and completion stay fast
-    from drivers import ActuatorError  # deferred: --help and completion stay fast
 
     cfg = prep.config
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+    with Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(),
+                  TextColumn("{task.percentage:>3.0f}%"),
                   TimeRemainingColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task(f"trial {cfg.name}: checking", total=None)
 
@@ -192,15 +198,15 @@ def emulate(config: Path = typer.Argument(..., help="A config with backend.kind:
         if as_json:
             emit_json({"dynamixel_port": ports.dynamixel_port, "ultrasonic_port": ports.ultrasonic_port})
         else:
-            console.print(f"Dynamixel bus on [bold]{ports.dynamixel_port}[/], ultrasonic sensor on "
-                          f"[bold]{ports.ultrasonic_port}[/]; Ctrl-C to stop")
+            console.print(styled("Dynamixel bus on [bold]{}[/], ultrasonic sensor on [bold]{}[/]; "
+                                 "Ctrl-C to stop", ports.dynamixel_port, ports.ultrasonic_port))
 
     def report(stats: dict) -> None:
         if as_json:
             emit_json({"stats": stats})
         elif stats.get("physics_skipped_s"):
-            err_console.print(f"warning: the emulator's physics fell behind real time and skipped "
-                              f"{stats['physics_skipped_s']:.2f} s (the machine was too busy)")
+            say("warning: the emulator's physics fell behind real time and skipped {} s (the "
+                "machine was too busy)", f"{stats['physics_skipped_s']:.2f}")
 
     try:
         serve(cfg, announce, report)
@@ -248,7 +254,7 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
         tip = "" if r.tip_deviation_mm is None else f"{r.tip_deviation_mm:.2f}"
         angle = "" if r.angle_deviation_deg is None else f"{r.angle_deviation_deg:+.3f}"
         backend = f"{r.backend or '?'} ({r.rig})" if r.rig and r.rig != "sim" else (r.backend or "?")
-        t.add_row(Path(r.run_dir).name, backend, f"[{colour[r.status]}]{r.status}[/]",
+        t.add_row(Path(r.run_dir).name, backend, Text(r.status, style=colour.get(r.status)),
                   tip, angle)
     console.print(t)
     for r in found:

@@ -59,7 +59,9 @@ from bench.rig.backends import make_backend
 from bench.rig.emulated import EmulatorProcess
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
-from drivers import ActuatorError, BenchError, CommunicationError
+from drivers import ActuatorError, CommunicationError
+from drivers.capabilities import SafeStopReport, find_capability
+from drivers.errors import CompareError
 
 __all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "home_rig",
            "run_comparison", "sim_counterpart"]
@@ -72,10 +74,6 @@ _start_of, _plan_start_of, _starting_at = start_of, plan_start_of, starting_at
 EMULATED_RETRIES = 20
 
 ProgressFn = Callable[[str, float], None]  # (what is running, fraction of the whole session)
-
-
-class CompareError(BenchError, RuntimeError):
-    """The comparison could not run; nothing moved (or the rig was stopped safely)."""
 
 
 @dataclass(frozen=True)
@@ -101,6 +99,8 @@ class SessionResult:
     prediction: Optional[Prediction] = None
     #: The emulated rig's counters when it stopped (packets, status packets dropped...); {} on hardware.
     rig_stats: dict = field(default_factory=dict)
+    #: How the rig was left at the end, in its backend's words ("" if it never moved).
+    safe_stop: str = ""
 
 
 def sim_counterpart(config: TrialConfig, servo_model: str = "ideal") -> TrialConfig:
@@ -141,14 +141,18 @@ def _with_safe_stop(config: TrialConfig, safe_stop: str) -> TrialConfig:
     return config.model_copy(update={"backend": config.backend.model_copy(update={"safe_stop": safe_stop})})
 
 
-def _safe_stop(prep: PreparedTrial) -> None:
-    """Apply the config's own safe stop to the rig (best effort: the bus may be gone)."""
-
+def _safe_stop(prep: PreparedTrial) -> str:
+    """Apply the config's own safe stop to the rig (best effort: the bus may be gone); how the
+    rig was left, in the backend's words, or that the stop could not be confirmed."""
+    config = prep.config
     try:
-        act = make_backend(prep.config, prep.robot, calibration=prep.calibration)
+        act = make_backend(config, prep.robot, calibration=prep.calibration)
         act.close()
-    except Exception:  # noqa: BLE001 - nothing more can be done from here
-        pass
+    except Exception as e:  # noqa: BLE001 - nothing more can be done from here
+        what = "hold" if config.backend.safe_stop == "hold" else "torque off"
+        return f"{what} not confirmed: the rig could not be reached for its safe stop ({e})"
+    layer = find_capability(act, SafeStopReport)
+    return (layer.safe_stop_report if layer is not None else None) or config.backend.safe_stop
 
 
 @dataclass
@@ -161,6 +165,7 @@ class _Rig:
     lost: list[LostAttempt] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     stats: dict = field(default_factory=dict)  #: the emulator's counters, when it stopped
+    safe_stop: str = ""  #: how the rig was left at the end, in its backend's words
 
 
 def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bool = False,
@@ -187,6 +192,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
     progress("comparing", 1.0)
     result = _analysed(rig, runs, [log for log, _ in found], emulate, align, sim_model)
     result.rig_stats = rig.stats
+    result.safe_stop = rig.safe_stop
     result.notes = _notes(config, rig, emulate, sim_model) + rig.notes
     if report:
         real_label = "emulated rig" if emulate else "real rig"
@@ -250,15 +256,17 @@ def _run_rig(rig: _Rig, prep: PreparedTrial, repeats: int, emulate: bool, retrie
             if not res.completed:
                 rig.notes.append(f"rig repeat {i + 1} stopped early: {res.reason}; the session ended there")
                 break
-    except BaseException:
+    except BaseException as e:
         if touched:
             with interrupts.deferred():
-                _safe_stop(prep)
+                e.safe_stop = rig.safe_stop = _safe_stop(prep)  # type: ignore[attr-defined]
             stopped = True
         raise
     finally:
+        if res is not None and not stopped:
+            rig.safe_stop = res.safe_stop
         if not stopped and res is not None and not res.completed:
-            _safe_stop(prep)  # that repeat held the arm; stop as the config says
+            rig.safe_stop = _safe_stop(prep)  # that repeat held the arm; stop as the config says
         if emulator is not None:
             emulator.close()
             rig.stats = dict(emulator.stats)

@@ -11,11 +11,7 @@ import warnings
 import numpy as np
 
 from bench.core.log import TrialLog
-from drivers import BenchError
-
-
-class PlanMismatchError(BenchError, ValueError):
-    """Two logs that are not of the same robot and plan; the message names what differs."""
+from drivers.errors import PlanMismatchError
 
 
 DEFAULT_MAX_LAG_S = 1.0  #: lags searched within ± this (s)

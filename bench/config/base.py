@@ -16,13 +16,9 @@ from typing import Any, Iterator, Optional
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
 from bench.config.safe_yaml import YamlRefused, quote, read_mapping
-from drivers import BenchError
+from drivers.errors import ConfigError
 
 __all__ = ["ConfigError", "Strict", "describe_validation_error", "read_yaml_mapping"]
-
-
-class ConfigError(BenchError, ValueError):
-    """A configuration file that cannot be used; the message names the field."""
 
 
 class Strict(BaseModel):

@@ -17,16 +17,12 @@ from yaml.constructor import ConstructorError, SafeConstructor
 from yaml.events import AliasEvent
 from yaml.nodes import MappingNode
 
-from drivers import BenchError
+from drivers.errors import YamlRefused
 
 MAX_BYTES = 1 << 20
 MAX_DEPTH = 32
 MAX_INT_DIGITS = 30
 QUOTE = 60
-
-
-class YamlRefused(BenchError, ValueError):
-    """The file is not a config this bench will read; the message says why, in one line."""
 
 
 def quote(text: object) -> str:

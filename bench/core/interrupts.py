@@ -18,6 +18,8 @@ from contextlib import contextmanager
 from types import FrameType
 from typing import Iterator, Optional
 
+from drivers.errors import signal_exit_code
+
 #: The signals a trial treats as "stop now, safely": Ctrl-C, kill/timeout/systemd, a lost terminal.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -32,7 +34,7 @@ class TrialInterrupted(KeyboardInterrupt):
 
     @property
     def exit_code(self) -> int:
-        return 128 + self.signum
+        return signal_exit_code(self.signum)
 
 
 def signal_name(signum: int) -> str:
@@ -75,6 +77,11 @@ class SignalGuard:
             yield
         finally:
             self._deferring -= 1
+
+    def settle(self) -> None:
+        """From now on a signal is only noted, never raised: the process is ending and its
+        last line must get out whole."""
+        self._deferring += 1
 
     def check(self) -> None:
         """Raise :class:`TrialInterrupted` if a stop signal has arrived (even if swallowed)."""

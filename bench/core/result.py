@@ -18,14 +18,10 @@ from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
 from bench.core.outcome import NeedleOutcome, needle_outcome, settled_position
 from bench.kinematics.needle import NeedleTarget
-from drivers import BenchError
+from drivers.errors import TrialError, safe_stop_unconfirmed
 
 __all__ = ["PreparedTrial", "TrialError", "TrialResult", "result_from_log", "status_from_log",
            "write_result_json"]
-
-
-class TrialError(BenchError, RuntimeError):
-    """The trial could not start; nothing moved."""
 
 
 @dataclass
@@ -67,6 +63,13 @@ class TrialResult:
     extra: dict = field(default_factory=dict)
     #: An excitation run (identification): it passes by completing; there is no needle to place.
     excitation: bool = False
+    #: How the actuators were left, in the backend's words (its read-back where it has one).
+    safe_stop: str = ""
+
+    @property
+    def stop_confirmed(self) -> bool:
+        """False when the backend could not confirm its safe stop: the rig may still be powered."""
+        return not safe_stop_unconfirmed(self.safe_stop)
 
     @property
     def passed(self) -> bool:
@@ -76,14 +79,18 @@ class TrialResult:
 
     @property
     def why_not(self) -> str:
-        """Why the trial did not pass, in one line ("" when it passed)."""
+        """Why the trial did not pass, in one line ("" when it passed); a safe stop that was not
+        confirmed comes first, whatever the verdict: it is what the technician must see."""
+        first = [self.safe_stop] if not self.stop_confirmed else []
         if self.passed:
-            return ""
-        if not self.completed:
-            return f"stopped early: {self.reason}"
-        if self.outcome is None:
-            return "no settled insertion to measure"
-        return f"outside the acceptance limits: {self.outcome.failures()}"
+            why = ""
+        elif not self.completed:
+            why = f"stopped early: {self.reason}"
+        elif self.outcome is None:
+            why = "no settled insertion to measure"
+        else:
+            why = f"outside the acceptance limits: {self.outcome.failures()}"
+        return "; ".join(first + ([why] if why else []))
 
     def summary(self) -> dict:
         o = self.outcome
@@ -95,6 +102,7 @@ class TrialResult:
             "passed": self.passed,
             "completed": self.completed,
             "reason": self.why_not,
+            "safe_stop": self.safe_stop or None,
         }
 
 
@@ -122,8 +130,9 @@ def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialR
     except (KeyError, ValueError):
         pass
     completed, reason = status_from_log(log)
+    stops = [e.message for e in log.events if e.kind == "safe-stop"]
     return TrialResult(Path(run_dir), Path(run_dir) / "trial.npz", completed, reason, outcome,
-                       excitation=cfg.excitation is not None)
+                       excitation=cfg.excitation is not None, safe_stop=stops[-1] if stops else "")
 
 
 def write_result_json(res: TrialResult) -> None:

@@ -26,7 +26,6 @@ import json
 from pathlib import Path
 from typing import Iterator
 
-import numpy as np
 from mcap_ros2.writer import Writer
 
 from bench.core.log import TrialLog

@@ -11,7 +11,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 from bench.kinematics.registry import ROBOTS
-from drivers import Actuators, ActuatorsWrapper, ConfigurationError
+from drivers import Actuators, ActuatorsWrapper, BackendSetupError
 from drivers.capabilities import JointKinds, find_capability
 
 __all__ = ["FaultWrapper", "joint_kinds", "kinds_for_names"]
@@ -38,7 +38,7 @@ def joint_kinds(actuators: Actuators) -> list[str]:
     if kinds is None:
         kinds = kinds_for_names(tuple(actuators.joint_names))
     if kinds is None:
-        raise ConfigurationError(
+        raise BackendSetupError(
             f"cannot tell revolute from prismatic joints among {list(actuators.joint_names)}: "
             "the backend has no joint_kinds and no known robot has these joints")
     return list(kinds)

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from bench.faults.base import FaultWrapper
-from drivers import Actuators, ConfigurationError, JointState
+from drivers import Actuators, BackendSetupError, JointState
 from drivers.capabilities import EmulatorHooks, HostLoop, find_capability
 
 __all__ = ["DroppedStatus", "EmulatorStatusFault", "LateStatus", "emulator_fault_target"]
@@ -40,7 +40,7 @@ class EmulatorStatusFault(FaultWrapper):
         super().__init__(actuators)
         target = emulator_fault_target(actuators, field)
         if target is None:
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"{type(self.unwrapped).__name__} has no emulator hook {field!r}: status-packet "
                 "faults at the bus level need the emulated Dynamixel backend (--emulate)")
         self.field = field

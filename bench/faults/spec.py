@@ -31,7 +31,7 @@ from bench.faults.torque import TorqueLimit, check_effort_limit
 from bench.faults.ultrasonic import UltrasonicDropout, UltrasonicNoise, UltrasonicStuck
 from bench.kinematics.arc_train import PINION_RADIUS
 from bench.kinematics.transmission import SERVO_TOL_DEG, slide_tolerance_m, transmissions_for_names
-from drivers import Actuators, ConfigurationError
+from drivers import Actuators, BackendSetupError
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import TICKS_PER_REV
 
@@ -243,7 +243,7 @@ def _check_hook(field_name: str) -> Callable[[Actuators, FaultSpec], None]:
             return
         if emulator_fault_target(act, field_name) is None:
             backend = act.unwrapped
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"{spec.name} needs a backend with emulator hooks (the emulated Dynamixel backend, "
                 f"--emulate); {type(backend).__name__} has none"
                 + ("" if spec.name == "corrupt_crc" else "; use level: wrapper or auto"))
@@ -253,7 +253,7 @@ def _check_hook(field_name: str) -> Callable[[Actuators, FaultSpec], None]:
 def _check_late_bus(act: Actuators, spec: FaultSpec) -> None:
     _check_hook("delay_s")(act, spec)
     if spec.params["level"] == "bus" and spec.params["prob"] != 1.0:
-        raise ConfigurationError("late_status on the bus delays every status packet: "
+        raise BackendSetupError("late_status on the bus delays every status packet: "
                                  f"use prob: 1 or level: wrapper (got prob {spec.params['prob']})")
 
 
@@ -408,7 +408,7 @@ def fault_generator(rng: np.random.Generator, name: str, rank: int) -> np.random
 def apply_faults(actuators: Actuators, specs: Sequence[FaultSpec | Mapping[str, Any]],
                  rng: np.random.Generator) -> Actuators:
     """Wrap ``actuators`` in the faults, first one innermost; refuse before wrapping anything
-    when the backend lacks what a fault needs (ConfigurationError naming both)."""
+    when the backend lacks what a fault needs (BackendSetupError naming both)."""
     parsed = parse_faults(list(specs), actuators.joint_names)
     for spec in parsed:
         check = FAULTS[spec.name].check

@@ -13,7 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from bench.faults.base import FaultWrapper
-from drivers import Actuators, ConfigurationError
+from drivers import Actuators, BackendSetupError
 from drivers.capabilities import EffortLimited, require_capability
 
 __all__ = ["TorqueLimit", "check_effort_limit"]
@@ -31,7 +31,7 @@ class TorqueLimit(FaultWrapper):
         super().__init__(actuators)
         check_effort_limit(actuators)
         if not 0 < scale <= 1:
-            raise ConfigurationError(f"torque_limit scale must be in (0, 1], got {scale}")
+            raise BackendSetupError(f"torque_limit scale must be in (0, 1], got {scale}")
         self.scale = float(scale)
         backend = require_capability(actuators, EffortLimited, "torque_limit")
         effort = np.asarray(self.unwrapped.limits.effort, dtype=float)

@@ -1,9 +1,7 @@
 """The one error identification raises: the logs cannot be identified, said in one line."""
 
-from drivers import BenchError
+from drivers.errors import IdentifyError
 
 __all__ = ["IdentifyError"]
 
 
-class IdentifyError(BenchError, ValueError):
-    """The logs cannot be identified together (missing, not the rig's, two different rigs)."""

@@ -14,19 +14,7 @@ from typing import Mapping, Protocol, runtime_checkable
 import numpy as np
 
 from bench.kinematics.dh import JointRows
-from drivers import BenchError
-
-
-class UnreachableError(BenchError, ValueError):
-    """The target cannot be reached; the message says why in mm and degrees.
-
-    ``equations`` names the paper's equations behind the refusal (for a report or a
-    developer); the message itself speaks to the person who wrote the target.
-    """
-
-    def __init__(self, message: str, equations: str = "") -> None:
-        super().__init__(message)
-        self.equations = equations
+from drivers.errors import UnreachableError
 
 
 def needle_direction(angle: float, tilt: float = 0.0) -> np.ndarray:

@@ -24,7 +24,7 @@ from bench.config.calibration import calibration_of, calibration_path
 from bench.config.models import ConfigError, TrialConfig
 from bench.kinematics.arc_train import train_pose
 from bench.kinematics.registry import get_robot
-from drivers import ActuatorError
+from drivers.errors import ActuatorError, BackendSetupError
 from drivers.dynamixel.backend import latency_timer_ms
 from drivers.dynamixel.bus import PingReply, ServoBus, ServoStatus, open_error
 from drivers.dynamixel.control_table import x_series_table
@@ -40,6 +40,7 @@ VOLTAGE_MARGIN_V = 0.5  # warn this close to a voltage limit
 TEMPERATURE_MARGIN_C = 10.0  # warn this close to the temperature limit
 RANGE_MARGIN_M = 0.015  # ultrasonic readings may stray this far past the travel (noise)
 AGREEMENT_M = 0.010  # ultrasonic vs train servo: warn beyond this
+NO_REPLY = "no reply"  # ServoBus.last_problem when nothing at all came back
 
 
 @dataclass(frozen=True)
@@ -122,35 +123,54 @@ def _servo_checks(add: Add, config: TrialConfig) -> Optional[float]:
     except ActuatorError as e:
         add("servo bus", "fail", str(e))
         return None
-    with bus:
-        replies: dict[str, PingReply] = {}
-        where: dict[str, int] = {}
-        for joint in order:
-            r = bus.ping(b.servos[joint].id)
-            if r is not None:
-                replies[joint], where[joint] = r, b.baud
-        missing = [j for j in order if j not in replies]
-        for baud in (x for x in sorted(BAUD_RATES.values()) if x != b.baud and missing):
-            bus.set_baud(baud)
-            for joint in list(missing):
-                r = bus.ping(b.servos[joint].id, tries=1)
+    replies: dict[str, PingReply] = {}
+    where: dict[str, int] = {}
+    heard: dict[str, str] = {}  # joint -> what came back at the configured rate, when no answer did
+    unreadable: dict[str, str] = {}  # joint -> why its registers could not be read after a ping
+    statuses: dict[str, ServoStatus] = {}
+    try:
+        with bus:
+            for joint in order:
+                r, heard[joint] = _ping(bus, b.servos[joint].id)
                 if r is not None:
-                    replies[joint], where[joint] = r, baud
-                    missing.remove(joint)
-        statuses: dict[str, ServoStatus] = {}
-        for baud in sorted(set(where.values())):
-            bus.set_baud(baud)
-            for joint in (j for j in order if where.get(j) == baud):
-                statuses[joint] = bus.status(replies[joint])
-                if joint == train and baud == b.baud:
-                    train_q = _joint_value(config, joint, bus.shaft_angle(b.servos[joint].id))
+                    replies[joint], where[joint] = r, b.baud
+            missing = [j for j in order if j not in replies]
+            for baud in (x for x in sorted(BAUD_RATES.values()) if x != b.baud and missing):
+                bus.set_baud(baud)
+                for joint in list(missing):
+                    r, _ = _ping(bus, b.servos[joint].id, tries=1)
+                    if r is not None:
+                        replies[joint], where[joint] = r, baud
+                        missing.remove(joint)
+            for baud in sorted(set(where.values())):
+                bus.set_baud(baud)
+                for joint in (j for j in order if where.get(j) == baud):
+                    try:
+                        statuses[joint] = bus.status(replies[joint])
+                        if joint == train and baud == b.baud:
+                            train_q = _joint_value(config, joint, bus.shaft_angle(b.servos[joint].id))
+                    except ActuatorError as e:  # answered the ping, then replied malformed or late
+                        statuses.pop(joint, None)
+                        unreadable[joint] = _unreadable(str(e), bus.last_problem)
+    except ActuatorError as e:  # the port itself failed (unplugged, a rate it refuses)
+        add("servo bus", "fail", str(e))
+        return None
     for joint in order:
         sc = b.servos[joint]
         name = f"{joint} (ID {sc.id})"
         s = statuses.get(joint)
+        if joint in unreadable:
+            add(name, "fail", f"{unreadable[joint]}: check its cable and the bus termination, and "
+                              f"that no second device answers to ID {sc.id}")
+            continue
         if s is None:
-            add(name, "fail", f"no answer at {b.baud} bps nor at any other X-series rate: "
-                              f"check its cable, power and ID")
+            if heard.get(joint, NO_REPLY) != NO_REPLY:
+                add(name, "fail", f"malformed reply at {b.baud} bps ({heard[joint]}) and no answer "
+                                  f"at any other X-series rate: check its cable and the bus "
+                                  f"termination, and that no second device answers to ID {sc.id}")
+            else:
+                add(name, "fail", f"no answer at {b.baud} bps nor at any other X-series rate: "
+                                  f"check its cable, power and ID")
             continue
         if where[joint] != b.baud:
             add(name, "fail", f"{s.model_name} answers at {where[joint]} bps, the config says "
@@ -163,6 +183,23 @@ def _servo_checks(add: Add, config: TrialConfig) -> Optional[float]:
             add(name, "pass", f"{s.model_name}, firmware {s.firmware}, at {b.baud} bps")
         _health_checks(add, joint, s, config)
     return train_q
+
+
+def _ping(bus: ServoBus, sid: int, tries: Optional[int] = None) -> tuple[Optional[PingReply], str]:
+    """The servo's answer to a ping, else None and what came instead ("no reply", or what was
+    wrong with the reply: corrupt, foreign, short, error bits)."""
+    try:
+        reply = bus.ping(sid, tries=tries)
+    except BackendSetupError as e:  # a status with error bits: an answer, but not a servo's ping
+        return None, f"a reply with error bits ({e})"
+    return reply, "" if reply is not None else (bus.last_problem or NO_REPLY)
+
+
+def _unreadable(error: str, problem: str) -> str:
+    """Why a servo that answered its ping has no status: replies malformed, or late or lost."""
+    if problem == NO_REPLY:
+        return f"answers a ping, then no reply to a register read, late or lost ({error})"
+    return f"malformed reply: answers a ping, then not a register read ({error})"
 
 
 def _health_checks(add: Add, joint: str, s: ServoStatus, config: TrialConfig) -> None:

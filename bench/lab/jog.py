@@ -29,6 +29,7 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
+from bench.core.interrupts import TrialInterrupted
 from bench.lab.motion import Ramp
 from drivers import Actuators, JointState
 
@@ -213,4 +214,4 @@ class RawKeys:
 
 
 def _interrupt(signum, frame) -> None:  # noqa: ARG001
-    raise KeyboardInterrupt
+    raise TrialInterrupted(signum)  # a KeyboardInterrupt that says which signal (exit 128 + N)

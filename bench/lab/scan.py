@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from typing import Callable, Iterable, Optional
 
-from drivers.dynamixel.bus import ServoBus, ServoStatus
+from drivers.dynamixel.bus import PingReply, ServoBus, ServoStatus
 from drivers.dynamixel.protocol import MAX_ID
 from drivers.dynamixel.units import BAUD_RATES
+from drivers.errors import CommunicationError
 
 __all__ = ["ALL_BAUDS", "DEFAULT_BAUDS", "check_bauds", "scan_bus", "servo_row"]
 
@@ -38,7 +39,7 @@ def scan_bus(port: str, bauds: Iterable[int], max_id: int = MAX_ID,
     """Every servo answering on ``port`` at any of ``bauds``, by baud rate then ID.
 
     ``progress(done, total)`` is called after each rate. Raises
-    :class:`~drivers.ConfigurationError` (one line) when the port cannot be used.
+    :class:`~drivers.BackendSetupError` (one line) when the port cannot be used.
     """
     rates = check_bauds(bauds)
     found: list[ServoStatus] = []
@@ -46,13 +47,22 @@ def scan_bus(port: str, bauds: Iterable[int], max_id: int = MAX_ID,
         for k, baud in enumerate(rates):
             bus.set_baud(baud)
             for reply in bus.broadcast_ping(max_id):
-                status = bus.status(reply)
+                status = _status(bus, reply)
                 if status.baud is None:  # a model without a Baud Rate register
                     status = ServoStatus(**{**status.as_dict(), "baud": baud})
                 found.append(status)
             if progress is not None:
                 progress(k + 1, len(rates))
     return found
+
+
+def _status(bus: ServoBus, reply: PingReply) -> ServoStatus:
+    """The servo's registers; a read lost to a busy host (or a noisy line) is asked once more,
+    the whole status again, before the scan gives up with the one line saying which."""
+    try:
+        return bus.status(reply)
+    except CommunicationError:
+        return bus.status(reply)
 
 
 def servo_row(s: ServoStatus) -> dict:

@@ -16,7 +16,7 @@ import serial
 from bench.config.models import TrialConfig
 from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_dynamixel_backend
-from drivers import Actuators, ConfigurationError
+from drivers import Actuators, BackendSetupError
 from drivers.dynamixel.bus import ServoBus, open_error
 
 __all__ = ["LAB_RETRIES", "check_ports", "check_servos", "open_backend", "require_dynamixel"]
@@ -28,9 +28,9 @@ LAB_RETRIES = 50
 
 
 def require_dynamixel(config: TrialConfig, tool: str) -> None:
-    """Refuse a config whose backend is not the Dynamixel servos (ConfigurationError)."""
+    """Refuse a config whose backend is not the Dynamixel servos (BackendSetupError)."""
     if config.backend.kind != "dynamixel":
-        raise ConfigurationError(f"{config.source or config.name}: {tool} needs backend.kind: "
+        raise BackendSetupError(f"{config.source or config.name}: {tool} needs backend.kind: "
                                  f"dynamixel (this config is {config.backend.kind})")
 
 
@@ -42,7 +42,7 @@ def check_ports(config: TrialConfig, ultrasonic: bool = True) -> None:
         ports.append(("ultrasonic", b.ultrasonic.port))
     for what, port in ports:
         if not os.path.exists(port) or not os.access(port, os.R_OK | os.W_OK):
-            raise ConfigurationError(f"{what} {open_error(port)}")
+            raise BackendSetupError(f"{what} {open_error(port)}")
 
 
 def check_servos(bus: ServoBus, config: TrialConfig) -> None:
@@ -51,11 +51,11 @@ def check_servos(bus: ServoBus, config: TrialConfig) -> None:
     for joint, sc in b.servos.items():
         reply = bus.ping(sc.id)
         if reply is None:
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"servo ID {sc.id} ({joint}) did not answer on {b.port} at {b.baud} bps: "
                 f"run `hilbench doctor {config.source or 'CONFIG'}`")
         if reply.model_name != sc.model:
-            raise ConfigurationError(f"servo ID {sc.id} ({joint}) is {reply.model_name}, the "
+            raise BackendSetupError(f"servo ID {sc.id} ({joint}) is {reply.model_name}, the "
                                      f"config says {sc.model}")
 
 
@@ -86,4 +86,4 @@ def open_backend(config: TrialConfig, *, ultrasonic: bool = True,
     try:
         return make_dynamixel_backend(cfg, get_robot(cfg.robot))
     except (serial.SerialException, OSError) as e:
-        raise ConfigurationError(f"servo {open_error(b.port, e)}") from None
+        raise BackendSetupError(f"servo {open_error(b.port, e)}") from None

@@ -16,7 +16,7 @@ from bench.config.models import ConfigError, ServoConfig, TrialConfig, load_serv
 from bench.kinematics.arc_train import epsilon_from_d2, train_pose
 from bench.kinematics.transmission import servo_transmissions
 from bench.rig.serving import hooks_for
-from drivers import Actuators, ConfigurationError, JointLimits
+from drivers import Actuators, BackendSetupError, JointLimits
 from drivers.dynamixel.backend import DynamixelActuators
 from drivers.dynamixel.goals import outside_limits
 from drivers.dynamixel.settings import DynamixelSettings, ServoSettings, UltrasonicSettings
@@ -187,7 +187,7 @@ def refuse_start_outside_limits(act: Actuators, tolerance: float) -> Actuators:
     problem = outside_limits(act.joint_names, act.read().position, lim.lower, lim.upper, tolerance)
     if problem:
         act.close()
-        raise ConfigurationError(f"{problem}; torque not enabled (check its offset and calibration)")
+        raise BackendSetupError(f"{problem}; torque not enabled (check its offset and calibration)")
     return act
 
 

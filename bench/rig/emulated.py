@@ -33,6 +33,7 @@ from bench.rig.backends import with_physics
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import BAUD_RATES, OPERATING_MODES
 from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
+from drivers.errors import ExitCode
 from drivers.servo import ServoParams
 from drivers.servo.plant import PyBulletPlant
 
@@ -360,7 +361,7 @@ def _die_with_parent() -> None:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
         if os.getppid() == 1:  # the parent died before prctl took effect
-            os._exit(1)
+            os._exit(ExitCode.ORPHANED)
 
 
 def retarget(config: TrialConfig, ports: RigPorts) -> TrialConfig:

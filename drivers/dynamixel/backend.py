@@ -34,7 +34,7 @@ import numpy as np
 from drivers import (
     ActuatorsBase,
     CommunicationError,
-    ConfigurationError,
+    BackendSetupError,
     HardwareFault,
     JointLimits,
     JointState,
@@ -44,7 +44,7 @@ from drivers.dynamixel.cycle import SyncCycle
 from drivers.dynamixel.goals import GoalBounds, GoalOutOfRange, outside_limits
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler, port_hint
 from drivers.dynamixel.protocol import decode_hardware_error
-from drivers.dynamixel.settings import DynamixelSettings, ServoSettings, UltrasonicSettings
+from drivers.dynamixel.settings import DynamixelSettings
 from drivers.dynamixel.units import OPERATING_MODES
 from drivers.train_loop import TrainLoop
 from drivers.ultrasonic import UltrasonicSensor
@@ -119,12 +119,12 @@ class DynamixelActuators(ActuatorsBase):
             try:
                 opened = self.port.openPort()
             except Exception as e:  # pyserial's SerialException: no such device, permissions
-                raise ConfigurationError(
+                raise BackendSetupError(
                     f"cannot open servo port {s.port}: {e}" + port_hint(s.port)) from None
             if not opened:
-                raise ConfigurationError(f"cannot open servo port {s.port}" + port_hint(s.port))
+                raise BackendSetupError(f"cannot open servo port {s.port}" + port_hint(s.port))
             if not self.port.setBaudRate(s.baud):
-                raise ConfigurationError(f"cannot set {s.baud} bps on {s.port}")
+                raise BackendSetupError(f"cannot set {s.baud} bps on {s.port}")
             self._check_latency()
             self._check_servos()
             self._configure()
@@ -150,17 +150,17 @@ class DynamixelActuators(ActuatorsBase):
         if sorted(joints) != sorted(names):
             missing = sorted(set(names) - set(joints))
             extra = sorted(set(joints) - set(names))
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"servos must cover every joint once: missing {missing}, unknown {extra}")
         ids = [sv.id for sv in s.servos]
         if len(set(ids)) != len(ids):
-            raise ConfigurationError(f"duplicate servo IDs in {ids}")
+            raise BackendSetupError(f"duplicate servo IDs in {ids}")
         for sv in s.servos:
             if sv.mode not in OPERATING_MODES:
-                raise ConfigurationError(
+                raise BackendSetupError(
                     f"servo {sv.id} ({sv.joint}): unknown mode {sv.mode!r}; modes: {sorted(OPERATING_MODES)}")
             if sv.ratio == 0 or not math.isfinite(sv.ratio):
-                raise ConfigurationError(f"servo {sv.id} ({sv.joint}): ratio must be non-zero")
+                raise BackendSetupError(f"servo {sv.id} ({sv.joint}): ratio must be non-zero")
 
     def _check_latency(self) -> None:
         ms = latency_timer_ms(self.settings.port)
@@ -178,19 +178,19 @@ class DynamixelActuators(ActuatorsBase):
         s = self.settings
         missing = []
         for sv in s.servos:
-            model, _ = self._regs.ping(sv.id, tries=max(s.retries, 3) + 1)
+            model, why = self._regs.ping(sv.id, tries=max(s.retries, 3) + 1)
             if model is None:
-                missing.append(f"{sv.id} ({sv.joint})" + (f" [{self.ph.last_problem}]"
-                                                          if self.ph.last_problem != "no reply" else ""))
+                problem = why if why.startswith("a reply with error bits") else self.ph.last_problem
+                missing.append(f"{sv.id} ({sv.joint})" + (f" [{problem}]" if problem != "no reply" else ""))
                 continue
             if model != sv.model:
-                raise ConfigurationError(
+                raise BackendSetupError(
                     f"servo ID {sv.id} ({sv.joint}) is model {model} ({_model_name(model)}), the "
                     f"config says {sv.model} ({_model_name(sv.model)}); torque not enabled")
             self.models[sv.id] = model
             self.firmware[sv.id] = self._read(sv.id, "Firmware Version")
         if missing:
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"servo ID(s) {', '.join(missing)} did not answer a ping on {s.port} at {s.baud} "
                 f"bps; torque not enabled")
         faulty = {}
@@ -338,7 +338,7 @@ class DynamixelActuators(ActuatorsBase):
         outside = outside_limits(self.joint_names, st.position, self._limits.lower, self._limits.upper,
                                  self.settings.limit_tolerance)
         if outside:
-            raise ConfigurationError(f"{outside}; torque not enabled (check its offset and calibration, "
+            raise BackendSetupError(f"{outside}; torque not enabled (check its offset and calibration, "
                                      f"or move it by hand with torque off)")
         raw = self._goal_ticks(st.position if self._sensor is None else self._encoder_positions(st),
                                hold=True)
@@ -432,7 +432,7 @@ class DynamixelActuators(ActuatorsBase):
         """Limit a joint's torque/force through Goal Current (current-based position mode)."""
         sv = self.settings.servos[self._index.index(joint)]
         if sv.mode != "current_based_position":
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"joint {sv.joint}: effort limits need mode current_based_position (servo {sv.id} "
                 f"is in {sv.mode})")
         current = abs(effort * sv.ratio) / _kt(sv.model)

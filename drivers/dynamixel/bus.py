@@ -23,7 +23,7 @@ from typing import Optional
 
 import serial
 
-from drivers import CommunicationError, ConfigurationError
+from drivers import CommunicationError, BackendSetupError
 from drivers.dynamixel.control_table import Register, x_series_table
 from drivers.dynamixel.models import model_name, register_layout
 from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch
@@ -104,7 +104,7 @@ class ServoBus:
         try:
             self._ser = serial.Serial(port, baudrate=baud, timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise ConfigurationError(open_error(port, getattr(exc, "__cause__", None) or exc)) from None
+            raise BackendSetupError(open_error(port, getattr(exc, "__cause__", None) or exc)) from None
         self._fd = self._ser.fileno()
         self._byte_s = 10.0 / baud
         self._heard = False  # bytes arrived during the last receive
@@ -121,7 +121,7 @@ class ServoBus:
         try:
             self._ser.baudrate = baud
         except (serial.SerialException, ValueError, OSError) as exc:
-            raise ConfigurationError(f"cannot set {baud} bps on {self.port}: {exc}") from None
+            raise BackendSetupError(f"cannot set {baud} bps on {self.port}: {exc}") from None
         self._byte_s = 10.0 / baud
         self._drain()
 
@@ -226,7 +226,7 @@ class ServoBus:
         ticks = register.nearest(shaft_rad)
         new = self.read(sid, "Homing Offset") + ticks
         if abs(new) > register.maximum:
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"servo ID {sid}: Homing Offset {new} ticks is beyond ±{register.maximum}; "
                 f"the joint is too far from its reference for a register offset")
         torque = self.read(sid, "Torque Enable")
@@ -249,7 +249,7 @@ class ServoBus:
     def _where(self, sid: int, name: str) -> tuple[int, int]:
         layout = register_layout(self._model(sid))
         if name not in layout:
-            raise ConfigurationError(f"servo ID {sid} ({model_name(self._models[sid])}) has no "
+            raise BackendSetupError(f"servo ID {sid} ({model_name(self._models[sid])}) has no "
                                      f"register {name!r}")
         return layout[name]
 
@@ -281,7 +281,7 @@ class ServoBus:
                 drain_until_quiet(self._fd, wait, 4 * wait)
                 continue
             if pkt.error and pkt.error & 0x7F:
-                raise ConfigurationError(f"servo ID {sid} refused {Instruction(instruction).name} "
+                raise BackendSetupError(f"servo ID {sid} refused {Instruction(instruction).name} "
                                          f"{params.hex(' ')}: {describe_status_error(pkt.error)}")
             return pkt
         self.last_problem = problem

@@ -28,7 +28,7 @@ from enum import Enum
 from functools import lru_cache
 from typing import Callable, Iterator, Mapping
 
-from drivers import ConfigurationError
+from drivers import BackendSetupError
 from drivers.dynamixel.models import sdk_rows
 from drivers.dynamixel.units import CENTER_TICK, CURRENT_REGISTERS, CURRENT_UNIT_A, REGISTER_UNITS
 
@@ -397,7 +397,7 @@ def _sdk_layout(filename: str) -> tuple[tuple[int, int, str], ...]:
     """(address, size, name) rows of a dynamixel-sdk ``.model`` file; refused when missing."""
     rows = sdk_rows(filename)
     if not rows:
-        raise ConfigurationError(
+        raise BackendSetupError(
             f"no [control table] rows in dynamixel-sdk file {filename!r} (dynamixel_easy_sdk "
             "package); install dynamixel-sdk>=4.0")
     return rows
@@ -409,7 +409,7 @@ def model_spec(model: int) -> ModelSpec:
     try:
         info = _MODELS[model]
     except KeyError:
-        raise ConfigurationError(
+        raise BackendSetupError(
             f"model number {model} is not emulated; supported: {sorted(_MODELS)}"
         ) from None
     registers = []
@@ -419,7 +419,7 @@ def model_spec(model: int) -> ModelSpec:
         try:
             access, default, lo, hi, signed = _COMMON[name]
         except KeyError:
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"register {name!r} (address {address}) of {info['name']} has no attributes here"
             ) from None
         if name in info["overrides"]:
@@ -464,5 +464,5 @@ def state_block() -> tuple[int, int]:
     regs = [table[name] for name in STATE_BLOCK]
     for r, nxt in zip(regs, regs[1:]):
         if r.address + r.size != nxt.address:
-            raise ConfigurationError(f"{r.name} and {nxt.name} are not contiguous in the control table")
+            raise BackendSetupError(f"{r.name} and {nxt.name} are not contiguous in the control table")
     return regs[0].address, regs[-1].address + regs[-1].size - regs[0].address

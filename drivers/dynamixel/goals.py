@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from drivers import CommandError, ConfigurationError
+from drivers import CommandError, BackendSetupError
 from drivers.dynamixel.control_table import x_series_table
 
 __all__ = ["GoalBounds", "GoalOutOfRange", "joint_ticks", "mode_ticks", "outside_limits",
@@ -90,7 +90,7 @@ class GoalBounds:
         """The bounds of a bus's servos (``ServoSettings``, with their joints' limits in servo
         order); ``position_limits(id)``: a Position-mode servo's Min/Max Position Limit as read.
         A transmission that cannot fit its joint's range in the servo's is refused
-        (:class:`~drivers.ConfigurationError`) before torque is enabled."""
+        (:class:`~drivers.BackendSetupError`) before torque is enabled."""
         allowed = []
         for k, sv in enumerate(servos):
             lo, hi = mode_ticks(sv.mode)
@@ -100,7 +100,7 @@ class GoalBounds:
             problem = transmission_problem(sv.joint, sv.mode, sv.ratio, sv.offset, float(lower[k]),
                                            float(upper[k]), sv.zero_tick, (lo, hi))
             if problem:
-                raise ConfigurationError(f"servo ID {sv.id}, {problem}; torque not enabled")
+                raise BackendSetupError(f"servo ID {sv.id}, {problem}; torque not enabled")
             allowed.append((lo, hi))
         return cls([sv.joint for sv in servos], np.array([sv.ratio for sv in servos], dtype=float),
                    np.array([sv.offset for sv in servos], dtype=float),

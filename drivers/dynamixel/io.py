@@ -51,7 +51,7 @@ from dynamixel_sdk.robotis_def import (
     MAX_ID,
 )
 
-from drivers import CommunicationError, ConfigurationError
+from drivers import CommunicationError, BackendSetupError
 from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch, reply_params_expected
 from drivers.dynamixel.protocol import HEADER, Instruction, build_instruction
 from drivers.timing import drain_until_quiet
@@ -266,7 +266,7 @@ class RegisterAccess:
 
     A read returns the value the servo sent for exactly that register, or raises
     :class:`~drivers.CommunicationError` saying what was wrong with the replies;
-    a servo refusing a write is a :class:`~drivers.ConfigurationError`.
+    a servo refusing a write is a :class:`~drivers.BackendSetupError`.
     """
 
     def __init__(self, port: PortHandler, handler: StuffingPacketHandler, retries: int) -> None:
@@ -274,17 +274,24 @@ class RegisterAccess:
 
     def ping(self, sid: int, tries: int) -> tuple[int | None, str]:
         """The model number of servo ``sid`` (None if no good answer in ``tries``), and why not."""
+        why = ""
         for attempt in range(tries):
-            model, result, _ = self.ph.ping(self.port, sid)
-            if result == COMM_SUCCESS:
+            model, result, err = self.ph.ping(self.port, sid)
+            if result == COMM_SUCCESS and not err & 0x7F:
                 return model, ""
+            # error bits 1-7: the instruction failed, whatever the parameters say
+            why = (f"a reply with error bits ({self.ph.getRxPacketError(err)})"
+                   if result == COMM_SUCCESS else self._why(result))
             time.sleep(0.01 * attempt)  # a bus just plugged in may be slow
-        return None, self._why(result)
+        return None, why
 
     def read(self, sid: int, address: int, size: int, what: str, signed: bool = False) -> int:
         result = COMM_TX_FAIL
         for _ in range(self.tries):
-            data, result, _ = self.ph.readTxRx(self.port, sid, address, size)
+            data, result, err = self.ph.readTxRx(self.port, sid, address, size)
+            if result == COMM_SUCCESS and err & 0x7F:  # refused: the parameters are not the register
+                raise BackendSetupError(f"servo ID {sid}: reading {what} refused: "
+                                        f"{self.ph.getRxPacketError(err)}")
             if result == COMM_SUCCESS:
                 return int.from_bytes(bytes(data), "little", signed=signed)
         raise CommunicationError(f"servo ID {sid}: reading {what} failed after {self.tries} "
@@ -297,7 +304,7 @@ class RegisterAccess:
             result, err = self.ph.writeTxRx(self.port, sid, address, size, data)
             if result == COMM_SUCCESS:
                 if err & 0x7F:
-                    raise ConfigurationError(f"servo ID {sid}: writing {what} = {value} refused: "
+                    raise BackendSetupError(f"servo ID {sid}: writing {what} = {value} refused: "
                                              f"{self.ph.getRxPacketError(err)}")
                 return
         raise CommunicationError(f"servo ID {sid}: writing {what} failed after {self.tries} "

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Callable, Iterable, Sequence
 
-from drivers import BenchError
+from drivers.errors import StuffingError
 
 __all__ = [
     "ALERT_BIT",
@@ -163,10 +163,6 @@ crc16_bytes: Callable[[bytes, int], int] = _native_crc16 if _native_crc16 is not
 
 
 # -- stuffing -----------------------------------------------------------------
-
-
-class StuffingError(BenchError, ValueError):
-    """A stuffed region holds ``FF FF FD`` not followed by the stuffing ``FD``."""
 
 
 def stuff(body: bytes | bytearray | Sequence[int]) -> bytes:

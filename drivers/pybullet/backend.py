@@ -19,7 +19,7 @@ from typing import Callable, Literal, Sequence
 
 import numpy as np
 
-from drivers import ActuatorError, ConfigurationError, JointLimits, JointState, NotEnabledError, frozen_array
+from drivers import ActuatorError, BackendSetupError, JointLimits, JointState, NotEnabledError, frozen_array
 from drivers.pybullet.stepped import SteppedActuators
 from drivers.quiet import muted_output, quiet_pybullet
 
@@ -73,13 +73,13 @@ class PyBulletSettings:
 
 
 def steps_per_period(physics_hz: float, control_period: float) -> int:
-    """The control period as a whole number of physics steps, or a ConfigurationError."""
+    """The control period as a whole number of physics steps, or a BackendSetupError."""
     if physics_hz <= 0 or control_period <= 0:
-        raise ConfigurationError(
+        raise BackendSetupError(
             f"physics_hz ({physics_hz}) and control_period ({control_period}) must be positive")
     n = control_period * physics_hz
     if abs(n - round(n)) > 1e-9 or round(n) < 1:
-        raise ConfigurationError(
+        raise BackendSetupError(
             f"control period {control_period * 1e3:g} ms is not an integer multiple of the "
             f"physics step {1e3 / physics_hz:g} ms ({n:.4g} steps)")
     return int(round(n))
@@ -97,16 +97,16 @@ class PyBulletActuators(SteppedActuators):
         self._steps_per_period = steps_per_period(settings.physics_hz, settings.control_period)
         urdf = Path(settings.robot_urdf)
         if not urdf.is_file():
-            raise ConfigurationError(f"robot URDF not found: {urdf}")
+            raise BackendSetupError(f"robot URDF not found: {urdf}")
         for obj in settings.scene:
             if not Path(obj.urdf).is_file():
-                raise ConfigurationError(f"scene URDF not found: {obj.urdf}")
+                raise BackendSetupError(f"scene URDF not found: {obj.urdf}")
         self._dt = 1.0 / settings.physics_hz
 
         with muted_output():
             self._client = pb.connect(pb.GUI if settings.gui else pb.DIRECT)
         if self._client < 0:
-            raise ConfigurationError("could not start a PyBullet client"
+            raise BackendSetupError("could not start a PyBullet client"
                                      + (" with a window (--gui needs a display)" if settings.gui else ""))
         try:
             self._setup(urdf)
@@ -123,7 +123,7 @@ class PyBulletActuators(SteppedActuators):
         pb.setTimeStep(self._dt, physicsClientId=c)
         pb.setGravity(0, 0, s.gravity, physicsClientId=c)
         if s.solver_iterations < 1:
-            raise ConfigurationError(f"solver_iterations must be >= 1, got {s.solver_iterations}")
+            raise BackendSetupError(f"solver_iterations must be >= 1, got {s.solver_iterations}")
         pb.setPhysicsEngineParameter(deterministicOverlappingPairs=1,
                                      numSolverIterations=int(s.solver_iterations), physicsClientId=c)
         self.robot = pb.loadURDF(str(urdf), useFixedBase=True, physicsClientId=c,
@@ -141,7 +141,7 @@ class PyBulletActuators(SteppedActuators):
             by_name[info[1].decode()] = (j, info)
         missing = [n for n in s.joint_names if n not in by_name]
         if missing:
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"joints {missing} are not in {urdf.name}; it has {sorted(by_name)}")
         self._joint_index = [by_name[n][0] for n in s.joint_names]
         self.link_index = {info[12].decode(): j for j, info in by_name.values()}
@@ -173,9 +173,9 @@ class PyBulletActuators(SteppedActuators):
             return np.asarray(default, dtype=float)
         arr = np.asarray(values, dtype=float)
         if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-            raise ConfigurationError(f"{what} needs {n} finite values, got {values!r}")
+            raise BackendSetupError(f"{what} needs {n} finite values, got {values!r}")
         if what != "initial_position" and np.any(arr <= 0):
-            raise ConfigurationError(f"{what} must be positive, got {values!r}")
+            raise BackendSetupError(f"{what} must be positive, got {values!r}")
         return arr
 
     # -- the Actuators interface ---------------------------------------------
@@ -344,7 +344,7 @@ class PyBulletActuators(SteppedActuators):
     def link_pose(self, link_name: str) -> tuple[np.ndarray, np.ndarray]:
         """World position and rotation matrix of a URDF link frame."""
         if link_name not in self.link_index:
-            raise ConfigurationError(f"no link {link_name!r}; the robot has {sorted(self.link_index)}")
+            raise BackendSetupError(f"no link {link_name!r}; the robot has {sorted(self.link_index)}")
         st = self._pb.getLinkState(self.robot, self.link_index[link_name],
                                    computeForwardKinematics=True, physicsClientId=self._client)
         return np.array(st[4]), np.array(self._pb.getMatrixFromQuaternion(st[5])).reshape(3, 3)
@@ -356,6 +356,6 @@ class PyBulletActuators(SteppedActuators):
     def reset_position(self, q: np.ndarray) -> None:
         """Teleport the joints (only while inactive; for set-up and pictures)."""
         if self.enabled:
-            raise ConfigurationError("reset_position() while enabled would jump the robot")
+            raise BackendSetupError("reset_position() while enabled would jump the robot")
         for j, v in zip(self._joint_index, q):
             self._pb.resetJointState(self.robot, j, float(v), 0.0, physicsClientId=self._client)

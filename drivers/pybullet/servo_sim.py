@@ -23,7 +23,7 @@ from typing import Callable, Literal, Sequence
 
 import numpy as np
 
-from drivers import ConfigurationError, JointLimits, JointState
+from drivers import BackendSetupError, JointLimits, JointState
 from drivers.dynamixel.control_table import x_series_table
 from drivers.pybullet.backend import steps_per_period
 from drivers.pybullet.stepped import SteppedActuators
@@ -92,10 +92,10 @@ class ServoSimActuators(SteppedActuators):
         self.settings = s
         steps_per_period(s.physics_hz, s.control_period)  # refuses a period that is not whole steps
         if s.transport_delay_s < 0:
-            raise ConfigurationError(f"transport delay must be >= 0 s, got {s.transport_delay_s}")
+            raise BackendSetupError(f"transport delay must be >= 0 s, got {s.transport_delay_s}")
         n = len(s.joint_names)
         if s.servos.n != n:
-            raise ConfigurationError(f"{s.servos.n} servos for {n} joints")
+            raise BackendSetupError(f"{s.servos.n} servos for {n} joints")
         self._dt = 1.0 / s.physics_hz
         self._ratio = np.asarray(s.ratio, dtype=float)
         self._offset = np.asarray(s.offset, dtype=float)

@@ -33,7 +33,7 @@ from typing import Sequence
 
 import numpy as np
 
-from drivers import ConfigurationError
+from drivers import BackendSetupError
 from drivers.quiet import muted_output, quiet_pybullet
 from drivers.servo.model import FRICTION_SMOOTHING_RAD_S, ServoParams, friction_torque
 
@@ -50,7 +50,7 @@ class PyBulletPlant:
         self._pb = pb
         urdf = Path(urdf)
         if not urdf.is_file():
-            raise ConfigurationError(f"plant URDF not found: {urdf}")
+            raise BackendSetupError(f"plant URDF not found: {urdf}")
         with muted_output():
             self._c = pb.connect(pb.DIRECT)
         c = self._c
@@ -62,7 +62,7 @@ class PyBulletPlant:
         movable = [i for i in infos if i[2] != pb.JOINT_FIXED]
         names = [i[1].decode() for i in movable]
         if list(joint_names) != names:
-            raise ConfigurationError(
+            raise BackendSetupError(
                 f"plant joints must be the URDF's movable joints in order {names}, got {list(joint_names)}")
         n = len(names)
         self.joint_names = names
