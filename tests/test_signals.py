@@ -173,7 +173,7 @@ def test_a_tool_without_a_safe_stop_of_its_own_also_ends_in_one_line(tmp_path, s
         assert rc == 0 and "Traceback" not in err, err
     else:
         assert rc == 128 + sig and len(lines) == 1, err
-        assert lines[0] == f"interrupted by {signal.Signals(sig).name}: hilbench emulate stopped"
+        assert lines[0] == f"interrupted by {signal.Signals(sig).name}: hilbench emulate stopped; nothing had moved"
 
 
 def test_signal_while_the_report_is_drawn(tmp_path, monkeypatch):

@@ -55,7 +55,8 @@ def _final_code(code: Any, guard: SignalGuard, started: bool) -> int:
     if signum is None:
         return code
     what = " ".join(a for a in sys.argv[1:2] if not a.startswith("-")) or "command"
-    where = "" if started else " while it was still starting; nothing had moved"
+    where = (" while it was still starting; nothing had moved" if not started else
+             "; nothing had moved" if not SignalGuard.nested_entered else "")
     sys.stderr.write(f"interrupted by {signal_name(signum)}: hilbench {what} stopped{where}\n")
     return signal_exit_code(signum)
 

@@ -99,13 +99,22 @@ class SignalGuard:
     def interrupted(self) -> bool:
         return self.signum is not None
 
+    #: Guards entered while another was in place: a command's own over the entry point's. A
+    #: command that moves anything enters its own first; none entered, nothing moved.
+    nested_entered = 0
+    _active = 0
+
     def __enter__(self) -> "SignalGuard":
+        if SignalGuard._active:
+            SignalGuard.nested_entered += 1
+        SignalGuard._active += 1
         if threading.current_thread() is threading.main_thread():
             for sig in STOP_SIGNALS:
                 self._previous[sig] = signal.signal(sig, self._handle)
         return self
 
     def __exit__(self, *exc: object) -> None:
+        SignalGuard._active -= 1
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)  # type: ignore[arg-type]
         self._previous.clear()
