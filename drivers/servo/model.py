@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -109,10 +110,19 @@ class ServoParams:
             if np.asarray(getattr(self, name)).size == 0:
                 object.__setattr__(self, name, np.full(n, default))
 
-    @property
+    @cached_property
     def has_load_friction(self) -> bool:
         """Whether any joint's friction grows with the torque its gearbox carries."""
         return any(bool(np.any(getattr(self, f) != 0.0)) for f in LOAD_FRICTION_FIELDS)
+
+    @cached_property
+    def _friction_terms(self) -> tuple[bool, bool, bool, bool]:
+        """Which terms of :func:`friction_level` any joint has: Stribeck peak, load, load at rest, quadratic
+        (worked out once: the friction is evaluated every step)."""
+        nonzero = lambda *names: any(bool(np.any(getattr(self, f) != 0.0)) for f in names)  # noqa: E731
+        return (bool(np.any(self.stribeck > 0.0)), nonzero("load_motor", "load_external"),
+                nonzero("load_stribeck_motor", "load_stribeck_external"),
+                nonzero("load_quad_motor", "load_quad_external"))
 
     @property
     def n(self) -> int:
@@ -171,22 +181,27 @@ def friction_level(params: ServoParams, omega: np.ndarray, motor_torque=0.0, ext
     """The gearbox's dry friction (N·m, ≥ 0, viscous apart) at output speed ``omega`` (rad/s) while
     the motor gives ``motor_torque`` and the load ``external_torque`` (N·m at the shaft): Coulomb
     with a Stribeck peak, plus the load-dependent terms (BAM's m3–m6 laws)."""
-    ws = np.maximum(params.stribeck_velocity, 1e-9)
-    alpha = params.stribeck_alpha
-    ratio = omega / ws
-    fade = np.exp(-(ratio * ratio)) if np.all(alpha == 2.0) else np.exp(-np.abs(ratio) ** alpha)
-    level = np.where(params.stribeck > 0.0, params.coulomb + (params.stribeck - params.coulomb) * fade,
-                     params.coulomb)
-    if not params.has_load_friction:
-        return level
+    peak, load, load_rest, quadratic = params._friction_terms
+    level = params.coulomb
+    fade = None
+    if peak or load_rest or quadratic:
+        ratio = omega / np.maximum(params.stribeck_velocity, 1e-9)
+        alpha = params.stribeck_alpha
+        fade = np.exp(-(ratio * ratio)) if np.all(alpha == 2.0) else np.exp(-np.abs(ratio) ** alpha)
+    if peak:
+        level = np.where(params.stribeck > 0.0, params.coulomb + (params.stribeck - params.coulomb) * fade,
+                         params.coulomb)
     tm, te = motor_torque, external_torque
-    level = level + np.abs(params.load_external * te - params.load_motor * tm)
-    level = level + fade * np.abs(params.load_stribeck_external * te - params.load_stribeck_motor * tm)
-    # BAM m6: the driven side's torque squared, at rest, when motor and load oppose each other
-    opposed = np.sign(te) != np.sign(tm)
-    quad = (np.where(np.abs(te) < np.abs(tm), params.load_quad_external * te ** 2, 0.0)
-            + np.where(np.abs(te) > np.abs(tm), params.load_quad_motor * tm ** 2, 0.0))
-    return level + fade * quad * opposed
+    if load:
+        level = level + np.abs(params.load_external * te - params.load_motor * tm)
+    if load_rest:
+        level = level + fade * np.abs(params.load_stribeck_external * te - params.load_stribeck_motor * tm)
+    if quadratic:  # BAM m6: the driven side's torque squared, at rest, when motor and load oppose each other
+        opposed = np.sign(te) != np.sign(tm)
+        quad = (np.where(np.abs(te) < np.abs(tm), params.load_quad_external * te ** 2, 0.0)
+                + np.where(np.abs(te) > np.abs(tm), params.load_quad_motor * tm ** 2, 0.0))
+        level = level + fade * quad * opposed
+    return level * np.ones_like(omega) if np.ndim(level) < np.ndim(omega) else level
 
 
 def friction_torque(params: ServoParams, omega: np.ndarray, motor_torque=0.0, external_torque=0.0) -> np.ndarray:
