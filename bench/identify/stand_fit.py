@@ -2,7 +2,9 @@
 scores a model) under each candidate, all candidates and logs stepped in one batch, CMA-ES on
 the mean MAE.
 
-Fitted: the motor constant (Kt = Ke in SI), the winding resistance, the armature, Coulomb and
+Fitted: the motor constant (Kt = Ke in SI, as BAM fits it: Ke fitted apart let the fit trade it
+against the friction and predicted unseen trajectory kinds worse, 0.059 rad against 0.049 in the
+cross-validation), the winding resistance, the armature, Coulomb and
 viscous friction, the load-dependent friction (BAM's m3 law: friction per N·m the gearbox
 carries) and the stand's gravity offset. The firmware (P gain of each log, the XL330's P/256),
 the current limit and the PWM limit stay the datasheet's; the measured supply drives the motor.

@@ -64,7 +64,7 @@ def stand_model_file(logs: Sequence[StandLog], fit: StandFit, datasheet: ServoPa
     """The fitted values as a servo model file over the datasheet of the logs' servo."""
     v = fit.as_values()
     kt_scale = v["kt_nma"] / float(datasheet.kt[0])
-    ke_scale = v["kt_nma"] / (float(datasheet.ke[0]) * kt_scale)
+    ke_scale = v["kt_nma"] / (float(datasheet.ke[0]) * kt_scale)  # Ke = Kt
     physics = ServoPhysics(kt_scale=kt_scale, ke_scale=ke_scale, resistance_ohm=v["resistance_ohm"],
                            armature_kgm2=v["armature_kgm2"], coulomb_nm=v["coulomb_nm"],
                            viscous_nms=v["viscous_nms"], load_friction=v["load_friction"])
