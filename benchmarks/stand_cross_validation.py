@@ -2,7 +2,7 @@
 than BAM's published models?
 
 Leave-one-trajectory-kind-out cross-validation on the twelve test-stand logs (BAM's XL330 on
-its pendulum, ``../shared/servo-logs/`` or ``--logs``): for each of the four trajectory kinds,
+its pendulum, ``tests/data/bam-xl330/`` or ``--logs``): for each of the four trajectory kinds,
 ``hilbench identify``'s fit on the nine logs of the other three kinds, then the three held-out
 logs predicted open loop (BAM's score: MAE over every 5 ms sample). Prints each fold, the mean
 over the twelve held-out predictions beside BAM's m1–m6 and the ideal servo on the same logs,
@@ -31,13 +31,13 @@ from bench.stand.logs import read_stand_logs  # noqa: E402
 from bench.stand.predict import predict  # noqa: E402
 from drivers.servo import ServoParams  # noqa: E402
 
-SHARED = REPO.parent / "shared" / "servo-logs"
+DATA = REPO / "tests" / "data" / "bam-xl330"  # BAM's logs and models, shipped with the tests
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--logs", type=Path, default=SHARED / "xl330-pendulum")
-    ap.add_argument("--bam", type=Path, default=SHARED / "bam-params-xl330")
+    ap.add_argument("--logs", type=Path, default=DATA / "logs")
+    ap.add_argument("--bam", type=Path, default=DATA / "params")
     ap.add_argument("--generations", type=int, default=40)
     ap.add_argument("--workers", type=int, default=0)
     ap.add_argument("--json", action="store_true")
