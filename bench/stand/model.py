@@ -14,6 +14,7 @@ from bench.stand.bam import bam_params, is_bam_file
 from bench.stand.errors import StandError
 from bench.stand.logs import MOTORS
 from bench.stand.simulate import Slots
+from drivers.dynamixel.control_table import supported_models
 from drivers.servo import ServoParams
 
 __all__ = ["StandModel", "load_stand_model", "slots_for"]
@@ -46,11 +47,14 @@ def load_stand_model(spec: str | Path, model_number: int = MOTORS["xl330"]) -> S
         model = load_servo_model_file(path)
     except ConfigError as e:
         raise StandError(str(e)) from None
-    if model.robot != STAND_ROBOT:
-        joint = STAND_JOINT if STAND_JOINT in model.joints else "all"
-        if joint not in model.joints:
-            raise StandError(f"{path}: robot: {model.robot}'s model has no entry for the stand "
-                             f"({STAND_JOINT} or all)")
+    if model.robot != STAND_ROBOT and not {STAND_JOINT, "all"} & set(model.joints):
+        raise StandError(f"{path}: joints: {model.robot}'s model has no entry the stand can take "
+                         f"({STAND_JOINT} or all)")
+    if model.servo is not None:  # the file's own servo over the logs' motor
+        by_name = {name: number for number, name in supported_models().items()}
+        if model.servo not in by_name:
+            raise StandError(f"{path}: servo: unknown servo model {model.servo!r}; known: {', '.join(sorted(by_name))}")
+        model_number = by_name[model.servo]
     params = apply_physics(ServoParams.datasheet([model_number]), [model.physics_of(STAND_JOINT)])
     offset = model.stand.gravity_offset_rad if model.stand is not None else 0.0
     return StandModel(path.name, params, offset, measured_supply=model.supply == "measured")
