@@ -229,3 +229,21 @@ def test_predict_json_is_one_line_with_the_scores(tmp_path) -> None:
     assert set(out["logs"][0]) == {"log", "mae_rad", "max_error_rad", "samples"}
     assert out["logs"][0]["samples"] == 1201 and out["mean_mae_rad"] == pytest.approx(0.0943, rel=0.05)
     assert (tmp_path / "predict.html").is_file()
+
+
+def test_bams_resampled_form_reads_as_the_raw_log(tmp_path) -> None:
+    """A log already on BAM's 5 ms grid (``dt`` in the header, as bam/process.py writes it) is read
+    as it stands: the same samples as resampling the raw log here."""
+    raw = read_stand_log(LOGS / "2026-01-15_10h29m54.json")
+    data = {k: v for k, v in _raw("2026-01-15_10h29m54.json").items() if k != "entries"}
+    data["dt"] = 0.005
+    data["entries"] = [{"timestamp": float(t), "position": float(q), "speed": float(w), "goal_position": float(g),
+                        "torque_enable": bool(on), "input_volts": float(v)}
+                       for t, q, w, g, on, v in zip(raw.time, raw.position, raw.velocity, raw.goal, raw.torque,
+                                                    raw.volts)]
+    path = _write(tmp_path, data)
+    again = read_stand_log(path)
+    for name in ("time", "position", "velocity", "goal", "torque", "volts"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(raw, name))
+    original = predict(PARAMS / "m3.json", [LOGS / "2026-01-15_10h29m54.json"]).mean_mae
+    assert predict(PARAMS / "m3.json", [path]).mean_mae == pytest.approx(original)

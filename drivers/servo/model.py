@@ -201,6 +201,8 @@ def friction_level(params: ServoParams, omega: np.ndarray, motor_torque=0.0, ext
         quad = (np.where(np.abs(te) < np.abs(tm), params.load_quad_external * te ** 2, 0.0)
                 + np.where(np.abs(te) > np.abs(tm), params.load_quad_motor * tm ** 2, 0.0))
         level = level + fade * quad * opposed
+    if level is params.coulomb:  # never hand out the parameters' own array
+        level = level.copy()
     return level * np.ones_like(omega) if np.ndim(level) < np.ndim(omega) else level
 
 
