@@ -18,18 +18,24 @@ def stand(config: Path = typer.Argument(..., metavar="CONFIG", help="A test-stan
                                                                    "(hil_configs/stand/test_stand_xl330.yaml)."),
           out: Path = typer.Option(Path("runs"), "--out", help="Where the run directory goes."),
           emulate: bool = typer.Option(False, "--emulate", help="Record the config's emulated stand instead."),
+          serve: bool = typer.Option(False, "--serve", help="Only serve the emulated stand on a pseudo-terminal "
+                                                             "(real time) until Ctrl-C, for another recorder."),
           as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Run the stand's excitation (BAM's trajectories at the config's P gains) and write each run's
     log in BAM's format, for `hilbench identify` and `hilbench predict`."""
     from bench.config.base import ConfigError  # deferred: --help and completion stay fast
     from bench.stand.config import load_stand_config  # deferred: --help and completion stay fast
-    from bench.stand.session import record_session  # deferred: --help and completion stay fast
+    from bench.stand.session import record_session, serve_stand  # deferred: --help and completion stay fast
     from drivers import BenchError  # deferred: --help and completion stay fast
 
     try:
         cfg = load_stand_config(config)
     except ConfigError as e:
         fail(str(e))
+    if serve:
+        serve_stand(cfg, lambda port: console.print(f"emulated stand on {port} at {cfg.baud} bps, servo ID {cfg.servo_id} "
+                                                    "(Ctrl-C to stop)", highlight=False))
+        return
     try:
         run_dir, logs = record_session(cfg, out, emulate=emulate)
     except BenchError as e:

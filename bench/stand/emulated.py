@@ -1,4 +1,4 @@
-"""The test stand on the emulated servo bus: one XL330 (ID 1, 1 Mbps) driving the stand's URDF
+"""The test stand on the emulated servo bus: one XL330 (ID 1 unless told, 1 Mbps) driving the stand's URDF
 (a mass on an arm) through the shared servo model and plant, with hidden physics in the keys of
 a servo model file — a stand to rehearse recording, identification and prediction on, whose
 answer is known."""
@@ -29,7 +29,7 @@ class EmulatedStand:
 
     def __init__(self, physics: Mapping[str, float] | None = None, *, mass: float = STAND_MASS_KG,
                  length: float = STAND_LENGTH_M, supply_v: float = 7.0, motor: str = "xl330",
-                 realtime: bool = False) -> None:
+                 servo_id: int = 1, realtime: bool = False) -> None:
         number = MOTORS[motor]
         physics = dict(physics or {})
         self.params = apply_physics(ServoParams.datasheet([number]), [physics])
@@ -40,9 +40,9 @@ class EmulatedStand:
             urdf = Path(self._tmp.name) / "stand.urdf"
             urdf.write_text(stand_urdf(mass, length))
         self.plant = PyBulletPlant(urdf, ["pendulum"], [1.0], [0.0], [0.0], self.params)
-        servo = ServoModel(number, id=1, registers={"Baud Rate": BAUD_INDEX}, input_voltage=supply_v,
+        servo = ServoModel(number, id=servo_id, registers={"Baud Rate": BAUD_INDEX}, input_voltage=supply_v,
                            kt_scale=physics.get("kt_scale", 1.0), overload_time_s=60.0)
-        self.bus = DynamixelBusEmulator({1: servo}, self.plant, realtime=realtime)
+        self.bus = DynamixelBusEmulator({servo_id: servo}, self.plant, realtime=realtime)
         self.mass, self.length, self.supply_v = mass, length, supply_v
 
     @property

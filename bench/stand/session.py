@@ -3,6 +3,8 @@ BAM's format into one run directory; the servo is left torque-off whatever happe
 
 from __future__ import annotations
 
+import signal
+import threading
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -14,7 +16,7 @@ from bench.stand.record import record_stand_log, write_stand_log
 from drivers.dynamixel.bus import ServoBus
 from drivers.dynamixel.stand import StandServo
 
-__all__ = ["record_session"]
+__all__ = ["record_session", "serve_stand"]
 
 
 def _realtime() -> Callable[[float], float]:
@@ -60,13 +62,35 @@ def _run_all(config: StandConfig, bus: ServoBus, wait: Callable[[float], float],
 def record_session(config: StandConfig, out: Path, *, emulate: bool = False,
                    progress: Optional[Callable[[int, int], None]] = None) -> tuple[Path, list[Path]]:
     """Run every run of ``config``; (the run directory, the logs written)."""
-    run_dir = Path(out) / f"{config.name}-{datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S')}"
-    run_dir.mkdir(parents=True, exist_ok=False)
+    stem = Path(out) / f"{config.name}-{datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S')}"
+    run_dir, n = stem, 1
+    while run_dir.exists():  # two sessions within a second
+        n += 1
+        run_dir = stem.with_name(f"{stem.name}-{n}")
+    run_dir.mkdir(parents=True)
     if emulate:
         physics = config.emulator.physics.model_dump(exclude_none=True)
         with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m, supply_v=config.emulator.supply_v,
-                           motor=config.motor) as stand, ServoBus(stand.port, config.baud, tries=30) as bus:
+                           motor=config.motor, servo_id=config.servo_id) as stand, \
+                ServoBus(stand.port, config.baud, tries=30) as bus:
             # (more tries than a real bus needs: a busy machine may starve the emulator's thread)
             return run_dir, _run_all(config, bus, _emulated(stand), run_dir, progress)
     with ServoBus(config.port, config.baud) as bus:
         return run_dir, _run_all(config, bus, _realtime(), run_dir, progress)
+
+
+def serve_stand(config: StandConfig, announce: Callable[[str], None]) -> None:
+    """The config's emulated stand on a pseudo-terminal in real time, until SIGINT or SIGTERM: for
+    a recorder of one's own (BAM's, at the config's baud) to talk to."""
+    stop = threading.Event()
+    physics = config.emulator.physics.model_dump(exclude_none=True)
+    with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m, supply_v=config.emulator.supply_v,
+                       motor=config.motor, servo_id=config.servo_id, realtime=True) as stand:
+        previous = {sig: signal.signal(sig, lambda *a: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+        announce(stand.port)
+        try:
+            while not stop.wait(0.2):
+                pass
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
