@@ -247,3 +247,17 @@ def test_bams_resampled_form_reads_as_the_raw_log(tmp_path) -> None:
         np.testing.assert_array_equal(getattr(again, name), getattr(raw, name))
     original = predict(PARAMS / "m3.json", [LOGS / "2026-01-15_10h29m54.json"]).mean_mae
     assert predict(PARAMS / "m3.json", [path]).mean_mae == pytest.approx(original)
+
+
+def test_model_file_keys_set_the_servo_parameters() -> None:
+    from bench.config.servo_model import apply_physics
+
+    base = ServoParams.datasheet([1200, 1200])
+    p = apply_physics(base, [{"load_friction": 0.2, "load_friction_external": 0.05, "resistance_ohm": 3.0,
+                              "kt_scale": 1.1, "ke_scale": 0.8, "stribeck_alpha": 1.5}, {}])
+    assert p.load_motor[0] == 0.2 and p.load_external[0] == 0.05 and p.resistance[0] == 3.0
+    assert p.kt[0] == pytest.approx(base.kt[0] * 1.1) and p.ke[0] == pytest.approx(base.ke[0] * 1.1 * 0.8)
+    assert p.stribeck_alpha[0] == 1.5 and p.p_gain_divisor[0] == 256.0  # the XL330's P/256
+    for field in ("load_motor", "load_external", "resistance", "kt", "ke", "stribeck_alpha"):
+        assert getattr(p, field)[1] == getattr(base, field)[1]  # a joint left unset keeps the datasheet
+    assert ServoParams.datasheet([1020]).p_gain_divisor[0] == 128.0
