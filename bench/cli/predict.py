@@ -17,9 +17,9 @@ __all__ = ["predict"]
 
 
 def predict(model: str = typer.Argument(..., metavar="MODEL",
-                                        help="A servo model file (.yaml), one of BAM's parameter files (.json) "
+                                        help="A servo model file (.yaml), one of BAM's parameter files (.json), "
                                              "datasheet, or ideal (q = goal)."),
-            logs: list[Path] = typer.Argument(..., metavar="LOG...",
+            logs: list[Path] = typer.Argument(..., metavar="LOG",
                                               help="Test-stand logs in BAM's format (raw or resampled), or "
                                                    "directories of them."),
             out: Optional[Path] = typer.Option(None, "--out", help="Write the HTML report into this directory."),
