@@ -26,7 +26,9 @@ class StandEmulator(Strict):
     """The emulated stand (``--emulate``): the servo's hidden physics and its supply."""
 
     physics: ServoPhysics = Field(default_factory=ServoPhysics, description="hidden servo physics (model-file keys)")
-    supply_v: float = Field(default=7.0, gt=3.0, le=7.0, description="the emulated supply (V)")
+    supply_v: float = Field(default=7.0, gt=3.5, le=7.0, description="the emulated supply at no load (V)")
+    source_ohm: float = Field(default=0.0, ge=0.0, le=2.0,
+                              description="its source resistance (Ω): the supply sags by this times the motor current")
 
 
 class StandConfig(Strict):

@@ -71,7 +71,8 @@ def record_session(config: StandConfig, out: Path, *, emulate: bool = False,
     if emulate:
         physics = config.emulator.physics.model_dump(exclude_none=True)
         with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m, supply_v=config.emulator.supply_v,
-                           motor=config.motor, servo_id=config.servo_id) as stand, \
+                           motor=config.motor, servo_id=config.servo_id,
+                           source_ohm=config.emulator.source_ohm) as stand, \
                 ServoBus(stand.port, config.baud, tries=30) as bus:
             # (more tries than a real bus needs: a busy machine may starve the emulator's thread)
             return run_dir, _run_all(config, bus, _emulated(stand), run_dir, progress)
@@ -85,7 +86,8 @@ def serve_stand(config: StandConfig, announce: Callable[[str], None]) -> None:
     stop = threading.Event()
     physics = config.emulator.physics.model_dump(exclude_none=True)
     with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m, supply_v=config.emulator.supply_v,
-                       motor=config.motor, servo_id=config.servo_id, realtime=True) as stand:
+                       motor=config.motor, servo_id=config.servo_id, source_ohm=config.emulator.source_ohm,
+                       realtime=True) as stand:
         previous = {sig: signal.signal(sig, lambda *a: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
         announce(stand.port)
         try:
