@@ -27,7 +27,8 @@ def split_inputs(paths: Sequence[Path]) -> bool:
     return all(kinds)
 
 
-def identify_stand_logs(paths: Sequence[Path], out: Path, workers: int, generations: int, as_json: bool) -> None:
+def identify_stand_logs(paths: Sequence[Path], out: Path, workers: int, generations: int,
+                        as_json: bool) -> None:
     """Fit, write, and print the result (one JSON line with ``as_json``)."""
     from bench.identify.errors import IdentifyError  # deferred: --help and completion stay fast
     from bench.identify.stand_run import identify_stand  # deferred: --help and completion stay fast
@@ -46,13 +47,15 @@ def identify_stand_logs(paths: Sequence[Path], out: Path, workers: int, generati
     if as_json:
         emit_json(result.as_dict())
         return
-    t = Table(title=f"identified {result.model.servo} ({len(result.logs)} test-stand log(s), {result.seconds:.0f} s)")
+    t = Table(title=f"identified {result.model.servo} ({len(result.logs)} test-stand log(s), "
+                    f"{result.seconds:.0f} s)")
     for col in ("log", "trajectory", "kp", "MAE datasheet (rad)", "MAE identified (rad)"):
         t.add_column(col)
     for b, a in zip(result.before.scores, result.after.scores):
         t.add_row(b.log.name, b.log.trajectory, f"{b.log.kp:g}", f"{b.mae:.4f}", f"{a.mae:.4f}")
     console.print(t)
-    console.print(f"mean MAE {result.before.mean_mae:.4f} -> {result.after.mean_mae:.4f} rad", highlight=False)
+    console.print(f"mean MAE {result.before.mean_mae:.4f} -> {result.after.mean_mae:.4f} rad",
+                  highlight=False)
     console.print(f"model: {result.model_path}", highlight=False)
     if result.report_path:
         console.print(f"report: {result.report_path}", highlight=False)

@@ -45,4 +45,5 @@ def stand(config: Path = typer.Argument(..., metavar="CONFIG", help="A test-stan
         return
     for p in logs:
         console.print(f"wrote {p}", highlight=False)
-    console.print(f"identify with: hilbench identify {run_dir} --out {run_dir / 'stand_model.yaml'}", highlight=False)
+    console.print(f"identify with: hilbench identify {run_dir} --out {run_dir / 'stand_model.yaml'}",
+                  highlight=False)

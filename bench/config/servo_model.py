@@ -12,8 +12,8 @@ from bench.config.base import ConfigError, Strict, describe_validation_error, re
 from bench.kinematics.registry import ROBOTS, get_robot
 from drivers.servo import ServoParams
 
-__all__ = ["FIELD_KEYS", "LogSource", "STAND_JOINT", "STAND_ROBOT", "ServoModelFile", "ServoPhysics", "StandSetup",
-           "apply_physics", "load_servo_model_file", "physics_for"]
+__all__ = ["FIELD_KEYS", "LogSource", "STAND_JOINT", "STAND_ROBOT", "ServoModelFile", "ServoPhysics",
+           "StandSetup", "apply_physics", "load_servo_model_file", "physics_for"]
 
 #: The one-servo test stand (a pendulum on a servo's horn) as a "robot" a model file may name.
 STAND_ROBOT = "test-stand"
@@ -132,7 +132,8 @@ class ServoModelFile(Strict):
     servo: Optional[str] = Field(default=None, max_length=64,
                                  description="the servo model the physics are over (test stand: XL330-M288)")
     supply: Literal["measured", "nominal"] = Field(
-        default="measured", description="drive the motor with a log's measured supply voltage, or the nominal")
+        default="measured",
+        description="drive the motor with a log's measured supply voltage, or the nominal")
     stand: Optional[StandSetup] = Field(default=None, description="the test stand's own figures (test-stand)")
 
     def physics_of(self, joint: str) -> dict[str, float]:

@@ -41,7 +41,8 @@ def start_values(datasheet: ServoParams) -> np.ndarray:
     return np.array([float(datasheet.kt[0]), float(datasheet.resistance[0]), 0.002, 0.01, 0.005, 0.1, 0.0])
 
 
-def stand_params(datasheet: ServoParams, values: np.ndarray, repeat: int = 1) -> tuple[ServoParams, np.ndarray]:
+def stand_params(datasheet: ServoParams, values: np.ndarray,
+                 repeat: int = 1) -> tuple[ServoParams, np.ndarray]:
     """The servo parameters of each candidate (rows of ``values``), each repeated ``repeat`` times,
     and the gravity offset of each."""
     values = np.atleast_2d(values)
@@ -107,8 +108,8 @@ def fit_stand(logs: Sequence[StandLog], datasheet: ServoParams, *, generations: 
     scale = UPPER - LOWER
     x0 = start_values(datasheet)
     es = cma.CMAEvolutionStrategy(((x0 - LOWER) / scale).tolist(), 0.2,
-                                  {"bounds": [0.0, 1.0], "popsize": POPULATION, "seed": seed + 1, "verbose": -9,
-                                   "tolfun": 1e-7, "tolx": 1e-5})
+                                  {"bounds": [0.0, 1.0], "popsize": POPULATION, "seed": seed + 1,
+                                   "verbose": -9, "tolfun": 1e-7, "tolx": 1e-5})
     before = cost(x0[None, :])[0]
     best, best_cost, best_maes = x0, float(before.mean()), before
     done = 0

@@ -23,15 +23,17 @@ def write_stand_report(before: Prediction, after: Prediction, model: ServoModelF
     if model.stand is not None:
         physics["gravity_offset_rad"] = model.stand.gravity_offset_rad
     values = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.6g}</td></tr>" for k, v in physics.items())
-    body = (f"<p>Open-loop rollouts of every log (BAM's score: MAE over every 5 ms sample), the measured supply "
-            f"driving the motor. Mean MAE: datasheet {before.mean_mae:.4f} rad, identified "
+    body = (f"<p>Open-loop rollouts of every log (BAM's score: MAE over every 5 ms sample), the measured "
+            f"supply driving the motor. Mean MAE: datasheet {before.mean_mae:.4f} rad, identified "
             f"<b>{after.mean_mae:.4f} rad</b>.</p>"
             "<table><tr><th>log</th><th>trajectory</th><th>kp</th><th>datasheet MAE (rad)</th>"
             f"<th>identified MAE (rad)</th></tr>{rows}</table>"
             f"<h2>Identified ({html.escape(model.servo or '')})</h2><table>{values}</table>"
             + "".join(f"<p>{html.escape(n)}</p>" for n in model.notes)
-            + "<h2>Identified model</h2>" + png_tag(plot_scores(after.scores, "identified model", "identified"))
-            + "<h2>Datasheet model</h2>" + png_tag(plot_scores(before.scores, "datasheet model", "datasheet")))
+            + "<h2>Identified model</h2>"
+            + png_tag(plot_scores(after.scores, "identified model", "identified"))
+            + "<h2>Datasheet model</h2>"
+            + png_tag(plot_scores(before.scores, "datasheet model", "datasheet")))
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(_page("Test-stand identification", body), encoding="utf-8")
     return path

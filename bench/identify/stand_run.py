@@ -19,7 +19,8 @@ from typing import Callable, Optional, Sequence
 
 import yaml
 
-from bench.config.servo_model import STAND_JOINT, STAND_ROBOT, LogSource, ServoModelFile, ServoPhysics, StandSetup
+from bench.config.servo_model import (STAND_JOINT, STAND_ROBOT, LogSource, ServoModelFile, ServoPhysics,
+                                      StandSetup)
 from bench.identify.errors import IdentifyError
 from bench.identify.stand_fit import StandFit, _init_worker, fit_stand
 from bench.identify.stand_report import write_stand_report
@@ -73,7 +74,8 @@ def stand_model_file(logs: Sequence[StandLog], fit: StandFit, datasheet: ServoPa
         robot=STAND_ROBOT, servo=name, joints={STAND_JOINT: physics}, supply="measured",
         stand=StandSetup(gravity_offset_rad=v["gravity_offset_rad"]),
         sources=[LogSource(run=str(g.path), sha256=_sha256(g.path)) for g in logs],
-        notes=[f"identified from {len(logs)} test-stand log(s) of an {name} ({fit.generations} CMA-ES generations): "
+        notes=[f"identified from {len(logs)} test-stand log(s) of an {name} "
+               f"({fit.generations} CMA-ES generations): "
                f"mean open-loop MAE {fit.mae_after.mean():.4f} rad; Kt = Ke = {v['kt_nma']:.4f} N·m/A"])
 
 
@@ -84,8 +86,8 @@ def _write_model(model: ServoModelFile, path: Path) -> None:
                     + yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
 
 
-def identify_stand(paths: Sequence[Path], out: Path, *, workers: int = 0, generations: int = 40, seed: int = 0,
-                   progress: Progress | None = None, report: bool = True) -> StandIdentifyResult:
+def identify_stand(paths: Sequence[Path], out: Path, *, workers: int = 0, generations: int = 40,
+                   seed: int = 0, progress: Progress | None = None, report: bool = True) -> StandIdentifyResult:
     """Read and check every log, fit, write the model file and (``report``) its HTML report."""
     started = time.monotonic()
     say = progress or (lambda what, fraction: None)
@@ -99,7 +101,8 @@ def identify_stand(paths: Sequence[Path], out: Path, *, workers: int = 0, genera
         raise IdentifyError(f"logs of different servos ({', '.join(motors)}): identify one servo at a time")
     datasheet = ServoParams.datasheet([logs[0].model_number])
     workers = workers or min(os.cpu_count() or 1, 2)
-    pool = ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(logs, datasheet)) if workers > 1 else None
+    pool = (ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(logs, datasheet))
+            if workers > 1 else None)
     try:
         fit = fit_stand(logs, datasheet, generations=generations, seed=seed, pool=pool, workers=workers,
                         progress=lambda g, n: say("fitting", g / max(n, 1)))

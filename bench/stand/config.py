@@ -25,7 +25,8 @@ class StandRun(Strict):
 class StandEmulator(Strict):
     """The emulated stand (``--emulate``): the servo's hidden physics and its supply."""
 
-    physics: ServoPhysics = Field(default_factory=ServoPhysics, description="hidden servo physics (model-file keys)")
+    physics: ServoPhysics = Field(default_factory=ServoPhysics,
+                                  description="hidden servo physics (model-file keys)")
     supply_v: float = Field(default=7.0, gt=3.5, le=7.0, description="the emulated supply at no load (V)")
     source_ohm: float = Field(default=0.0, ge=0.0, le=2.0,
                               description="its source resistance (Ω): the supply sags by this times the motor current")
@@ -34,7 +35,8 @@ class StandEmulator(Strict):
 class StandConfig(Strict):
     """A test stand and the runs that excite it."""
 
-    name: str = Field(default="stand", pattern=r"^[A-Za-z0-9_.-]{1,64}$", description="the run directory's stem")
+    name: str = Field(default="stand", pattern=r"^[A-Za-z0-9_.-]{1,64}$",
+                      description="the run directory's stem")
     motor: Literal["xl330"] = Field(default="xl330", description="the servo (BAM's name)")
     mass_kg: float = Field(gt=0, le=10, description="the mass on the arm (kg)")
     length_m: float = Field(gt=0, le=1, description="the mass's distance from the shaft (m)")
@@ -44,7 +46,8 @@ class StandConfig(Strict):
     vin: float = Field(default=7.4, gt=0, le=30, description="the nominal supply written in each log (V)")
     period_s: float = Field(default=0.005, ge=0.002, le=0.05, description="the recording period (s)")
     runs: list[StandRun] = Field(min_length=1, max_length=64, description="the excitation, run after run")
-    emulator: StandEmulator = Field(default_factory=StandEmulator, description="the emulated stand (--emulate)")
+    emulator: StandEmulator = Field(default_factory=StandEmulator,
+                                    description="the emulated stand (--emulate)")
 
 
 def load_stand_config(path: Path | str) -> StandConfig:

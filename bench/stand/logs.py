@@ -70,7 +70,8 @@ def _number(path: Path, where: str, value, *, positive: bool = False) -> float:
     return float(value)
 
 
-def resample(time: np.ndarray, columns: dict[str, np.ndarray], dt: float = SAMPLE_S) -> tuple[np.ndarray, dict]:
+def resample(time: np.ndarray, columns: dict[str, np.ndarray],
+             dt: float = SAMPLE_S) -> tuple[np.ndarray, dict]:
     """BAM's resampling (``bam/process.py``): samples at 0, dt, ... up to the last timestamp, each
     interpolated linearly between the two recorded entries around it (the first extrapolated back
     from the first two); torque on where its interpolation exceeds one half."""
@@ -141,8 +142,8 @@ def read_stand_log(path: Path | str) -> StandLog:
         raise StandError(f"{path}: torque_enable: torque never on; the servo never drove the stand")
     return StandLog(path=path, mass=mass, length=length, arm_mass=arm_mass, motor=motor,
                     model_number=MOTORS[motor], kp=kp, vin=vin, trajectory=str(data.get("trajectory", "")),
-                    time=time, goal=res["goal_position"], torque=res["torque_enable"], position=res["position"],
-                    velocity=res["speed"], volts=res.get("input_volts"))
+                    time=time, goal=res["goal_position"], torque=res["torque_enable"],
+                    position=res["position"], velocity=res["speed"], volts=res.get("input_volts"))
 
 
 def read_stand_logs(paths: Sequence[Path | str]) -> list[StandLog]:

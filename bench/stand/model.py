@@ -53,7 +53,8 @@ def load_stand_model(spec: str | Path, model_number: int = MOTORS["xl330"]) -> S
     if model.servo is not None:  # the file's own servo over the logs' motor
         by_name = {name: number for number, name in supported_models().items()}
         if model.servo not in by_name:
-            raise StandError(f"{path}: servo: unknown servo model {model.servo!r}; known: {', '.join(sorted(by_name))}")
+            raise StandError(f"{path}: servo: unknown servo model {model.servo!r}; "
+                             f"known: {', '.join(sorted(by_name))}")
         model_number = by_name[model.servo]
     params = apply_physics(ServoParams.datasheet([model_number]), [model.physics_of(STAND_JOINT)])
     offset = model.stand.gravity_offset_rad if model.stand is not None else 0.0
@@ -63,7 +64,7 @@ def load_stand_model(spec: str | Path, model_number: int = MOTORS["xl330"]) -> S
 def slots_for(model: StandModel, logs: int) -> Slots:
     """One slot per log, all under ``model``."""
     p = model.params
-    return Slots(log=np.arange(logs),
-                 params=ServoParams(**{f: np.repeat(getattr(p, f), logs) for f in ServoParams.__dataclass_fields__}),
+    repeated = {f: np.repeat(getattr(p, f), logs) for f in ServoParams.__dataclass_fields__}
+    return Slots(log=np.arange(logs), params=ServoParams(**repeated),
                  gravity_offset=np.full(logs, model.gravity_offset),
                  measured_supply=np.full(logs, model.measured_supply))

@@ -65,7 +65,8 @@ def _page(title: str, body: str) -> str:
 def score_table(scores: Sequence[LogScore]) -> str:
     """The per-log table (HTML): log, trajectory, P gain, samples, MAE and largest error (rad)."""
     rows = "".join(f"<tr><td>{html.escape(s.log.name)}</td><td>{html.escape(s.log.trajectory)}</td>"
-                   f"<td>{s.log.kp:g}</td><td>{len(s.log)}</td><td>{s.mae:.4f}</td><td>{s.max_error:.4f}</td></tr>"
+                   f"<td>{s.log.kp:g}</td><td>{len(s.log)}</td><td>{s.mae:.4f}</td>"
+                   f"<td>{s.max_error:.4f}</td></tr>"
                    for s in scores)
     return ("<table><tr><th>log</th><th>trajectory</th><th>kp</th><th>samples</th><th>MAE (rad)</th>"
             f"<th>max error (rad)</th></tr>{rows}</table>")

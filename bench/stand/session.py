@@ -49,8 +49,9 @@ def _run_all(config: StandConfig, bus: ServoBus, wait: Callable[[float], float],
     paths = []
     try:
         for i, run in enumerate(config.runs):
-            log = record_stand_log(servo, run.trajectory, kp=run.kp, mass=config.mass_kg, length=config.length_m,
-                                   vin=config.vin, wait=wait, period_s=config.period_s, motor=config.motor)
+            log = record_stand_log(servo, run.trajectory, kp=run.kp, mass=config.mass_kg,
+                                   length=config.length_m, vin=config.vin, wait=wait, period_s=config.period_s,
+                                   motor=config.motor)
             paths.append(write_stand_log(log, run_dir / f"{i + 1:02d}_{run.trajectory}_kp{run.kp}.json"))
             if progress:
                 progress(i + 1, len(config.runs))
@@ -70,8 +71,8 @@ def record_session(config: StandConfig, out: Path, *, emulate: bool = False,
     run_dir.mkdir(parents=True)
     if emulate:
         physics = config.emulator.physics.model_dump(exclude_none=True)
-        with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m, supply_v=config.emulator.supply_v,
-                           motor=config.motor, servo_id=config.servo_id,
+        with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m,
+                           supply_v=config.emulator.supply_v, motor=config.motor, servo_id=config.servo_id,
                            source_ohm=config.emulator.source_ohm) as stand, \
                 ServoBus(stand.port, config.baud, tries=30) as bus:
             # (more tries than a real bus needs: a busy machine may starve the emulator's thread)

@@ -5,7 +5,7 @@ joints at once (numpy, no loop per joint),
 
 1. the firmware's profile (Profile Velocity / Acceleration, a trapezoid in ticks; 0 means
    unlimited), then its position PID on the integer encoder reading, in firmware units
-   (KPP = P/128 — P/256 on an XL330 —, KPI = I/65536, KPD = D/16 per 1 ms sample), the output limited to the PWM
+   (KPP = P/128, P/256 on an XL330; KPI = I/65536, KPD = D/16 per 1 ms sample), the output limited to the PWM
    Limit (885 = 100 %), an optional deadband (ticks) where a worn servo stops correcting;
 2. the motor: V = PWM/885 · V_in, I = (V − Ke·ω)/R clamped to ±Current Limit, τ = Kt·I;
 3. the gearbox: friction of level τ_c + (τ_s − τ_c)·e^{−|ω/ω_s|^α} (Coulomb τ_c, Stribeck
@@ -177,7 +177,8 @@ class ServoParams:
         return self.kt * self.ke / self.resistance
 
 
-def friction_level(params: ServoParams, omega: np.ndarray, motor_torque=0.0, external_torque=0.0) -> np.ndarray:
+def friction_level(params: ServoParams, omega: np.ndarray, motor_torque=0.0,
+                   external_torque=0.0) -> np.ndarray:
     """The gearbox's dry friction (N·m, ≥ 0, viscous apart) at output speed ``omega`` (rad/s) while
     the motor gives ``motor_torque`` and the load ``external_torque`` (N·m at the shaft): Coulomb
     with a Stribeck peak, plus the load-dependent terms (BAM's m3–m6 laws)."""
@@ -206,14 +207,16 @@ def friction_level(params: ServoParams, omega: np.ndarray, motor_torque=0.0, ext
     return level * np.ones_like(omega) if np.ndim(level) < np.ndim(omega) else level
 
 
-def friction_torque(params: ServoParams, omega: np.ndarray, motor_torque=0.0, external_torque=0.0) -> np.ndarray:
+def friction_torque(params: ServoParams, omega: np.ndarray, motor_torque=0.0,
+                    external_torque=0.0) -> np.ndarray:
     """Gearbox friction at output speed ``omega`` (rad/s), smoothed through zero speed, plus viscous
     (the loads as :func:`friction_level`): what a stiff integrator applies."""
     level = friction_level(params, omega, motor_torque, external_torque)
     return level * np.tanh(omega / FRICTION_SMOOTHING_RAD_S) + params.viscous * omega
 
 
-def stopping_friction(level: np.ndarray, viscous: np.ndarray, omega: np.ndarray, tau_stop: np.ndarray) -> np.ndarray:
+def stopping_friction(level: np.ndarray, viscous: np.ndarray, omega: np.ndarray,
+                      tau_stop: np.ndarray) -> np.ndarray:
     """The friction torque (N·m) a step applies: it opposes ``tau_stop``, the torque that would stop the
     shaft within the step, and never exceeds it nor the friction budget ``level + viscous·|ω|``.
     A shaft held by friction stays put (stick) instead of chattering through zero speed."""

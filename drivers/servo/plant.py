@@ -139,7 +139,8 @@ class PyBulletPlant:
         friction = self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)
         if self._has_friction:
             # the gearbox carries the motor's torque and the load's (gravity and the links' bias)
-            friction = friction + friction_torque(self._coulomb_only, qd / self._ratio, np.asarray(torque, dtype=float),
+            shaft = np.asarray(torque, dtype=float)
+            friction = friction + friction_torque(self._coulomb_only, qd / self._ratio, shaft,
                                                   -h * self._ratio) / self._ratio
         rhs = drive - self._B * qd - h - friction
         A = M + np.diag(self._Ja + dt * self._B)
