@@ -206,6 +206,11 @@ def test_identify_on_stand_logs_writes_a_model_that_predict_reads(tmp_path) -> N
     assert result["model"] == str(out) and Path(result["report"]).is_file()
     assert result["mae_after"] < result["mae_before"] and len(result["logs"]) == 2
     assert "measured" in out.read_text() and "test-stand" in out.read_text()
+    # each value's error (the others held: the step that raises the cost 5 %) and what the logs could not tell
+    assert result["uncertainty"] and all(e > 0 for e in result["uncertainty"].values())
+    keys = {"kt_scale", "resistance_ohm", "armature_kgm2", "coulomb_nm", "viscous_nms", "load_friction",
+            "gravity_offset_rad"}
+    assert set(result["uncertainty"]) <= keys and set(result["unobservable"]) <= keys
     again = predict(out, logs)
     assert again.mean_mae == pytest.approx(result["mae_after"], rel=1e-9)
     html = Path(result["report"]).read_text()

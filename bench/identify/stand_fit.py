@@ -25,7 +25,7 @@ from bench.stand.logs import StandLog
 from bench.stand.simulate import Slots, rollout
 from drivers.servo import ServoParams
 
-__all__ = ["PARAMS", "StandFit", "fit_stand", "stand_maes", "stand_params"]
+__all__ = ["PARAMS", "StandFit", "batch_cost", "batch_maes", "fit_stand", "stand_maes", "stand_params"]
 
 #: The fitted values, in this order, with their search ranges.
 PARAMS = ("kt_nma", "resistance_ohm", "armature_kgm2", "coulomb_nm", "viscous_nms", "load_friction",
@@ -79,6 +79,22 @@ def _worker_maes(values: np.ndarray) -> np.ndarray:
     return stand_maes(_WORKER["logs"], _WORKER["datasheet"], values)
 
 
+def batch_maes(logs: Sequence[StandLog], datasheet: ServoParams, values: np.ndarray,
+               pool: Optional[Executor] = None, workers: int = 1) -> np.ndarray:
+    """:func:`stand_maes`, the candidates shared among the pool's ``workers`` processes (set up with
+    :func:`_init_worker` on the same logs)."""
+    if pool is None or workers < 2 or len(values) < 2:
+        return stand_maes(logs, datasheet, values)
+    parts = np.array_split(values, min(workers, len(values)))
+    return np.concatenate(list(pool.map(_worker_maes, parts)))
+
+
+def batch_cost(logs: Sequence[StandLog], datasheet: ServoParams, values: np.ndarray,
+               pool: Optional[Executor] = None, workers: int = 1) -> np.ndarray:
+    """The fit's cost of each candidate: its mean MAE over the logs."""
+    return batch_maes(logs, datasheet, values, pool, workers).mean(axis=1)
+
+
 @dataclass(frozen=True)
 class StandFit:
     """The fitted values (in :data:`PARAMS`), each log's MAE under them and under the start."""
@@ -100,10 +116,7 @@ def fit_stand(logs: Sequence[StandLog], datasheet: ServoParams, *, generations: 
     import cma  # deferred: only fitting needs it
 
     def cost(values: np.ndarray) -> np.ndarray:
-        if pool is None or workers < 2 or len(values) < 2:
-            return stand_maes(logs, datasheet, values)
-        parts = np.array_split(values, min(workers, len(values)))
-        return np.concatenate(list(pool.map(_worker_maes, parts)))
+        return batch_maes(logs, datasheet, values, pool, workers)
 
     scale = UPPER - LOWER
     x0 = start_values(datasheet)

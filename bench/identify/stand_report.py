@@ -14,7 +14,28 @@ from bench.stand.report import _page, plot_scores, png_tag
 __all__ = ["write_stand_report"]
 
 
-def write_stand_report(before: Prediction, after: Prediction, model: ServoModelFile, path: Path) -> Path:
+def _values_table(model: ServoModelFile, fitted: dict[str, float]) -> str:
+    """Each fitted value, its standard error (the others held: a lower bound) and whether the logs told it."""
+    errors = model.uncertainty.get(STAND_JOINT, {})
+    hidden = set(model.unobservable.get(STAND_JOINT, []))
+    physics = model.joints[STAND_JOINT]
+    rows = []
+    for k, v in fitted.items():
+        key, unit = k, 1.0
+        if k == "kt_nma":  # the file holds Kt as a factor on the datasheet's
+            key, unit = "kt_scale", v / physics.kt_scale if physics.kt_scale else 1.0
+        e = errors.get(key)
+        err = "—" if e is None else f"{e * unit:.3g}"
+        rows.append(f"<tr><td>{html.escape(k)}</td><td>{v:.6g}</td><td>{err}</td>"
+                    f"<td>{'not observable' if key in hidden else 'observable'}</td></tr>")
+    return ("<table><tr><th>fitted</th><th>value</th><th>standard error</th><th></th></tr>"
+            + "".join(rows) + "</table><p>Standard error: the step, the others held, at which the mean MAE "
+            "rises 5 % (a lower bound on the error with the others free); a value whose error is over 5 % of "
+            "it the logs could not tell.</p>")
+
+
+def write_stand_report(before: Prediction, after: Prediction, model: ServoModelFile, path: Path,
+                       fitted: dict[str, float] | None = None) -> Path:
     """The HTML page beside the model file."""
     rows = "".join(f"<tr><td>{html.escape(b.log.name)}</td><td>{html.escape(b.log.trajectory)}</td>"
                    f"<td>{b.log.kp:g}</td><td>{b.mae:.4f}</td><td>{a.mae:.4f}</td></tr>"
@@ -29,6 +50,7 @@ def write_stand_report(before: Prediction, after: Prediction, model: ServoModelF
             "<table><tr><th>log</th><th>trajectory</th><th>kp</th><th>datasheet MAE (rad)</th>"
             f"<th>identified MAE (rad)</th></tr>{rows}</table>"
             f"<h2>Identified ({html.escape(model.servo or '')})</h2><table>{values}</table>"
+            + (_values_table(model, fitted) if fitted else "")
             + "".join(f"<p>{html.escape(n)}</p>" for n in model.notes)
             + "<h2>Identified model</h2>"
             + png_tag(plot_scores(after.scores, "identified model", "identified"))

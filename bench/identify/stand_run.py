@@ -17,12 +17,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional, Sequence
 
+import numpy as np
 import yaml
 
 from bench.config.servo_model import (STAND_JOINT, STAND_ROBOT, LogSource, ServoModelFile, ServoPhysics,
                                       StandSetup)
 from bench.identify.errors import IdentifyError
-from bench.identify.stand_fit import StandFit, _init_worker, fit_stand
+from bench.identify.stand_errors import stand_errors
+from bench.identify.stand_fit import LOWER, PARAMS, UPPER, StandFit, _init_worker, batch_cost, fit_stand
 from bench.identify.stand_report import write_stand_report
 from bench.stand.errors import StandError
 from bench.stand.logs import StandLog, read_stand_logs
@@ -54,16 +56,28 @@ class StandIdentifyResult:
                 "logs": [{"log": str(b.log.path), "mae_before": b.mae, "mae_after": a.mae}
                          for b, a in zip(self.before.scores, self.after.scores)],
                 "mae_before": self.before.mean_mae, "mae_after": self.after.mean_mae,
-                "values": self.fit.as_values(), "seconds": round(self.seconds, 3)}
+                "values": self.fit.as_values(), "uncertainty": self.model.uncertainty.get(STAND_JOINT, {}),
+                "unobservable": self.model.unobservable.get(STAND_JOINT, []), "seconds": round(self.seconds, 3)}
 
 
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def stand_model_file(logs: Sequence[StandLog], fit: StandFit, datasheet: ServoParams) -> ServoModelFile:
-    """The fitted values as a servo model file over the datasheet of the logs' servo."""
+def stand_model_file(logs: Sequence[StandLog], fit: StandFit, datasheet: ServoParams,
+                     errors: np.ndarray | None = None, told: np.ndarray | None = None) -> ServoModelFile:
+    """The fitted values as a servo model file over the datasheet of the logs' servo, with each
+    value's standard error (in the fit's terms: Kt = Ke in N·m/A, R in Ω, ...) and those the logs
+    could not tell."""
     v = fit.as_values()
+    uncertainty, unobservable = {}, []
+    if errors is not None and told is not None:
+        # in the file's keys: Kt's error as a factor on the datasheet's (Ke follows it)
+        key = {"kt_nma": "kt_scale"}
+        unit = {"kt_nma": float(datasheet.kt[0])}
+        uncertainty = {STAND_JOINT: {key.get(k, k): float(e) / unit.get(k, 1.0)
+                                     for k, e in zip(PARAMS, errors) if np.isfinite(e)}}
+        unobservable = [key.get(k, k) for k, t in zip(PARAMS, told) if not t]
     kt_scale = v["kt_nma"] / float(datasheet.kt[0])
     ke_scale = v["kt_nma"] / (float(datasheet.ke[0]) * kt_scale)  # Ke = Kt
     physics = ServoPhysics(kt_scale=kt_scale, ke_scale=ke_scale, resistance_ohm=v["resistance_ohm"],
@@ -72,6 +86,7 @@ def stand_model_file(logs: Sequence[StandLog], fit: StandFit, datasheet: ServoPa
     name = model_spec(logs[0].model_number).name
     return ServoModelFile(
         robot=STAND_ROBOT, servo=name, joints={STAND_JOINT: physics}, supply="measured",
+        uncertainty=uncertainty, unobservable={STAND_JOINT: unobservable} if unobservable else {},
         stand=StandSetup(gravity_offset_rad=v["gravity_offset_rad"]),
         sources=[LogSource(run=str(g.path), sha256=_sha256(g.path)) for g in logs],
         notes=[f"identified from {len(logs)} test-stand log(s) of an {name} "
@@ -106,10 +121,13 @@ def identify_stand(paths: Sequence[Path], out: Path, *, workers: int = 0, genera
     try:
         fit = fit_stand(logs, datasheet, generations=generations, seed=seed, pool=pool, workers=workers,
                         progress=lambda g, n: say("fitting", g / max(n, 1)))
+        say("standard errors", 1.0)
+        errors, told = stand_errors(lambda values: batch_cost(logs, datasheet, values, pool, workers),
+                                    fit.values, LOWER, UPPER)
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
-    model = stand_model_file(logs, fit, datasheet)
+    model = stand_model_file(logs, fit, datasheet, errors, told)
     out = Path(out)
     _write_model(model, out)
     say("report", 1.0)
@@ -117,7 +135,7 @@ def identify_stand(paths: Sequence[Path], out: Path, *, workers: int = 0, genera
     after = predict_logs(load_stand_model(out, logs[0].model_number), logs, str(out))
     report_path = None
     if report:
-        report_path = write_stand_report(before, after, model, out.with_suffix(".html"))
+        report_path = write_stand_report(before, after, model, out.with_suffix(".html"), fit.as_values())
     return StandIdentifyResult(logs, fit, model, out, report_path, before, after, time.monotonic() - started)
 
 
