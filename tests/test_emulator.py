@@ -132,6 +132,8 @@ def test_control_tables_follow_the_sdk_model_files() -> None:
         1060: "XL430-W250",
         1070: "XC430-W150",
         1120: "XM540-W270",
+        1190: "XL330-M077",
+        1200: "XL330-M288",
     }
     for number in supported_models():
         spec = model_spec(number)

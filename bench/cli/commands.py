@@ -30,6 +30,8 @@ from bench.cli.export import export
 from bench.cli.files import schema, urdf_build
 from bench.cli.identify import identify
 from bench.cli.lab import calibrate, doctor, jog, scan
+from bench.cli.predict import predict
+from bench.cli.stand import stand
 from bench.cli.trial import check, emulate, report, runs, trial
 
 app = typer.Typer(no_args_is_help=True,
@@ -199,7 +201,7 @@ for command in (accuracy, workspace):
     app.command()(command)
 app.command("contact-protocol")(contact_protocol)
 app.add_typer(campaign_app, name="campaign")
-for command in (scan, doctor, calibrate, jog, compare, identify):
+for command in (scan, doctor, calibrate, jog, compare, identify, predict, stand):
     app.command()(command)
 
 

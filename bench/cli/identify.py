@@ -21,7 +21,7 @@ __all__ = ["identify"]
 def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR",
                                                    help="Trial run directories of the rig (real or "
                                                         "--emulate): excitation runs (hil_configs/identify.yaml) "
-                                                        "or any trials."),
+                                                        "or any trials; or test-stand logs (BAM's format)."),
              out: Path = typer.Option(..., "--out", help="The servo model file to write (.yaml); its report "
                                                          "goes beside it (.html, .md)."),
              workers: int = typer.Option(0, "--workers", min=0, max=64,
@@ -31,7 +31,13 @@ def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR",
              iterations: int = typer.Option(8, "--iterations", min=1, max=50,
                                             help="Most Levenberg-Marquardt steps that polish the search's best."),
              as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
-    """Fit each joint's servo physics (motor constant, armature, friction) to the rig's logs."""
+    """Fit each joint's servo physics (motor constant, armature, friction) to the rig's logs, or one
+    servo's to test-stand logs (BAM's pendulum format)."""
+    from bench.cli.identify_stand import identify_stand_logs, split_inputs  # deferred: --help stays fast
+
+    if split_inputs(run_dirs):
+        identify_stand_logs(run_dirs, out, workers, generations, as_json)
+        return
     from bench.identify.run import identify as run_identify  # deferred: --help and completion stay fast
     from bench.identify.run import joint_rows  # deferred: --help and completion stay fast
 

@@ -4,14 +4,20 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Mapping, Optional
+from typing import Literal, Mapping, Optional, Sequence
 
 from pydantic import Field, ValidationError
 
 from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
 from bench.kinematics.registry import ROBOTS, get_robot
+from drivers.servo import ServoParams
 
-__all__ = ["LogSource", "ServoModelFile", "ServoPhysics", "load_servo_model_file", "physics_for"]
+__all__ = ["FIELD_KEYS", "LogSource", "STAND_JOINT", "STAND_ROBOT", "ServoModelFile", "ServoPhysics",
+           "StandSetup", "apply_physics", "load_servo_model_file", "physics_for"]
+
+#: The one-servo test stand (a pendulum on a servo's horn) as a "robot" a model file may name.
+STAND_ROBOT = "test-stand"
+STAND_JOINT = "pendulum"
 
 
 class ServoPhysics(Strict):
@@ -28,6 +34,65 @@ class ServoPhysics(Strict):
                                            description="reflected rotor inertia (kg·m²)")
     kt_scale: Optional[float] = Field(default=None, gt=0, le=10,
                                       description="factor on the motor constant (Kt and Ke)")
+    ke_scale: Optional[float] = Field(default=None, gt=0, le=10,
+                                      description="further factor on the back-EMF constant Ke alone")
+    resistance_ohm: Optional[float] = Field(default=None, gt=0, le=1000,
+                                            description="the motor's winding resistance (Ω)")
+    stribeck_alpha: Optional[float] = Field(default=None, ge=0.5, le=20,
+                                            description="exponent of the Stribeck curve e^{-|ω/ω_s|^α} (2)")
+    load_friction: Optional[float] = Field(
+        default=None, ge=0, le=5,
+        description="friction per N·m the gearbox carries, |τ_load − τ_motor| (BAM m3); sets both sides")
+    load_friction_motor: Optional[float] = Field(default=None, ge=0, le=5,
+                                                 description="load friction on the motor's torque alone")
+    load_friction_external: Optional[float] = Field(default=None, ge=0, le=5,
+                                                    description="load friction on the load's torque alone")
+    load_stribeck: Optional[float] = Field(
+        default=None, ge=0, le=5, description="extra load friction at rest, fading as the Stribeck peak")
+    load_stribeck_motor: Optional[float] = Field(default=None, ge=0, le=5,
+                                                 description="load friction at rest on the motor's torque")
+    load_stribeck_external: Optional[float] = Field(default=None, ge=0, le=5,
+                                                    description="load friction at rest on the load's torque")
+    load_quadratic_motor: Optional[float] = Field(default=None, ge=0, le=5,
+                                                  description="friction at rest per (N·m)² of motor torque")
+    load_quadratic_external: Optional[float] = Field(default=None, ge=0, le=5,
+                                                     description="friction at rest per (N·m)² of load torque")
+
+
+#: Model-file keys -> the ServoParams field each sets as given.
+FIELD_KEYS = {"coulomb_nm": "coulomb", "viscous_nms": "viscous", "stribeck_nm": "stribeck",
+              "stribeck_velocity_rads": "stribeck_velocity", "armature_kgm2": "armature",
+              "resistance_ohm": "resistance", "stribeck_alpha": "stribeck_alpha",
+              "load_friction_motor": "load_motor", "load_friction_external": "load_external",
+              "load_stribeck_motor": "load_stribeck_motor", "load_stribeck_external": "load_stribeck_external",
+              "load_quadratic_motor": "load_quad_motor", "load_quadratic_external": "load_quad_external"}
+#: Keys that set both sides of the load friction unless a side is given.
+_BOTH_SIDES = {"load_friction": ("load_friction_motor", "load_friction_external"),
+               "load_stribeck": ("load_stribeck_motor", "load_stribeck_external")}
+
+
+def apply_physics(params: ServoParams, per_joint: Sequence[Mapping[str, float]]) -> ServoParams:
+    """``params`` with each joint's physics (model-file keys) set; what a joint leaves unset keeps
+    its value. Kt and Ke scale by ``kt_scale``, Ke further by ``ke_scale``."""
+    expanded = []
+    for physics in per_joint:
+        d = dict(physics)
+        for key, sides in _BOTH_SIDES.items():
+            if key in d:
+                for side in sides:
+                    d.setdefault(side, d[key])
+        expanded.append(d)
+    changes = {field: [p.get(key, getattr(params, field)[j]) for j, p in enumerate(expanded)]
+               for key, field in FIELD_KEYS.items()}
+    scaled = params.with_(**changes).with_motor_scale([p.get("kt_scale", 1.0) for p in expanded])
+    return scaled.with_(ke=scaled.ke * [p.get("ke_scale", 1.0) for p in expanded])
+
+
+class StandSetup(Strict):
+    """What a test-stand model knows of the stand beside the servo."""
+
+    gravity_offset_rad: float = Field(default=0.0, ge=-0.5, le=0.5,
+                                      description="the stand's zero from hanging plumb (rad)")
 
 
 def physics_for(entries: Mapping[str, ServoPhysics], joint: str) -> dict[str, float]:
@@ -42,8 +107,8 @@ def physics_for(entries: Mapping[str, ServoPhysics], joint: str) -> dict[str, fl
 class LogSource(Strict):
     """One trial log a model was identified from."""
 
-    run: str = Field(max_length=4096, description="the run directory")
-    sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="SHA-256 of its trial.npz")
+    run: str = Field(max_length=4096, description="the run directory (or the test-stand log)")
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="SHA-256 of its trial.npz (or of the log)")
 
 
 class ServoModelFile(Strict):
@@ -64,6 +129,12 @@ class ServoModelFile(Strict):
                                      description="the trial logs the model was identified from")
     notes: list[str] = Field(default_factory=list, max_length=100,
                              description="where the numbers came from (logs, fit, by hand)")
+    servo: Optional[str] = Field(default=None, max_length=64,
+                                 description="the servo model the physics are over (test stand: XL330-M288)")
+    supply: Literal["measured", "nominal"] = Field(
+        default="measured",
+        description="drive the motor with a log's measured supply voltage, or the nominal")
+    stand: Optional[StandSetup] = Field(default=None, description="the test stand's own figures (test-stand)")
 
     def physics_of(self, joint: str) -> dict[str, float]:
         """The physics set for ``joint``: its own entry over ``all``, unset keys left out."""
@@ -78,7 +149,8 @@ def load_servo_model_file(path: Path | str) -> ServoModelFile:
         model = ServoModelFile.model_validate(data)
     except ValidationError as e:
         raise ConfigError(describe_validation_error(e, ServoModelFile, path)) from None
-    names = get_robot(model.robot).joint_names if model.robot in ROBOTS else None
+    names = ([STAND_JOINT] if model.robot == STAND_ROBOT
+             else get_robot(model.robot).joint_names if model.robot in ROBOTS else None)
     if names is None:
         raise ConfigError(f"{path}: robot: unknown robot {model.robot!r}")
     unknown = sorted(set(model.joints) - set(names) - {"all"})

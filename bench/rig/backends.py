@@ -13,6 +13,7 @@ import numpy as np
 
 from bench.config.calibration import CalibrationFile, calibration_of
 from bench.config.models import ConfigError, ServoConfig, TrialConfig, load_servo_model_file, model_number
+from bench.config.servo_model import FIELD_KEYS, apply_physics
 from bench.kinematics.arc_train import epsilon_from_d2, train_pose
 from bench.kinematics.transmission import servo_transmissions
 from bench.rig.serving import hooks_for
@@ -60,16 +61,13 @@ def servo_table(config: TrialConfig, robot) -> dict[str, ServoConfig]:
 
 
 #: Servo physics keys (emulator.servo_physics, servo model files) -> ServoParams fields.
-PHYSICS_FIELDS = {"coulomb_nm": "coulomb", "viscous_nms": "viscous", "stribeck_nm": "stribeck",
-                  "stribeck_velocity_rads": "stribeck_velocity", "armature_kgm2": "armature"}
+PHYSICS_FIELDS = FIELD_KEYS
 
 
 def with_physics(params: ServoParams, per_joint: Sequence[dict]) -> ServoParams:
-    """``params`` with each joint's physics (keys of :data:`PHYSICS_FIELDS` and ``kt_scale``) set;
-    what a joint leaves unset keeps its value."""
-    changes = {field: [p.get(key, getattr(params, field)[j]) for j, p in enumerate(per_joint)]
-               for key, field in PHYSICS_FIELDS.items()}
-    return params.with_(**changes).with_motor_scale([p.get("kt_scale", 1.0) for p in per_joint])
+    """``params`` with each joint's physics (keys of :data:`PHYSICS_FIELDS`, ``kt_scale``, ``ke_scale``)
+    set; what a joint leaves unset keeps its value."""
+    return apply_physics(params, per_joint)
 
 
 def servo_params(table: dict[str, ServoConfig], names) -> ServoParams:

@@ -22,7 +22,7 @@ import numpy as np
 
 from bench.kinematics.arc_train import TARGET_1, ArcTrainParams, build_chain
 from bench.paths import URDF_DIR
-from bench.scene.urdf_writer import LinkSpec, Shape, chain_to_urdf, next_joint_offsets, segment
+from bench.scene.urdf_writer import LinkSpec, Shape, chain_to_urdf, next_joint_offsets, segment, stand_urdf
 from bench.scene.zerobot_urdf import zerobot_urdf
 from drivers.pybullet.backend import SceneObject
 
@@ -180,6 +180,7 @@ def generated_files(p: ArcTrainParams = ArcTrainParams(),
         "ct_bed.urdf": bed_urdf(p, s),
         "phantom.urdf": phantom_urdf(s),
         "zerobot.urdf": zerobot_urdf(),
+        "test_stand_xl330.urdf": stand_urdf(),
     }
 
 

@@ -44,6 +44,8 @@ __all__ = [
     "XL430_W250",
     "XM430_W350",
     "XM540_W270",
+    "XL330_M077",
+    "XL330_M288",
     "model_spec",
     "STATE_BLOCK",
     "state_block",
@@ -55,6 +57,8 @@ XM430_W350 = 1020
 XL430_W250 = 1060
 XC430_W150 = 1070
 XM540_W270 = 1120
+XL330_M077 = 1190
+XL330_M288 = 1200
 
 
 
@@ -293,6 +297,7 @@ _COMMON: dict[str, tuple[Access, int, int | None, int | None, bool]] = {
     "Max Voltage Limit": (Access.RW, 160, 95, 160, False),
     "Min Voltage Limit": (Access.RW, 95, 95, 160, False),
     "PWM Limit": (Access.RW, 885, 0, 885, False),
+    "PWM Slope": (Access.RW, 140, 1, 255, False),  # XL330 only (3.955 mV/ms)
     "Current Limit": (Access.RW, 1193, 0, 1193, False),
     "Velocity Limit": (Access.RW, 200, 0, 1023, False),
     "Max Position Limit": (Access.RW, 4095, 0, 4095, False),
@@ -337,6 +342,18 @@ _COMMON: dict[str, tuple[Access, int, int | None, int | None, bool]] = {
     "External Port Data 1": (Access.RW, 0, 0, 65535, False),
     "External Port Data 2": (Access.RW, 0, 0, 65535, False),
     "External Port Data 3": (Access.RW, 0, 0, 65535, False),
+}
+
+#: What the XL330s (M077, M288) set apart from the common table.
+_XL330: dict[str, tuple[int, int, int]] = {
+    "Temperature Limit": (70, 0, 100),
+    "Max Voltage Limit": (70, 31, 70),
+    "Min Voltage Limit": (35, 31, 70),
+    "Current Limit": (1750, 0, 1750),
+    "Goal Current": (1750, -1750, 1750),
+    "Position P Gain": (400, 0, 16383),
+    "Position D Gain": (0, 0, 16383),
+    "Present Input Voltage": (50, None, None),
 }
 
 # Per-model: model file, defaults/ranges that differ, motor, operating modes.
@@ -390,6 +407,26 @@ _MODELS: dict[int, dict] = {
         modes=(1, 3, 4, 16),
         current_unit=None,
     ),
+    # XL330 (5 V figures of the e-manual). Its firmware divides the P gain by 256, not the
+    # manual's 128: measured on a real XL330 by BAM (Rhoban, "Better Actuator Models").
+    XL330_M288: dict(
+        file="xl330_m288.model",
+        name="XL330-M288",
+        overrides=_XL330 | {"Velocity Limit": (445, 0, 2047)},
+        motor=MotorSpec(5.0, 0.52, 1.47, _rpm(103.0)),
+        modes=(0, 1, 3, 4, 5, 16),
+        current_unit=0.001,
+        extra={"p_gain_divisor": 256.0},
+    ),
+    XL330_M077: dict(
+        file="xl330_m077.model",
+        name="XL330-M077",
+        overrides=_XL330 | {"Velocity Limit": (1620, 0, 2047)},
+        motor=MotorSpec(5.0, 0.215, 1.47, _rpm(383.0)),
+        modes=(0, 1, 3, 4, 5, 16),
+        current_unit=0.001,
+        extra={"p_gain_divisor": 256.0},
+    ),
 }
 
 
@@ -405,7 +442,7 @@ def _sdk_layout(filename: str) -> tuple[tuple[int, int, str], ...]:
 
 @lru_cache(maxsize=None)
 def model_spec(model: int) -> ModelSpec:
-    """The :class:`ModelSpec` for a model number (1020, 1060, 1070 or 1120)."""
+    """The :class:`ModelSpec` for a model number (1020, 1060, 1070, 1120, 1190 or 1200)."""
     try:
         info = _MODELS[model]
     except KeyError:
@@ -439,6 +476,7 @@ def model_spec(model: int) -> ModelSpec:
         motor=info["motor"],
         operating_modes=frozenset(info["modes"]),
         current_unit=info["current_unit"],
+        extra=info.get("extra", {}),
     )
 
 

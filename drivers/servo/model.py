@@ -5,12 +5,22 @@ joints at once (numpy, no loop per joint),
 
 1. the firmware's profile (Profile Velocity / Acceleration, a trapezoid in ticks; 0 means
    unlimited), then its position PID on the integer encoder reading, in firmware units
-   (KPP = P/128, KPI = I/65536, KPD = D/16 per 1 ms sample), the output limited to the PWM
+   (KPP = P/128, P/256 on an XL330; KPI = I/65536, KPD = D/16 per 1 ms sample), the output limited to the PWM
    Limit (885 = 100 %), an optional deadband (ticks) where a worn servo stops correcting;
 2. the motor: V = PWM/885 · V_in, I = (V − Ke·ω)/R clamped to ±Current Limit, τ = Kt·I;
-3. the gearbox: friction τ_f(ω) = (τ_c + (τ_s − τ_c)·e^{−(ω/ω_s)²})·tanh(ω/ω_ε) + b·ω
-   (Coulomb τ_c, Stribeck peak τ_s, Stribeck velocity ω_s, viscous b), and the armature
-   (reflected rotor inertia) for the integrator that moves the joints.
+3. the gearbox: friction of level τ_c + (τ_s − τ_c)·e^{−|ω/ω_s|^α} (Coulomb τ_c, Stribeck
+   peak τ_s, Stribeck velocity ω_s, exponent α = 2 unless set) plus the friction of the torque
+   the gearbox carries: |k_e·τ_e − k_m·τ_m| (τ_m the motor's torque, τ_e the load's, e.g.
+   gravity), a part of it fading with the Stribeck curve, and BAM's quadratic terms (the
+   load-dependent laws m3–m6 of Rhoban's "Better Actuator Models", measured on real
+   Dynamixels); then viscous b·ω, and the armature (reflected rotor inertia) for the
+   integrator that moves the joints. :func:`friction_level` gives the level,
+   :func:`friction_torque` the smoothed torque a stiff integrator applies and
+   :func:`stopping_friction` the exact stick-slip force a pendulum's integrator applies.
+
+The supply (:attr:`ServoArray.supply`) is a register-like array the owner may set every step:
+a log's measured input voltage drives the motor where it has one (a sagging supply weakens
+the motor under load).
 
 Units: goals and readings in SI at the output shaft (rad, rad/s); ticks and PWM units stay
 inside this module and ``drivers/``. The parameters come from the datasheet
@@ -22,18 +32,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
 
 from drivers.dynamixel.control_table import model_spec, x_series_table
 
-__all__ = ["FIRMWARE_PERIOD_S", "FRICTION_SMOOTHING_RAD_S", "ServoArray", "ServoParams", "friction_torque"]
+__all__ = ["FIRMWARE_PERIOD_S", "FRICTION_SMOOTHING_RAD_S", "LOAD_FRICTION_FIELDS", "ServoArray", "ServoParams",
+           "friction_level", "friction_torque", "stopping_friction"]
 
 #: The firmware's control loop period (s): the PID gains are per sample of this length.
 FIRMWARE_PERIOD_S = 0.001
 #: Velocity below which Coulomb friction is smoothed (rad/s): tanh(ω/ω_ε), as the plant integrates it.
 FRICTION_SMOOTHING_RAD_S = 1e-3
+
+
+#: The load-dependent friction coefficients (dimensionless, 0: none): Coulomb-like, at rest
+#: (fading with the Stribeck curve) and quadratic (1/(N·m)), each on the motor's and the load's torque.
+LOAD_FRICTION_FIELDS = ("load_motor", "load_external", "load_stribeck_motor", "load_stribeck_external",
+                        "load_quad_motor", "load_quad_external")
+
+#: Optional fields and the value they take when not given (per joint).
+_OPTIONAL_DEFAULTS = {"deadband_ticks": 0.0, "amps_per_unit": 0.0, "p_gain_divisor": 128.0,
+                      "stribeck_alpha": 2.0, **{f: 0.0 for f in LOAD_FRICTION_FIELDS}}
 
 
 def _arr(value, n: int) -> np.ndarray:
@@ -68,6 +90,38 @@ class ServoParams:
     deadband_ticks: np.ndarray = field(default_factory=lambda: np.zeros(0))
     #: A per Goal/Present Current unit (the current-based position mode's PID output unit).
     amps_per_unit: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: The firmware's P divisor: PWM units per tick of error = P / divisor (128, the XL330's 256).
+    p_gain_divisor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: Exponent of the Stribeck curve e^{-|ω/ω_s|^α}.
+    stribeck_alpha: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # Load-dependent friction (see LOAD_FRICTION_FIELDS), 0 where the gearbox has none.
+    load_motor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    load_external: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    load_stribeck_motor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    load_stribeck_external: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    load_quad_motor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    load_quad_external: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        # an optional field left empty takes its default on every joint
+        n = int(np.asarray(self.kt).shape[0])
+        for name, default in _OPTIONAL_DEFAULTS.items():
+            if np.asarray(getattr(self, name)).size == 0:
+                object.__setattr__(self, name, np.full(n, default))
+
+    @cached_property
+    def has_load_friction(self) -> bool:
+        """Whether any joint's friction grows with the torque its gearbox carries."""
+        return any(bool(np.any(getattr(self, f) != 0.0)) for f in LOAD_FRICTION_FIELDS)
+
+    @cached_property
+    def _friction_terms(self) -> tuple[bool, bool, bool, bool]:
+        """Which terms of :func:`friction_level` any joint has: Stribeck peak, load, load at rest, quadratic
+        (worked out once: the friction is evaluated every step)."""
+        nonzero = lambda *names: any(bool(np.any(getattr(self, f) != 0.0)) for f in names)  # noqa: E731
+        return (bool(np.any(self.stribeck > 0.0)), nonzero("load_motor", "load_external"),
+                nonzero("load_stribeck_motor", "load_stribeck_external"),
+                nonzero("load_quad_motor", "load_quad_external"))
 
     @property
     def n(self) -> int:
@@ -104,7 +158,8 @@ class ServoParams:
             profile_velocity=np.zeros(n), profile_acceleration=np.zeros(n),
             armature=_arr(armature, n), coulomb=_arr(coulomb, n), viscous=_arr(viscous, n),
             stribeck=_arr(stribeck, n), stribeck_velocity=_arr(stribeck_velocity, n),
-            deadband_ticks=_arr(deadband_ticks, n), amps_per_unit=unit)
+            deadband_ticks=_arr(deadband_ticks, n), amps_per_unit=unit,
+            p_gain_divisor=np.array([float(s.extra.get("p_gain_divisor", 128.0)) for s in specs]))
 
     def with_(self, **changes) -> "ServoParams":
         """A copy with some fields replaced (scalars broadcast to every joint)."""
@@ -121,12 +176,51 @@ class ServoParams:
         return self.kt * self.ke / self.resistance
 
 
-def friction_torque(params: ServoParams, omega: np.ndarray) -> np.ndarray:
-    """Gearbox friction at output speed ``omega`` (rad/s): Coulomb with a Stribeck peak, plus viscous."""
-    ws = np.maximum(params.stribeck_velocity, 1e-9)
-    level = params.coulomb + (params.stribeck - params.coulomb) * np.exp(-(omega / ws) ** 2)
-    level = np.where(params.stribeck > 0.0, level, params.coulomb)
+def friction_level(params: ServoParams, omega: np.ndarray, motor_torque=0.0,
+                   external_torque=0.0) -> np.ndarray:
+    """The gearbox's dry friction (N·m, ≥ 0, viscous apart) at output speed ``omega`` (rad/s) while
+    the motor gives ``motor_torque`` and the load ``external_torque`` (N·m at the shaft): Coulomb
+    with a Stribeck peak, plus the load-dependent terms (BAM's m3–m6 laws)."""
+    peak, load, load_rest, quadratic = params._friction_terms
+    level = params.coulomb
+    fade = None
+    if peak or load_rest or quadratic:
+        ratio = omega / np.maximum(params.stribeck_velocity, 1e-9)
+        alpha = params.stribeck_alpha
+        fade = np.exp(-(ratio * ratio)) if np.all(alpha == 2.0) else np.exp(-np.abs(ratio) ** alpha)
+    if peak:
+        level = np.where(params.stribeck > 0.0, params.coulomb + (params.stribeck - params.coulomb) * fade,
+                         params.coulomb)
+    tm, te = motor_torque, external_torque
+    if load:
+        level = level + np.abs(params.load_external * te - params.load_motor * tm)
+    if load_rest:
+        level = level + fade * np.abs(params.load_stribeck_external * te - params.load_stribeck_motor * tm)
+    if quadratic:  # BAM m6: the driven side's torque squared, at rest, when motor and load oppose each other
+        opposed = np.sign(te) != np.sign(tm)
+        quad = (np.where(np.abs(te) < np.abs(tm), params.load_quad_external * te ** 2, 0.0)
+                + np.where(np.abs(te) > np.abs(tm), params.load_quad_motor * tm ** 2, 0.0))
+        level = level + fade * quad * opposed
+    if level is params.coulomb:  # never hand out the parameters' own array
+        level = level.copy()
+    return level * np.ones_like(omega) if np.ndim(level) < np.ndim(omega) else level
+
+
+def friction_torque(params: ServoParams, omega: np.ndarray, motor_torque=0.0,
+                    external_torque=0.0) -> np.ndarray:
+    """Gearbox friction at output speed ``omega`` (rad/s), smoothed through zero speed, plus viscous
+    (the loads as :func:`friction_level`): what a stiff integrator applies."""
+    level = friction_level(params, omega, motor_torque, external_torque)
     return level * np.tanh(omega / FRICTION_SMOOTHING_RAD_S) + params.viscous * omega
+
+
+def stopping_friction(level: np.ndarray, viscous: np.ndarray, omega: np.ndarray,
+                      tau_stop: np.ndarray) -> np.ndarray:
+    """The friction torque (N·m) a step applies: it opposes ``tau_stop``, the torque that would stop the
+    shaft within the step, and never exceeds it nor the friction budget ``level + viscous·|ω|``.
+    A shaft held by friction stays put (stick) instead of chattering through zero speed."""
+    budget = level + viscous * np.abs(omega)
+    return -np.sign(tau_stop) * np.minimum(np.abs(tau_stop), budget)
 
 
 class ServoArray:
@@ -154,6 +248,7 @@ class ServoArray:
         self._accel_unit = table["Profile Acceleration"].scale
         # the registers' firmware settings
         self.gains = np.stack([params.position_p, params.position_i, params.position_d], axis=1).astype(float)
+        self.p_divisor = params.p_gain_divisor.astype(float).copy()  # the firmware's KPP = P / divisor
         self.pwm_limit = params.pwm_limit.astype(float).copy()  # PWM Limit: bounds the integrator
         self.pwm_cap = self.pwm_limit.copy()  # min(PWM Limit, |Goal PWM|): bounds the output
         self.current_limit = params.current_limit.astype(float).copy()
@@ -249,7 +344,7 @@ class ServoArray:
         p = self.params
         vin = np.maximum(self.supply, 1e-6)
         pwm = (np.asarray(current, dtype=float) * p.resistance + p.ke * np.asarray(velocity, dtype=float)) / vin
-        self.integral = np.clip(pwm * self._pwm_full - (self.gains[:, 0] / 128.0) * error,
+        self.integral = np.clip(pwm * self._pwm_full - (self.gains[:, 0] / self.p_divisor) * error,
                                 -self.pwm_limit, self.pwm_limit)
         self.current = np.asarray(current, dtype=float).copy()
         self.pwm = pwm * self._pwm_full
@@ -312,7 +407,7 @@ class ServoArray:
         lim = self.pwm_limit
         g = self.gains
         integral = np.minimum(np.maximum(self.integral + (g[:, 1] * (samples / 65536.0)) * error, -lim), lim)
-        u = (g[:, 0] / 128.0) * error + integral
+        u = (g[:, 0] / self.p_divisor) * error + integral
         if self.has_prev.all():
             u += (g[:, 2] / (16.0 * samples)) * (error - self.prev_error)
         else:

@@ -15,7 +15,7 @@ goes unstable at 1 kHz. Here the joint-space equation
     (M(q) + J_a + dt·B) Δq̇ = dt · (τ_drive − B q̇ − h(q, q̇) − friction)
 
 with B the back-EMF damping plus the gearbox's viscous friction and ``friction`` its
-Coulomb and Stribeck parts (:func:`~drivers.servo.model.friction_torque`), all from
+Coulomb, Stribeck and load-dependent parts (:func:`~drivers.servo.model.friction_torque`), all from
 the joints' :class:`~drivers.servo.model.ServoParams`.
 
 is integrated semi-implicitly, with M and h = C q̇ + g from PyBullet's
@@ -77,7 +77,8 @@ class PyBulletPlant:
         self._B = self._B_emf + servos.viscous / r2
         self._Ja = servos.armature / r2
         self._coulomb_only = servos.with_(viscous=0.0)
-        self._has_friction = bool((servos.coulomb > 0).any() or (servos.stribeck > 0).any())
+        self._has_friction = bool((servos.coulomb > 0).any() or (servos.stribeck > 0).any()
+                                  or servos.has_load_friction)
         self._joint_friction = np.zeros(n) if joint_friction is None else np.asarray(joint_friction, dtype=float)
         self._dt = physics_dt
         self._q = np.clip(np.asarray(initial_position, dtype=float), self._lower, self._upper)
@@ -137,7 +138,10 @@ class PyBulletPlant:
                                                  physicsClientId=c))
         friction = self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)
         if self._has_friction:
-            friction = friction + friction_torque(self._coulomb_only, qd / self._ratio) / self._ratio
+            # the gearbox carries the motor's torque and the load's (gravity and the links' bias)
+            shaft = np.asarray(torque, dtype=float)
+            friction = friction + friction_torque(self._coulomb_only, qd / self._ratio, shaft,
+                                                  -h * self._ratio) / self._ratio
         rhs = drive - self._B * qd - h - friction
         A = M + np.diag(self._Ja + dt * self._B)
         qd_new = qd + dt * np.linalg.solve(A, rhs)
