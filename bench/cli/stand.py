@@ -10,6 +10,7 @@ from pathlib import Path
 import typer
 
 from bench.cli.common import console, emit_json, fail
+from drivers.errors import ExitCode
 
 __all__ = ["stand"]
 
@@ -39,7 +40,7 @@ def stand(config: Path = typer.Argument(..., metavar="CONFIG", help="A test-stan
     try:
         run_dir, logs = record_session(cfg, out, emulate=emulate)
     except BenchError as e:
-        fail(str(e), 1)
+        fail(str(e), ExitCode.FAILED)
     if as_json:
         emit_json({"run_dir": str(run_dir), "logs": [str(p) for p in logs]})
         return

@@ -13,7 +13,7 @@ import numpy as np
 
 from bench.config.calibration import CalibrationFile, calibration_of
 from bench.config.models import ConfigError, ServoConfig, TrialConfig, load_servo_model_file, model_number
-from bench.config.servo_model import FIELD_KEYS, apply_physics
+from bench.config.servo_model import apply_physics
 from bench.kinematics.arc_train import epsilon_from_d2, train_pose
 from bench.kinematics.transmission import servo_transmissions
 from bench.rig.serving import hooks_for
@@ -60,12 +60,8 @@ def servo_table(config: TrialConfig, robot) -> dict[str, ServoConfig]:
             for i, (row, r) in enumerate(zip(robot.chain.rows, ratios))}
 
 
-#: Servo physics keys (emulator.servo_physics, servo model files) -> ServoParams fields.
-PHYSICS_FIELDS = FIELD_KEYS
-
-
 def with_physics(params: ServoParams, per_joint: Sequence[dict]) -> ServoParams:
-    """``params`` with each joint's physics (keys of :data:`PHYSICS_FIELDS`, ``kt_scale``, ``ke_scale``)
+    """``params`` with each joint's physics (the keys of :data:`bench.config.servo_model.FIELD_KEYS`, ``kt_scale``, ``ke_scale``)
     set; what a joint leaves unset keeps its value."""
     return apply_physics(params, per_joint)
 

@@ -30,7 +30,7 @@ from typing import Callable, Iterator, Mapping
 
 from drivers import BackendSetupError
 from drivers.dynamixel.models import sdk_rows
-from drivers.dynamixel.units import CENTER_TICK, CURRENT_REGISTERS, CURRENT_UNIT_A, REGISTER_UNITS
+from drivers.dynamixel.units import CENTER_TICK, CURRENT_REGISTERS, CURRENT_UNIT_A, CURRENT_UNIT_XL330_A, REGISTER_UNITS
 
 __all__ = [
     "Access",
@@ -363,8 +363,7 @@ _MODELS: dict[int, dict] = {
         name="XM430-W350",
         overrides={},
         motor=MotorSpec(12.0, 4.1, 2.3, _rpm(46.0)),
-        modes=(0, 1, 3, 4, 5, 16),
-        current_unit=CURRENT_UNIT_A,
+        modes=(0, 1, 3, 4, 5, 16), current_unit=CURRENT_UNIT_A,
     ),
     XM540_W270: dict(
         file="xm540_w270.model",
@@ -375,8 +374,7 @@ _MODELS: dict[int, dict] = {
             "Velocity Limit": (128, 0, 1023),
         },
         motor=MotorSpec(12.0, 10.6, 4.4, _rpm(30.0)),
-        modes=(0, 1, 3, 4, 5, 16),
-        current_unit=CURRENT_UNIT_A,
+        modes=(0, 1, 3, 4, 5, 16), current_unit=CURRENT_UNIT_A,
     ),
     XL430_W250: dict(
         file="xl430_w250.model",
@@ -391,8 +389,7 @@ _MODELS: dict[int, dict] = {
             "Position P Gain": (640, 0, 16383),
         },
         motor=MotorSpec(12.0, 1.5, 1.4, _rpm(61.0)),
-        modes=(1, 3, 4, 16),
-        current_unit=None,
+        modes=(1, 3, 4, 16), current_unit=None,
     ),
     XC430_W150: dict(
         file="xc430_w150.model",
@@ -404,8 +401,7 @@ _MODELS: dict[int, dict] = {
             "Position P Gain": (460, 0, 16383),
         },
         motor=MotorSpec(12.0, 1.6, 1.4, _rpm(106.0)),
-        modes=(1, 3, 4, 16),
-        current_unit=None,
+        modes=(1, 3, 4, 16), current_unit=None,
     ),
     # XL330 (5 V figures of the e-manual). Its firmware divides the P gain by 256, not the
     # manual's 128: measured on a real XL330 by BAM (Rhoban, "Better Actuator Models").
@@ -414,8 +410,7 @@ _MODELS: dict[int, dict] = {
         name="XL330-M288",
         overrides=_XL330 | {"Velocity Limit": (445, 0, 2047)},
         motor=MotorSpec(5.0, 0.52, 1.47, _rpm(103.0)),
-        modes=(0, 1, 3, 4, 5, 16),
-        current_unit=0.001,
+        modes=(0, 1, 3, 4, 5, 16), current_unit=CURRENT_UNIT_XL330_A,
         extra={"p_gain_divisor": 256.0},
     ),
     XL330_M077: dict(
@@ -423,8 +418,7 @@ _MODELS: dict[int, dict] = {
         name="XL330-M077",
         overrides=_XL330 | {"Velocity Limit": (1620, 0, 2047)},
         motor=MotorSpec(5.0, 0.215, 1.47, _rpm(383.0)),
-        modes=(0, 1, 3, 4, 5, 16),
-        current_unit=0.001,
+        modes=(0, 1, 3, 4, 5, 16), current_unit=CURRENT_UNIT_XL330_A,
         extra={"p_gain_divisor": 256.0},
     ),
 }

@@ -6,14 +6,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from drivers.dynamixel.bus import ServoBus
-from drivers.dynamixel.units import CENTER_TICK, RAD_PER_TICK, VELOCITY_UNIT_RAD_S
+from drivers.dynamixel.control_table import x_series_table
 
 __all__ = ["StandSample", "StandServo"]
+
+_TABLE = x_series_table()  # every unit below converts through its register
 
 
 @dataclass(frozen=True)
 class StandSample:
-    """What the host reads each cycle: shaft angle (rad, 0 at tick 2048), velocity (rad/s),
+    """What the host reads each cycle: shaft angle (rad, 0 at the centre tick), velocity (rad/s),
     supply (V) and temperature (°C)."""
 
     position: float
@@ -36,11 +38,11 @@ class StandServo:
         self.bus.write(self.sid, "Torque Enable", 1 if on else 0)
 
     def goal(self, shaft_rad: float) -> None:
-        self.bus.write(self.sid, "Goal Position", CENTER_TICK + int(round(shaft_rad / RAD_PER_TICK)))
+        self.bus.write(self.sid, "Goal Position", _TABLE["Goal Position"].nearest(shaft_rad))
 
     def sample(self) -> StandSample:
         b, sid = self.bus, self.sid
         return StandSample(position=b.shaft_angle(sid),
-                           velocity=b.read(sid, "Present Velocity") * VELOCITY_UNIT_RAD_S,
-                           volts=b.read(sid, "Present Input Voltage") / 10.0,
-                           temperature=float(b.read(sid, "Present Temperature")))
+                           velocity=float(_TABLE["Present Velocity"].to_si(b.read(sid, "Present Velocity"))),
+                           volts=float(_TABLE["Present Input Voltage"].to_si(b.read(sid, "Present Input Voltage"))),
+                           temperature=float(_TABLE["Present Temperature"].to_si(b.read(sid, "Present Temperature"))))

@@ -12,6 +12,7 @@ from enum import IntEnum
 
 __all__ = [
     "ACCEL_UNIT_RAD_S2", "BAUD_RATES", "CENTER_TICK", "CURRENT_REGISTERS", "CURRENT_UNIT_A",
+    "CURRENT_UNIT_XL330_A", "PWM_SLOPE_UNIT_V_S",
     "LOAD_UNITS_PER_STALL", "MODE_NAMES", "OPERATING_MODES", "OperatingMode", "POSITION_MODES",
     "PWM_FULL_SCALE", "RAD_PER_TICK", "REALTIME_TICKS_PER_S", "REGISTER_UNITS", "RETURN_DELAY_UNIT_S",
     "TEMPERATURE_UNIT_C", "TICKS_PER_REV", "VELOCITY_UNIT_RAD_S", "VOLTAGE_UNITS_PER_V",
@@ -26,6 +27,10 @@ CENTER_TICK = 2048
 VELOCITY_UNIT_RAD_S = 0.229 * 2.0 * math.pi / 60.0
 #: Profile Acceleration: 214.577 rev/min² per unit.
 ACCEL_UNIT_RAD_S2 = 214.577 * 2.0 * math.pi / 3600.0
+#: Goal/Present Current and Current Limit of the XL330s: 1 mA.
+CURRENT_UNIT_XL330_A = 1.0e-3
+#: PWM Slope of the XL330s (how fast the drive voltage may change): 3.955 mV/ms per unit.
+PWM_SLOPE_UNIT_V_S = 3.955
 #: Goal/Present PWM at 100 % duty.
 PWM_FULL_SCALE = 885
 #: Goal/Present Current and Current Limit of the models that sense current (XM430, XM540): 2.69 mA.
@@ -68,6 +73,7 @@ REGISTER_UNITS: dict[str, tuple[str, float, int, int]] = {
     "Min Voltage Limit": _per("V", VOLTAGE_UNITS_PER_V),
     "Present Input Voltage": _per("V", VOLTAGE_UNITS_PER_V),
     "PWM Limit": _per("1", PWM_FULL_SCALE),
+    "PWM Slope": _times("V/s", PWM_SLOPE_UNIT_V_S),
     "Goal PWM": _per("1", PWM_FULL_SCALE),
     "Present PWM": _per("1", PWM_FULL_SCALE),
     "Present Load": _per("1", LOAD_UNITS_PER_STALL),
