@@ -31,6 +31,7 @@ from bench.cli.files import schema, urdf_build
 from bench.cli.identify import identify
 from bench.cli.lab import calibrate, doctor, jog, scan
 from bench.cli.predict import predict
+from bench.cli.registers import registers
 from bench.cli.stand import stand
 from bench.cli.trial import check, emulate, report, runs, trial
 
@@ -201,7 +202,7 @@ for command in (accuracy, workspace):
     app.command()(command)
 app.command("contact-protocol")(contact_protocol)
 app.add_typer(campaign_app, name="campaign")
-for command in (scan, doctor, calibrate, jog, compare, identify, predict, stand):
+for command in (scan, doctor, registers, calibrate, jog, compare, identify, predict, stand):
     app.command()(command)
 
 

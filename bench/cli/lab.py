@@ -30,13 +30,13 @@ from drivers.errors import ActuatorError, BackendSetupError, ExitCode, safe_stop
 if TYPE_CHECKING:
     from bench.config.models import TrialConfig
 
-__all__ = ["calibrate", "doctor", "jog", "scan"]
+__all__ = ["EMULATE_OPTION", "calibrate", "config_rig", "doctor", "jog", "load_lab_config", "scan"]
 
 
 _STATUS = {"pass": "[green]PASS[/]", "warn": "[yellow]WARN[/]", "fail": "[bold red]FAIL[/]"}
 
 
-def _load(config: Path, tool: str) -> "TrialConfig":
+def load_lab_config(config: Path, tool: str) -> "TrialConfig":
     """The config, or exit 2 with one line (unreadable, or not the Dynamixel backend)."""
     from bench.lab.session import require_dynamixel  # deferred: --help and completion stay fast
 
@@ -48,12 +48,12 @@ def _load(config: Path, tool: str) -> "TrialConfig":
     return cfg
 
 
-_EMULATE = typer.Option(False, "--emulate", help="Work on the config's emulated rig "
+EMULATE_OPTION = typer.Option(False, "--emulate", help="Work on the config's emulated rig "
                                                  "(its own servo bus and sensor) instead of the ports.")
 
 
 @contextlib.contextmanager
-def _rig(config: Path, cfg: "TrialConfig", emulate: bool) -> Iterator["TrialConfig"]:
+def config_rig(config: Path, cfg: "TrialConfig", emulate: bool) -> Iterator["TrialConfig"]:
     """The config as given, or pointed at an emulated rig that lives as long as the block."""
     if not emulate:
         yield cfg
@@ -146,7 +146,7 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
                                           help="Seconds to listen to the ultrasonic sensor."),
            verbose: bool = typer.Option(False, "--verbose", "-v",
                                         help="Print every check, the passed ones too."),
-           emulate: bool = _EMULATE,
+           emulate: bool = EMULATE_OPTION,
            as_json: bool = typer.Option(False, "--json",
                                         help='Print {"checks": [...], "ok": bool} as one line.')) -> None:
     """Check a rig before a trial: ports, latency timer, servos, ultrasonic sensor, calibration.
@@ -157,7 +157,7 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
 
     from bench.lab.doctor import run_doctor  # deferred: --help and completion stay fast
 
-    cfg = _load(config, "doctor")
+    cfg = load_lab_config(config, "doctor")
     counts = {"pass": 0, "warn": 0, "fail": 0}
     spinner = Status(Text("doctor: checking"), console=err_console) if not as_json else contextlib.nullcontext()
 
@@ -170,7 +170,7 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
             say(_STATUS[c.status] + "  {}: {}", c.name, c.detail)
 
     try:
-        with _rig(config, cfg, emulate) as cfg, spinner:
+        with config_rig(config, cfg, emulate) as cfg, spinner:
             checks = run_doctor(cfg, listen_s=listen_s, on_check=show)
     except KeyboardInterrupt as e:
         interrupted(signum_of(e), "doctor stopped; nothing was written to the servos")
@@ -215,7 +215,7 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
               accept_large: bool = typer.Option(
                   False, "--accept-large-offsets",
                   help="Write zeros that moved more than 2° (2 mm) from the config's too."),
-              emulate: bool = _EMULATE,
+              emulate: bool = EMULATE_OPTION,
               as_json: bool = typer.Option(False, "--json",
                                            help="Print the result as one JSON line.")) -> None:
     """Calibrate joint zero offsets and the ultrasonic sensor; write a dated calibration file."""
@@ -224,7 +224,7 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
     from bench.lab.calibrate import calibrate as run_calibration  # deferred: --help and completion stay fast
     from bench.lab.session import check_ports  # deferred: --help and completion stay fast
 
-    cfg = _load(config, "calibrate")
+    cfg = load_lab_config(config, "calibrate")
     if write not in ("config", "homing"):
         fail(f"--write must be config or homing, got {write!r}")
     if 0 < stops < 3:
@@ -257,7 +257,7 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
         default = default_output(cfg)
         out = default.with_name("emulated-" + default.name)
     try:
-        with _rig(config, cfg, emulate) as rig_cfg:
+        with config_rig(config, cfg, emulate) as rig_cfg:
             res = run_calibration(rig_cfg, write=write, stops=stops, samples=samples, out=out,
                                   confirm=confirm, note=note, accept_large=accept_large,
                                   span=math.radians(span_deg) if span_deg is not None else None)
@@ -303,14 +303,14 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
 
 
 def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dynamixel."),
-        emulate: bool = _EMULATE) -> None:
+        emulate: bool = EMULATE_OPTION) -> None:
     """Move one joint at a time in small steps within limits (keys: 1-9, +/-, s, q); torque off on exit."""
 
     from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
     from bench.lab.jog import RawKeys, jog_view, run_jog  # deferred: --help and completion stay fast
     from bench.lab.session import check_ports, open_backend  # deferred: --help and completion stay fast
 
-    cfg = _load(config, "jog")
+    cfg = load_lab_config(config, "jog")
     if not (sys.stdin.isatty() and sys.stderr.isatty()):
         fail("jog reads keys from a terminal: stdin and stderr must be a TTY "
               "(not a pipe, a file or a script)")
@@ -324,7 +324,7 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
     reason = "error"
     act = None
     try:
-        with _rig(config, cfg, emulate) as cfg, \
+        with config_rig(config, cfg, emulate) as cfg, \
                 open_backend(cfg) as act:  # torque off when this block is left, however it is left
             act.enable()
             with RawKeys(sys.stdin.fileno()) as keys, \

@@ -1,0 +1,95 @@
+"""`hilbench registers`: one servo's whole control table, decoded through the register table, as
+the emulated servo holds it; --watch refreshes the RAM area while the joint moves."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bench.config.models import load_trial_config
+from bench.lab.registers import read_table, watch_table
+from bench.rig.emulated import EmulatedRig
+from drivers.dynamixel.bus import ServoBus
+from drivers.dynamixel.control_table import XM430_W350, model_spec
+
+REPO = Path(__file__).resolve().parent.parent
+LAB = REPO / "hil_configs" / "lab_real.yaml"
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+#: Registers that change by themselves between two reads (time, the shaft, the supply, the drive).
+VOLATILE = {"Realtime Tick", "Present PWM", "Present Current", "Present Velocity", "Present Position",
+            "Velocity Trajectory", "Position Trajectory", "Present Input Voltage", "Present Temperature",
+            "Moving", "Moving Status"}
+
+
+@pytest.fixture
+def cold_rig():
+    cfg = load_trial_config(LAB)
+    cfg = cfg.model_copy(update={"emulator": cfg.emulator.model_copy(update={"start_torque_on": False})})
+    with EmulatedRig(cfg) as r:
+        yield r, r.retarget(cfg)
+
+
+def test_every_register_of_the_xm430_table_decoded_as_the_emulator_holds_it(cold_rig):
+    rig, cfg = cold_rig
+    sid = cfg.backend.servos["theta4"].id
+    spec = model_spec(XM430_W350)
+    with ServoBus(cfg.backend.port, cfg.backend.baud) as bus:
+        table = read_table(bus, sid)
+    assert table.model == "XM430-W350" and table.id == sid
+    assert [r.name for r in table.registers] == [r.name for r in spec.table]  # every one, by address
+    servo = rig.bus.servo(sid)
+    for r in table.registers:
+        reg = spec.table[r.name]
+        assert (r.address, r.size, r.access) == (reg.address, reg.size, reg.access.value)
+        if r.name not in VOLATILE:
+            with rig.bus.lock:
+                assert r.raw == servo.get(r.name), r.name
+        if reg.unit:
+            assert r.unit == reg.unit and r.value == pytest.approx(float(reg.to_si(r.raw)))
+        else:
+            assert r.value is None and r.unit == ""
+    by_name = {r.name: r for r in table.registers}
+    assert by_name["ID"].raw == sid and by_name["Torque Enable"].raw == 0
+    assert by_name["Present Input Voltage"].unit == "V" and 10 < by_name["Present Input Voltage"].value < 14
+    assert by_name["Current Limit"].value == pytest.approx(by_name["Current Limit"].raw * 2.69e-3)
+    assert by_name["Goal Position"].value == pytest.approx((by_name["Goal Position"].raw - 2048) * 3.14159265 / 2048)
+
+
+def test_watch_refreshes_present_position_while_the_joint_moves(cold_rig):
+    rig, cfg = cold_rig
+    sid = cfg.backend.servos["theta4"].id
+    seen, goal = [], None
+    with ServoBus(cfg.backend.port, cfg.backend.baud) as bus:
+        for k, table in enumerate(watch_table(bus, sid, period_s=0.1, stop=lambda: len(seen) >= 12)):
+            rows = {r.name: r for r in table.registers}
+            seen.append(rows["Present Position"].raw)
+            assert len(table.registers) == len(model_spec(XM430_W350).table)  # EEPROM rows kept
+            if k == 1:  # jog the joint by 200 ticks through the same bus, as `hilbench jog` would
+                goal = rows["Present Position"].raw + 200
+                bus.write(sid, "Torque Enable", 1)
+                bus.write(sid, "Goal Position", goal)
+        bus.write(sid, "Torque Enable", 0)
+    assert abs(seen[1] - goal + 200) <= 3  # still before the jog
+    assert abs(seen[-1] - goal) <= 10  # the watch saw it arrive
+    assert len(set(seen[2:])) >= 3  # and saw it on the way
+
+
+def test_the_cli_prints_one_json_line_and_refuses_bad_calls_in_one_line():
+    done = subprocess.run([HILBENCH, "registers", str(LAB), "--emulate", "--id", "2", "--json"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert out["id"] == 2 and out["model"] == "XM430-W350"
+    assert set(out["registers"][0]) == {"name", "address", "size", "access", "raw", "value", "unit"}
+    assert len(out["registers"]) == len(model_spec(XM430_W350).table)
+    for args, words in (([], "give a CONFIG"), (["--port", "/dev/null"], "--port needs --baud"),
+                        ([str(LAB), "--watch", "--json"], "--watch shows a live table"),
+                        ([str(LAB), "--emulate", "--id", "77"], "servo ID 77 did not answer")):
+        args = args if "--id" in args else [*args, "--id", "1"]
+        bad = subprocess.run([HILBENCH, "registers", *args], capture_output=True, text=True, timeout=120)
+        assert bad.returncode in (1, 2) and words in bad.stderr, bad.stderr
+        assert len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr
