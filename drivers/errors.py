@@ -15,19 +15,25 @@ __all__ = [
     "ActuatorError",
     "BackendSetupError",
     "BenchError",
+    "CampaignBusy",
+    "CampaignDirError",
     "CampaignError",
     "CampaignSpecError",
+    "CampaignStoreError",
     "CommandError",
     "CommunicationError",
     "CompareError",
     "ConfigError",
     "ContractViolation",
     "ExitCode",
+    "GoalOutOfRange",
     "HardwareFault",
     "IdentifyError",
     "NotEnabledError",
     "PlanMismatchError",
+    "RunDirError",
     "StaleReadingError",
+    "StandError",
     "StuffingError",
     "TrajectoryError",
     "TrialError",
@@ -170,3 +176,27 @@ class CampaignError(BenchError, RuntimeError):
 
 class IdentifyError(BenchError, ValueError):
     """The logs cannot be identified together (missing, not the rig's, two different rigs)."""
+
+
+class CampaignBusy(BenchError, RuntimeError):
+    """Another process is running this campaign directory."""
+
+
+class CampaignDirError(BenchError, ValueError):
+    """A campaign directory that is not what the bench writes; the message says where and what."""
+
+
+class CampaignStoreError(BenchError, RuntimeError):
+    """A file that is not a campaign's database."""
+
+
+class StandError(BenchError, ValueError):
+    """A stand log or servo model that cannot be used (malformed, unknown motor, torque never on)."""
+
+
+class RunDirError(BenchError, ValueError):
+    """A run directory that is not what the bench writes; the message names the run and the fault."""
+
+
+class GoalOutOfRange(CommandError):
+    """A goal position beyond what the servo's mode or its joint's limits allow; never sent."""

@@ -95,3 +95,29 @@ def _exit_literals(path: Path) -> list[str]:
 def test_exit_codes_come_from_the_table_never_a_literal(package):
     found = [hit for p in sorted((ROOT / package).rglob("*.py")) for hit in _exit_literals(p)]
     assert not found, found
+
+
+def test_every_error_class_is_defined_in_the_one_errors_module():
+    """The README's promise: every error the project raises on purpose is in drivers/errors.py."""
+    import importlib
+    import pkgutil
+
+    import bench
+    import drivers
+    import trajectories
+    from drivers.errors import BenchError
+
+    for package in (bench, drivers, trajectories):
+        for info in pkgutil.walk_packages(package.__path__, package.__name__ + "."):
+            importlib.import_module(info.name)
+    seen, todo = set(), [BenchError]
+    while todo:
+        cls = todo.pop()
+        for sub in cls.__subclasses__():
+            if sub not in seen:
+                seen.add(sub)
+                todo.append(sub)
+    ours = [c for c in seen if c.__module__.split(".")[0] in ("bench", "drivers", "trajectories")]
+    elsewhere = sorted(f"{c.__module__}.{c.__qualname__}" for c in ours if c.__module__ != "drivers.errors")
+    assert not elsewhere, elsewhere
+    assert len(ours) > 20

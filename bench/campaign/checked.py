@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from bench.campaign.store import METRIC_COLUMNS, STATUSES, CampaignStore, CampaignStoreError
 from bench.config.base import describe_validation_error
-from drivers import BenchError
+from drivers.errors import CampaignDirError
 
 __all__ = ["CampaignDirError", "read_campaign", "trial_run_dir"]
 
@@ -27,10 +27,6 @@ DB_NAME = "campaign.db"
 TRIALS_DIR = "trials"
 _COLUMNS = {"id", "name", "status", "params", "completed", "passed", "reason", *METRIC_COLUMNS,
             "truth", "log_path", "error", "attempts", "seed"}
-
-
-class CampaignDirError(BenchError, ValueError):
-    """A campaign directory that is not what the bench writes; the message says where and what."""
 
 
 class _Acceptance(BaseModel):

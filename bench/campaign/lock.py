@@ -17,17 +17,13 @@ import socket
 from pathlib import Path
 from typing import Optional
 
-from drivers import BenchError
+from drivers.errors import CampaignBusy
 
 __all__ = ["LOCK_NAME", "CampaignBusy", "CampaignLock"]
 
 LOCK_NAME = "campaign.lock"
 #: Campaign directories this process holds, and how deep: a holder may call code that takes it again.
 _HELD: dict[Path, int] = {}
-
-
-class CampaignBusy(BenchError, RuntimeError):
-    """Another process is running this campaign directory."""
 
 
 class CampaignLock:

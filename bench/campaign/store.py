@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from drivers import BenchError
+from drivers.errors import CampaignStoreError
 
 __all__ = ["CampaignStore", "CampaignStoreError", "METRIC_COLUMNS", "STATUSES", "TrialRow"]
 
@@ -59,10 +59,6 @@ CREATE INDEX IF NOT EXISTS trials_status ON trials (status);
 """
 
 TrialRow = dict[str, Any]
-
-
-class CampaignStoreError(BenchError, RuntimeError):
-    """A file that is not a campaign's database."""
 
 
 class CampaignStore:

@@ -26,7 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 from bench.config.base import describe_validation_error
 from bench.core.log import JOURNAL_META, JOURNAL_ROWS, SERIES, Event, TrialLog
 from bench.core.record import sha256_of
-from drivers import BenchError
+from drivers.errors import RunDirError
 
 __all__ = ["LOG_MAX_BYTES", "RECORD", "RESULT", "RecordFile", "ResultFile", "RunDirError", "SavedRun",
            "has_run_files", "load_run", "read_journal", "read_log_file", "read_result", "refuse_links"]
@@ -38,10 +38,6 @@ LOG_MAX_BYTES = 1 << 30
 #: The most a JSON file of a run directory may hold (record.json, result.json, the journal's metadata).
 JSON_MAX_BYTES = 64 << 20
 _FLOAT_SERIES = SERIES[2:]
-
-
-class RunDirError(BenchError, ValueError):
-    """A run directory that is not what the bench writes; the message names the run and the fault."""
 
 
 class RecordFile(BaseModel):

@@ -22,6 +22,7 @@ import yaml
 
 from bench.config.servo_model import (STAND_JOINT, STAND_ROBOT, LogSource, ServoModelFile, ServoPhysics,
                                       StandSetup)
+from bench.core.rundir import has_run_files
 from bench.identify.errors import IdentifyError
 from bench.identify.stand_errors import stand_errors
 from bench.identify.stand_fit import LOWER, PARAMS, UPPER, StandFit, _init_worker, batch_cost, fit_stand
@@ -141,8 +142,8 @@ def identify_stand(paths: Sequence[Path], out: Path, *, workers: int = 0, genera
 
 def is_stand_input(path: Path) -> bool:
     """Whether ``path`` is a test-stand log (a JSON file) or a directory of them, rather than a
-    trial run directory (which holds ``trial.npz``)."""
+    trial run directory (which holds a trial's log, record or journal, however damaged)."""
     path = Path(path)
     if path.is_dir():
-        return not (path / "trial.npz").exists() and any(path.glob("*.json"))
+        return not has_run_files(path) and any(path.glob("*.json"))
     return path.suffix.lower() == ".json"

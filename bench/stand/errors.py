@@ -1,9 +1,6 @@
-"""The error the test stand raises on purpose: a log or model it cannot use, said in one line."""
+"""The error the test stand raises on purpose (defined with every other in :mod:`drivers.errors`):
+a log or model it cannot use, said in one line."""
 
-from drivers import BenchError
+from drivers.errors import StandError
 
 __all__ = ["StandError"]
-
-
-class StandError(BenchError, ValueError):
-    """A stand log or servo model that cannot be used (malformed, unknown motor, torque never on)."""

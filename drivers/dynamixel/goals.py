@@ -17,8 +17,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from drivers import CommandError, BackendSetupError
+from drivers import BackendSetupError
 from drivers.dynamixel.control_table import x_series_table
+from drivers.errors import GoalOutOfRange
 
 __all__ = ["GoalBounds", "GoalOutOfRange", "joint_ticks", "mode_ticks", "outside_limits",
            "transmission_problem"]
@@ -27,10 +28,6 @@ __all__ = ["GoalBounds", "GoalOutOfRange", "joint_ticks", "mode_ticks", "outside
 #: Goal Position: its unit (rad of shaft per tick) and centre tick convert every goal here.
 _GOAL = x_series_table()["Goal Position"]
 _CENTER = _GOAL.zero
-
-
-class GoalOutOfRange(CommandError):
-    """A goal position beyond what the servo's mode or its joint's limits allow; never sent."""
 
 
 def mode_ticks(mode: str) -> tuple[int, int]:
