@@ -46,12 +46,13 @@ def loop(live: bool) -> float:
     cfg = _config()
     prep = prepare(cfg)
     out = Path(tempfile.mkdtemp(prefix="live-bench-"))
+    profile = Path(tempfile.mkdtemp(prefix="live-bench-browser-"))  # beside the runs, not among them
     server = browser = None
     try:
         if live:
             server = LiveServer(RunFollower(out, lambda: prep), on_stop=lambda: None).start()
             browser = subprocess.Popen([shutil.which("chromium") or "chromium", "--headless=new", "--no-sandbox",
-                                        "--disable-gpu", f"--user-data-dir={out / 'profile'}", server.url],
+                                        "--disable-gpu", f"--user-data-dir={profile}", server.url],
                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             deadline = time.monotonic() + 20
             while server._last_poll < 0 and time.monotonic() < deadline:  # the page is polling
@@ -76,6 +77,7 @@ def loop(live: bool) -> float:
         if server is not None:
             server.close(linger=False)
         shutil.rmtree(out, ignore_errors=True)
+        shutil.rmtree(profile, ignore_errors=True)
 
 
 def main() -> None:

@@ -11,6 +11,7 @@ directory; the follower always shows the newest.
 from __future__ import annotations
 
 import json
+import os
 import re
 import threading
 import time
@@ -68,9 +69,9 @@ class RunFollower:
 
     def __init__(self, out: Path, prepared: Callable[[], PreparedTrial]) -> None:
         self.out = Path(out)
-        self._prepared = prepared  # called once, at the first row (the trial's interlocks' figures)
-        self._meter: MarginMeter | None = None
-        self.kinds: list[str] = []
+        prep = prepared()  # the margins' geometry is built here, before the loop starts: never beside it
+        self.meter = MarginMeter(prep)
+        self.kinds: list[str] = [r.kind for r in prep.robot.chain.rows]
         self._started = time.time() - 1.0
         self._lock = threading.Lock()
         self._dir: Path | None = None
@@ -83,21 +84,33 @@ class RunFollower:
         self.snapshot = Snapshot()
 
     def _newest(self) -> Path | None:
-        found = []
-        for depth in range(1, _DEPTH + 1):
-            for meta in self.out.glob("/".join(["*"] * depth) + "/" + JOURNAL_META):
-                found.append(meta.parent)
-            for rec in self.out.glob("/".join(["*"] * depth) + "/record.json"):
-                found.append(rec.parent)
-        fresh = []
-        for d in set(found):
+        """The run directory written to last, among those made since the follower started.
+
+        Only directories changed since then are opened (a runs/ folder of a thousand past
+        trials costs a scan of its top level), at most :data:`_DEPTH` down (a comparison's
+        repeats), homing runs left out."""
+        found = list(self._fresh(self.out, _DEPTH))
+        return max(found)[2] if found else None
+
+    def _fresh(self, root: Path, depth: int):
+        try:
+            entries = list(os.scandir(root))
+        except OSError:
+            return
+        for entry in entries:
             try:
-                born = d.stat().st_mtime
+                if not entry.is_dir(follow_symlinks=False) or entry.name == "homing":
+                    continue
+                changed = entry.stat(follow_symlinks=False).st_mtime
             except OSError:
                 continue
-            if born >= self._started and "homing" not in d.relative_to(self.out).parts:
-                fresh.append((born, str(d), d))
-        return max(fresh)[2] if fresh else None
+            if changed < self._started:
+                continue
+            path = Path(entry.path)
+            if (path / JOURNAL_META).exists() or (path / "record.json").exists():
+                yield changed, entry.path, path
+            elif depth > 1:
+                yield from self._fresh(path, depth - 1)
 
     def poll(self) -> Snapshot:
         """Read what the journal gained since the last poll (cheap when nothing did)."""
@@ -159,15 +172,6 @@ class RunFollower:
         s.q.extend(q.tolist())
         self._margins(q[-1], q_cmd[-1], int(rows[-1, 1]))
         self._phase()
-
-    @property
-    def meter(self) -> MarginMeter:
-        """The trial's interlock margins, built at the first row (off the control loop's start)."""
-        if self._meter is None:
-            prep = self._prepared()
-            self._meter = MarginMeter(prep)
-            self.kinds = [r.kind for r in prep.robot.chain.rows]
-        return self._meter
 
     def _margins(self, q: np.ndarray, q_cmd: np.ndarray, segment: int) -> None:
         m = self.meter(q, q_cmd)

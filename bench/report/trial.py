@@ -91,7 +91,7 @@ def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Pa
 
 
 def _fmt(v: float, nd: int = 2) -> str:
-    return f"{v:.{nd}f}"
+    return f"{round(v, nd) + 0.0:.{nd}f}"  # no "-0.000"
 
 
 def table3_markdown(target_mm: list[float], depth_mm: float, angle_deg: float, outcome) -> str:
