@@ -241,7 +241,7 @@ def test_sigkill_leaves_a_journal_that_report_recovers_and_no_child(tmp_path):
     rows_before = _journal_rows(out)
     proc.kill()
     proc.communicate(timeout=30)
-    _wait_for(lambda: not _emulators_of(config), timeout=10, what="the emulator to die with it")
+    _wait_for(lambda: not _emulators_of(config), timeout=30, what="the emulator to die with it")
     run = _run_dir(out)
     assert not (run / "record.json").exists()
     rebuilt = subprocess.run([HILBENCH, "report", str(run), "--json"], capture_output=True,
