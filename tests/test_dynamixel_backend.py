@@ -33,15 +33,6 @@ def rig():
         yield r, r.retarget(cfg)
 
 
-@pytest.fixture
-def cold_rig():
-    """A rig whose servos power up with torque off, to see that a refused start never enables it."""
-    cfg = load_trial_config(LAB)
-    cfg = cfg.model_copy(update={"emulator": cfg.emulator.model_copy(update={"start_torque_on": False})})
-    with EmulatedRig(cfg) as r:
-        yield r, r.retarget(cfg)
-
-
 def backend_for(cfg):
     return make_dynamixel_backend(cfg, get_robot(cfg.robot))
 

@@ -10,9 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.config.models import load_trial_config
 from bench.lab.registers import read_table, watch_table
-from bench.rig.emulated import EmulatedRig
 from drivers.dynamixel.bus import ServoBus
 from drivers.dynamixel.control_table import XM430_W350, model_spec
 
@@ -23,14 +21,6 @@ HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 VOLATILE = {"Realtime Tick", "Present PWM", "Present Current", "Present Velocity", "Present Position",
             "Velocity Trajectory", "Position Trajectory", "Present Input Voltage", "Present Temperature",
             "Moving", "Moving Status"}
-
-
-@pytest.fixture
-def cold_rig():
-    cfg = load_trial_config(LAB)
-    cfg = cfg.model_copy(update={"emulator": cfg.emulator.model_copy(update={"start_torque_on": False})})
-    with EmulatedRig(cfg) as r:
-        yield r, r.retarget(cfg)
 
 
 def test_every_register_of_the_xm430_table_decoded_as_the_emulator_holds_it(cold_rig):
