@@ -14,7 +14,7 @@ import numpy as np
 
 from bench.core.result import PreparedTrial
 from bench.scene.contact import GantryClearance
-from bench.trial.plan import planned_limits
+from bench.trial.plan import planned_limits, tracking_bounds
 
 __all__ = ["Margins", "MarginMeter", "margins_of"]
 
@@ -33,12 +33,10 @@ class MarginMeter:
 
     def __init__(self, prep: PreparedTrial) -> None:
         s = prep.config.safety
-        kinds = [r.kind for r in prep.robot.chain.rows]
         lim = planned_limits(prep)
         self.lower = lim.lower - s.joint_limit_tolerance
         self.upper = lim.upper + s.joint_limit_tolerance
-        self.bound = np.array([np.radians(s.tracking_error_deg) if k == "revolute"
-                               else s.tracking_error_mm * 1e-3 for k in kinds])
+        self.bound = tracking_bounds(prep)
         self.gantry_margin = s.gantry_margin_mm * 1e-3 if s.enabled and s.gantry_margin_mm > 0 else None
         self._clearance = (GantryClearance(prep.robot, self.gantry_margin)
                            if self.gantry_margin is not None else None)

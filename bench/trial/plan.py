@@ -38,7 +38,8 @@ from trajectories import (
     TrajectoryError,
 )
 
-__all__ = ["aimed_plan", "excitation_of", "interlocks_for", "plan", "planned_limits", "prepare", "target_of"]
+__all__ = ["aimed_plan", "excitation_of", "interlocks_for", "plan", "planned_limits", "prepare", "target_of",
+           "tracking_bounds"]
 
 
 def target_of(config: TrialConfig) -> NeedleTarget:
@@ -181,9 +182,7 @@ def excitation_of(prep: PreparedTrial, limits: Limits) -> Excitation:
     lim = planned_limits(prep)
     kinds = [r.kind for r in rows]
     amp = np.array([np.radians(ex.amplitude_deg) if k == "revolute" else ex.amplitude_mm * 1e-3 for k in kinds])
-    s = prep.config.safety
-    margin = np.array([np.radians(s.tracking_error_deg) if k == "revolute" else s.tracking_error_mm * 1e-3
-                       for k in kinds]) * 0.5 + s.joint_limit_tolerance
+    margin = tracking_bounds(prep) * 0.5 + prep.config.safety.joint_limit_tolerance
     room = np.minimum(prep.q_entry - lim.lower, lim.upper - prep.q_entry) - margin
     if ex.joints == "all":
         joints = [j for j in range(len(names)) if room[j] > 0]
@@ -211,14 +210,20 @@ def interlocks_for(prep: PreparedTrial, act: Actuators | JointLimits):
     kinds = [r.kind for r in prep.robot.chain.rows]
     lim = act if isinstance(act, JointLimits) else act.limits
     tol = s.joint_limit_tolerance
-    bound = [np.radians(s.tracking_error_deg) if k == "revolute" else s.tracking_error_mm * 1e-3
-             for k in kinds]
     checks = [JointLimitInterlock(lim.lower - tol, lim.upper + tol, names, kinds=kinds),
               VelocityLimitInterlock(lim.velocity, names, s.velocity_factor, kinds=kinds),
-              TrackingErrorInterlock(bound, names, kinds=kinds)]
+              TrackingErrorInterlock(list(tracking_bounds(prep)), names, kinds=kinds)]
     if s.stale_data:
         checks.append(StaleDataInterlock())
     if s.gantry_margin_mm > 0:
         checks.append(GantryClearanceInterlock(prep.robot, s.gantry_margin_mm * 1e-3,
                                                lookahead_s=s.gantry_lookahead_s))
     return Interlocks(checks)
+
+
+def tracking_bounds(prep: PreparedTrial) -> np.ndarray:
+    """Each joint's tracking-error bound as configured (rad or m): the interlock's, the margins
+    the live view and the export show, and the excitation's room."""
+    s = prep.config.safety
+    return np.array([np.radians(s.tracking_error_deg) if r.kind == "revolute" else s.tracking_error_mm * 1e-3
+                     for r in prep.robot.chain.rows])
