@@ -89,7 +89,7 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
              f"along its logged motion, position and current fitted (CMA-ES, then Levenberg-Marquardt)"]
     notes += notes_at_bound
     for name, why in fit.skipped.items():
-        pooled = pooled_physics(setup, fit, name)
+        pooled = pooled_physics(setup, fit, name, joints)
         if pooled is None:
             notes.append(f"{name}: not fitted, {why}; datasheet values")
             continue
@@ -114,16 +114,18 @@ def peer_values(setup: RigSetup, fit: FitResult, joint: str,
     return {k: float(np.median([fit.joints[n].values[k] for n in peers])) for k in keys}, peers
 
 
-def pooled_physics(setup: RigSetup, fit: FitResult, joint: str) -> tuple[dict[str, float], list[str]] | None:
+def pooled_physics(setup: RigSetup, fit: FitResult, joint: str,
+                   written: dict[str, ServoPhysics]) -> tuple[dict[str, float], list[str]] | None:
     """For a joint the logs never moved: the median physics of the fitted joints with the same
-    servo model (the same motor and gearbox, so closer than the datasheet's bare values); None
-    when no such joint was fitted."""
+    servo model (the same motor and gearbox, so closer than the datasheet's bare values), as
+    ``written`` for them (a value a peer's fit ran to the edge of is pooled as its file holds it);
+    None when no such joint was fitted."""
     model = setup.models[setup.joint_names.index(joint)]
     peers = [n for n in fit.joints if setup.models[setup.joint_names.index(n)] == model]
     if not peers:
         return None
     keys = list(fit.joints[peers[0]].values)
-    return {k: float(np.median([fit.joints[n].values[k] for n in peers])) for k in keys}, peers
+    return {k: float(np.median([getattr(written[n], k) for n in peers])) for k in keys}, peers
 
 
 def write_model_file(model: ServoModelFile, path: Path) -> None:
