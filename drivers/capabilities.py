@@ -17,8 +17,9 @@ import numpy as np
 
 from drivers import Actuators, BackendSetupError, JointState
 
-__all__ = ["CAPABILITIES", "BlockExecution", "EffortLimited", "EmulatorHooks", "HostLoop", "JointKinds",
-           "LinkPoses", "PositionReset", "SafeStopReport", "ServoInfo", "StartWarnings", "TruePosition",
+__all__ = ["CAPABILITIES", "BlockExecution", "BusTiming", "EffortLimited", "EmulatorHooks", "HostLoop",
+           "JointKinds", "LinkPoses", "PositionReset", "SafeStopReport", "ServoInfo", "StartWarnings",
+           "TruePosition",
            "find_capability", "layers", "members", "require_capability"]
 
 C = TypeVar("C")
@@ -114,9 +115,23 @@ class HostLoop(Protocol):
     def status_lost(self, joints: Sequence[str]) -> None: ...
 
 
+@runtime_checkable
+class BusTiming(Protocol):
+    """A backend on a bus, paced by the wall clock: its clock is real time, so each control cycle
+    has a deadline, and it times its own bus transactions where they happen.
+
+    ``bus_time()`` is the seconds (SI) spent in bus transactions since the last call (0.0 for
+    none): the runner takes it once a cycle, as ros2_control times a hardware interface's read and
+    write. A simulator, whose clock runs as fast as the CPU allows, has no deadline and offers none.
+    """
+
+    def bus_time(self) -> float: ...
+
+
 #: Every capability a backend may offer, as the checker goes through them.
-CAPABILITIES: tuple[type, ...] = (BlockExecution, EffortLimited, EmulatorHooks, HostLoop, JointKinds, LinkPoses,
-                                  PositionReset, SafeStopReport, ServoInfo, StartWarnings, TruePosition)
+CAPABILITIES: tuple[type, ...] = (BlockExecution, BusTiming, EffortLimited, EmulatorHooks, HostLoop,
+                                  JointKinds, LinkPoses, PositionReset, SafeStopReport, ServoInfo,
+                                  StartWarnings, TruePosition)
 
 
 def layers(actuators: Actuators) -> Iterator[Actuators]:

@@ -27,6 +27,7 @@ from drivers import (
 from drivers.capabilities import (
     CAPABILITIES,
     BlockExecution,
+    BusTiming,
     EffortLimited,
     EmulatorHooks,
     HostLoop,
@@ -213,6 +214,14 @@ def _check_active_capabilities(act: Actuators, n: int, q: np.ndarray) -> None:
             loop.status_lost(list(act.joint_names))
         except Exception as e:  # noqa: BLE001 - any exception is the finding
             raise ContractViolation(f"status_lost(joint names) raised {type(e).__name__}: {e}") from e
+    bus = find_capability(act, BusTiming)
+    if bus is not None:  # a read is a bus transaction: its time shows in the next take, then none
+        bus.bus_time()
+        _read(act, n, "to time the bus")
+        took, again = bus.bus_time(), bus.bus_time()
+        _require(isinstance(took, float) and math.isfinite(took) and took > 0,
+                 f"bus_time() after a read is {took!r}: a read on the bus takes time")
+        _require(again == 0.0, f"bus_time() right after a take is {again!r}: it counts from the last take")
     blocks = find_capability(act, BlockExecution)
     if blocks is act:  # the runner's fast path: only ever on the outermost layer
         states = blocks.execute_block(q[None, :], np.zeros((1, n)), np.array([act.now() + 0.002]))

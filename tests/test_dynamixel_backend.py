@@ -198,6 +198,9 @@ def test_emulated_lab_trial_passes_like_a_sim_trial(tmp_path):
     res = json.loads(out.stdout)
     assert res["passed"] is True
     assert max(abs(v) for v in res["tip_deviation_mm"]) < 5.0
+    tm = res["loop_timing"]  # the bus paced the loop: every cycle timed, its transactions measured
+    assert tm["state"] == "paced" and tm["cycles"] > 500 and 0 < tm["bus_median_s"] < 0.01
+    assert tm["period_median_s"] == pytest.approx(0.01, abs=0.002)
     assert abs(res["angle_deviation_deg"]) < 1.0
     run = Path(res["run_dir"])
     md = (run / "report.md").read_text()

@@ -101,6 +101,8 @@ def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(t
     assert ("PASSED" if result["passed"] else f"NOT PASSED: {result['reason']}") in page.inner_text("#verdict")
     assert page.get_attribute("#report-link", "href").startswith("report?token=")
     assert "safe-stop" in page.inner_text("#events")
+    tm = result["loop_timing"]  # the loop's timing line ends with the saved log's count
+    assert f"{tm['missed']} of {tm['cycles']} deadlines missed" in page.inner_text("#loop")
     # Both pages drew the whole log, decimated to at most 50 points a second.
     assert _points(page) == _points(late) == len(decimate(log.time, -np.inf)[0])
 

@@ -84,12 +84,16 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
         say("[bold red]check the rig:[/] {}", res.why_not)
     elif not res.passed:
         say("[bold red]trial failed:[/] {}", res.why_not)
+    if res.timing.late:
+        say("[bold yellow]warning:[/] {}", res.timing.verdict_note())
     if as_json:
         emit_json(res.summary() | ({"live_url": live_url} if live_url else {}))
     else:
         o = res.outcome
         verdict = "[green]PASSED[/]" if res.passed else "[red]FAILED[/]"
-        console.print(styled("trial {}: " + verdict + "  ({})", name, res.run_dir))
+        late = res.timing.verdict_note()  # a loop that did not keep time says so in the verdict
+        console.print(styled("trial {}: " + verdict + ("; [bold yellow]{}[/]" if late else "{}") + "  ({})",
+                             name, late, res.run_dir), soft_wrap=True)
         if not res.completed:
             console.print(styled("[red]stopped early:[/] {}", res.reason))
         if o is not None:  # short lines: an 80-column terminal never splits a value from its name
@@ -97,6 +101,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
             console.print(f"tip deviation: X {x:+.3f}  Y {y:+.3f}  Z {z:+.3f} mm", highlight=False)
             console.print(f"depth {round(o.depth_deviation_mm, 3) + 0.0:+.3f} mm, angle "
                           f"{round(o.angle_deviation_deg, 4) + 0.0:+.4f}°", highlight=False)
+        console.print(res.timing.summary_line(), highlight=False, soft_wrap=True)
         console.print(f"report: {res.run_dir / 'report.html'}")
     raise typer.Exit(ExitCode.STOP_UNCONFIRMED if not res.stop_confirmed
                      else ExitCode.PASSED if res.passed else ExitCode.FAILED)

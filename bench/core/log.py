@@ -27,7 +27,11 @@ from typing import Any
 import numpy as np
 
 SERIES = ("time", "segment", "q_cmd", "qd_cmd", "q", "qd", "effort")
-JOURNAL_ROWS = "trial.journal"  # float64 records: time, segment, then q_cmd qd_cmd q qd effort
+#: The loop's own timing, per cycle, in s, in a paced trial (a backend on the wall clock): when the
+#: cycle started (the backend's clock), how late its work ended against its deadline (negative: the
+#: slack it had), and how long its bus transactions took. NaN where a cycle was not timed.
+TIMING_SERIES = ("loop_start", "loop_late", "bus_s")
+JOURNAL_ROWS = "trial.journal"  # float64 records: time, segment, q_cmd qd_cmd q qd effort[, timing]
 JOURNAL_META = "trial.journal.json"  # joint and segment names, metadata, events
 FLUSH_EVERY_S = 0.5
 
@@ -61,6 +65,7 @@ class TrialLog:
         self._seg = np.empty(self.capacity, dtype=np.int16)
         self._arr = {k: np.empty((self.capacity, n)) for k in ("q_cmd", "qd_cmd", "q", "qd", "effort")}
 
+        self._timing: dict[str, np.ndarray] | None = None  # TIMING_SERIES once timing started
         self._journal = None  # (rows file, meta path) while journaling
         self._journaled = 0
         self._meta_dirty = True
@@ -77,6 +82,34 @@ class TrialLog:
             grown = np.empty((cap, a.shape[1]))
             grown[: self._n] = a[: self._n]
             self._arr[k] = grown
+        if self._timing is not None:
+            for k, a in self._timing.items():
+                grown = np.full(cap, np.nan)  # rows not yet timed read as NaN, whatever follows
+                grown[: self._n] = a[: self._n]
+                self._timing[k] = grown
+
+    def start_timing(self) -> None:
+        """Record the loop's timing from the first row on (a paced trial); a log that already holds
+        rows is refused, so every timed log is timed from its start."""
+        if self._n:
+            raise ValueError(f"the loop's timing starts with the first cycle; this log has {self._n} rows")
+        self._timing = {k: np.full(len(self._t), np.nan) for k in TIMING_SERIES}
+        self._meta_dirty = True
+        if self._journal is not None:  # a reader of the journal learns the rows' width before any row
+            self._write_meta()
+
+    @property
+    def timed(self) -> bool:
+        """Whether the log holds the loop's timing (:data:`TIMING_SERIES`)."""
+        return self._timing is not None
+
+    def time_cycle(self, start: float, late: float, bus: float) -> None:
+        """The timing of the cycle last appended: its start (s, backend clock), how late it ended
+        against its deadline (s) and its bus time (s). Three stores, nothing allocated."""
+        i, t = self._n - 1, self._timing
+        t["loop_start"][i] = start
+        t["loop_late"][i] = late
+        t["bus_s"][i] = bus
 
     def append(self, t: float, segment: int, q_cmd, qd_cmd, q, qd, effort) -> None:
         i = self._n
@@ -133,18 +166,24 @@ class TrialLog:
         i, n = self._journaled, self._n
         if n > i:
             a = self._arr
-            block = np.hstack([self._t[i:n, None], self._seg[i:n, None].astype(float),
-                               a["q_cmd"][i:n], a["qd_cmd"][i:n], a["q"][i:n], a["qd"][i:n],
-                               a["effort"][i:n]])
+            cols = [self._t[i:n, None], self._seg[i:n, None].astype(float), a["q_cmd"][i:n],
+                    a["qd_cmd"][i:n], a["q"][i:n], a["qd"][i:n], a["effort"][i:n]]
+            if self._timing is not None:
+                cols += [self._timing[k][i:n, None] for k in TIMING_SERIES]
+            block = np.hstack(cols)
             rows.write(block.tobytes())
             rows.flush()
             self._journaled = n
         if self._meta_dirty:
-            tmp = meta_path.with_name(meta_path.name + ".part")
-            tmp.write_text(json.dumps(self._meta(), default=_json_default))
-            tmp.replace(meta_path)
-            self._meta_dirty = False
+            self._write_meta()
         self._next_flush = _time.monotonic() + FLUSH_EVERY_S
+
+    def _write_meta(self) -> None:
+        meta_path = self._journal[1]
+        tmp = meta_path.with_name(meta_path.name + ".part")
+        tmp.write_text(json.dumps(self._meta(), default=_json_default))
+        tmp.replace(meta_path)
+        self._meta_dirty = False
 
     def close_journal(self, remove: bool = True) -> None:
         """Stop journaling; ``remove`` deletes the journal (once the .npz holds everything)."""
@@ -172,6 +211,9 @@ class TrialLog:
     def __getattr__(self, name: str) -> np.ndarray:
         if name in ("q_cmd", "qd_cmd", "q", "qd", "effort"):
             return self.__dict__["_arr"][name][: self.__dict__["_n"]]
+        if name in TIMING_SERIES:  # None in a log without the loop's timing (a sim's, an old one)
+            timing = self.__dict__["_timing"]
+            return None if timing is None else timing[name][: self.__dict__["_n"]]
         raise AttributeError(name)
 
     def joint(self, name: str) -> int:
@@ -188,15 +230,17 @@ class TrialLog:
         meta = self._meta()
         tmp = path.with_name(path.name + ".part")
         with open(tmp, "wb") as f:
+            timing = {k: getattr(self, k) for k in TIMING_SERIES} if self.timed else {}
             np.savez_compressed(f, time=self.time, segment=self.segment,
-                                **{k: getattr(self, k) for k in SERIES[2:]},
+                                **{k: getattr(self, k) for k in SERIES[2:]}, **timing,
                                 meta=np.array(json.dumps(meta, default=_json_default)))
         tmp.replace(path)
         return path
 
     def _meta(self) -> dict:
         return {"joint_names": self.joint_names, "segment_names": self.segment_names,
-                "events": [e.as_dict() for e in self.events], "metadata": self.metadata}
+                "events": [e.as_dict() for e in self.events], "metadata": self.metadata,
+                "timing": self.timed}
 
     @classmethod
     def load(cls, path: Path) -> "TrialLog":
@@ -213,6 +257,10 @@ class TrialLog:
             log._seg[:n] = z["segment"]
             for k in SERIES[2:]:
                 log._arr[k][:n] = z[k]
+            if "loop_start" in z.files:
+                log.start_timing()
+                for k in TIMING_SERIES:
+                    log._timing[k][:n] = z[k]
             log._n = n
         return log
 

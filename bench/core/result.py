@@ -16,6 +16,7 @@ import numpy as np
 
 from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
+from bench.core.looptiming import LoopTiming, loop_timing
 from bench.core.outcome import NeedleOutcome, needle_outcome, settled_position
 from bench.kinematics.needle import NeedleTarget
 from drivers.errors import TrialError, safe_stop_unconfirmed
@@ -65,6 +66,8 @@ class TrialResult:
     excitation: bool = False
     #: How the actuators were left, in the backend's words (its read-back where it has one).
     safe_stop: str = ""
+    #: Whether the control loop kept time (paced trials), or why there is nothing to say.
+    timing: LoopTiming = field(default_factory=lambda: LoopTiming("not recorded"))
 
     @property
     def stop_confirmed(self) -> bool:
@@ -103,6 +106,7 @@ class TrialResult:
             "completed": self.completed,
             "reason": self.why_not,
             "safe_stop": self.safe_stop or None,
+            "loop_timing": self.timing.as_dict(),
         }
 
 
@@ -132,7 +136,8 @@ def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialR
     completed, reason = status_from_log(log)
     stops = [e.message for e in log.events if e.kind == "safe-stop"]
     return TrialResult(Path(run_dir), Path(run_dir) / "trial.npz", completed, reason, outcome,
-                       excitation=cfg.excitation is not None, safe_stop=stops[-1] if stops else "")
+                       excitation=cfg.excitation is not None, safe_stop=stops[-1] if stops else "",
+                       timing=loop_timing(log, cfg.control_period))
 
 
 def write_result_json(res: TrialResult) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 
 from bench.config.base import describe_validation_error
-from bench.core.log import JOURNAL_META, JOURNAL_ROWS, SERIES, Event, TrialLog
+from bench.core.log import JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES, Event, TrialLog
 from bench.core.record import sha256_of
 from drivers.errors import RunDirError
 
@@ -80,6 +80,7 @@ class _LogMeta(BaseModel):
     segment_names: list[str]
     events: list[_EventEntry]
     metadata: dict[str, Any]
+    timing: StrictBool = False  # the loop's timing follows each row (TIMING_SERIES): a paced trial
 
 
 class _ConfigView(BaseModel):
@@ -107,6 +108,7 @@ class _TrialMetadata(BaseModel):
     q_entry: Optional[list[float]] = None
     q_insert: Optional[list[float]] = None
     control_period: Optional[float] = Field(None, gt=0)
+    loop_wall_s: Optional[float] = Field(None, ge=0)  # the run's wall-clock time (a sim's speed)
 
 
 @dataclass(frozen=True)
@@ -238,12 +240,39 @@ def _check_series(where: object, name: str, meta: _LogMeta, arrays: dict[str, np
                                  f"{len(meta.segment_names)} segments")
 
 
+def _check_timing(where: object, name: str, rows: int, arrays: dict[str, np.ndarray]) -> None:
+    """The loop's timing, when the log has it: all three series, a float per row, no infinity
+    (NaN: a cycle not timed, such as the hold after a trip), no negative bus time."""
+    present = [k for k in TIMING_SERIES if k in arrays]
+    if not present:
+        return
+    if len(present) != len(TIMING_SERIES):
+        missing = [k for k in TIMING_SERIES if k not in arrays]
+        raise _refuse(where, f"{name} has {', '.join(present)} but no {', '.join(missing)}: "
+                             f"the loop's timing is all three or none")
+    for k in TIMING_SERIES:
+        a = arrays[k]
+        if a.dtype.kind != "f" or a.shape != (rows,):
+            raise _refuse(where, f"{name}: {k} is {a.dtype} of shape {a.shape}, not a float per row "
+                                 f"({rows} rows)")
+        bad = np.isinf(a) | ((a < 0) if k == "bus_s" else False)
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise _refuse(where, f"{name}: {k} holds {a[i]} at row {i}; the loop's timing is finite "
+                                 f"seconds (NaN where a cycle was not timed)")
+
+
 def _build(meta: _LogMeta, arrays: dict[str, np.ndarray]) -> TrialLog:
     events = [Event(e.time, e.kind, e.message) for e in meta.events]
     log = TrialLog(list(meta.joint_names), list(meta.segment_names), dict(meta.metadata), events,
                    capacity=max(1, len(arrays["time"])))
+    if TIMING_SERIES[0] in arrays:
+        log.start_timing()
     log.append_block(arrays["time"].astype(float), 0, *(arrays[k].astype(float) for k in _FLOAT_SERIES))
     log._seg[: len(arrays["time"])] = arrays["segment"]
+    if log.timed:
+        for k in TIMING_SERIES:
+            log._timing[k][: len(log)] = arrays[k]
     return log
 
 
@@ -254,8 +283,9 @@ def _npy_headers(where: object, name: str, zf: zipfile.ZipFile) -> None:
     missing = [m.removesuffix(".npy") for m in want if m not in members]
     if missing:
         raise _refuse(where, f"{name} has no {', '.join(missing)}: not a trial log")
+    timing = [f"{k}.npy" for k in TIMING_SERIES if f"{k}.npy" in members]
     total = 0
-    for m in want:
+    for m in want + timing:
         with zf.open(members[m]) as f:
             version = np.lib.format.read_magic(f)
             read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
@@ -278,7 +308,7 @@ def read_log_file(path: Path, where: Optional[object] = None) -> TrialLog:
         with zipfile.ZipFile(path) as zf:
             _npy_headers(where, path.name, zf)
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in SERIES}
+            arrays = {k: z[k] for k in SERIES + TIMING_SERIES if k in z.files}
             raw_meta = z["meta"]
     except RunDirError:
         raise
@@ -292,6 +322,7 @@ def read_log_file(path: Path, where: Optional[object] = None) -> TrialLog:
         raise _refuse(where, f"{path.name}: its metadata is not JSON ({str(e)[:80]})") from None
     meta = _meta(where, path.name, data)
     _check_series(where, path.name, meta, arrays)
+    _check_timing(where, path.name, len(arrays["time"]), arrays)
     return _build(meta, arrays)
 
 
@@ -330,7 +361,7 @@ def read_journal(run_dir: Path) -> TrialLog:
     if rows_path.stat().st_size > LOG_MAX_BYTES:
         raise _refuse(run_dir, f"{JOURNAL_ROWS} is larger than any trial's log")
     n = len(meta.joint_names)
-    width = 2 + 5 * n
+    width = 2 + 5 * n + (len(TIMING_SERIES) if meta.timing else 0)
     raw = np.frombuffer(rows_path.read_bytes(), dtype="<f8")
     rows = raw[: len(raw) // width * width].reshape(-1, width)
     seg = rows[:, 1]
@@ -340,5 +371,9 @@ def read_journal(run_dir: Path) -> TrialLog:
     arrays = {"time": rows[:, 0].copy(), "segment": seg.astype(np.int16)}
     for j, k in enumerate(_FLOAT_SERIES):
         arrays[k] = rows[:, 2 + j * n: 2 + (j + 1) * n].copy()
+    if meta.timing:
+        for j, k in enumerate(TIMING_SERIES):
+            arrays[k] = rows[:, 2 + 5 * n + j].copy()
     _check_series(run_dir, JOURNAL_ROWS, meta, arrays)
+    _check_timing(run_dir, JOURNAL_ROWS, len(rows), arrays)
     return _build(meta, arrays)

@@ -13,11 +13,19 @@ interlocks then scan each block after it ran (:meth:`Interlocks.scan`) and, on
 a trip, the backend is rewound to the tripping cycle, so the trial trips and
 holds exactly where checking every cycle would have — at the cost of a bare
 simulation loop.
+
+A backend on the wall clock (:class:`drivers.capabilities.BusTiming`: the rig's bus) gives each
+cycle a deadline, the next cycle's start: the runner then records, per cycle, when it started,
+how late its work (read, interlocks, command) ended against that deadline and how long its bus
+transactions took (:data:`bench.core.log.TIMING_SERIES`), three stores a cycle. A simulator's
+clock runs as fast as the CPU allows: it is not paced, has no deadline, and only the run's
+wall-clock time is kept (``loop_wall_s``), for its speed against real time.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import Callable, Iterator, Literal, Optional, Protocol, Sequence, runtime_checkable
 
@@ -26,7 +34,7 @@ import numpy as np
 from bench.core.interrupts import NO_SIGNALS
 from bench.core.log import TrialLog
 from drivers import Actuators, JointState
-from drivers.capabilities import BlockExecution, find_capability
+from drivers.capabilities import BlockExecution, BusTiming, find_capability
 from trajectories import Trajectory
 
 #: Cycles sampled from a trajectory at once: bounds a segment's memory, amortises sampling.
@@ -134,6 +142,13 @@ class Runner:
         if not act.enabled:
             act.enable()
         run_chunk = self._run_blocks if runs_blocks(act, self.interlocks) else self._run_cycles
+        self._bus = find_capability(act, BusTiming)
+        if self._bus is not None and not log.timed and not len(log):
+            log.start_timing()
+        self._bus_time = self._bus.bus_time if self._bus is not None and log.timed else None
+        if self._bus_time is not None:
+            self._bus_time()  # the set-up's transactions are not the first cycle's
+        began = time.perf_counter()
         t_next = act.now()
         q_c = None
         try:
@@ -159,14 +174,18 @@ class Runner:
             log.event(_safe_now(act), "abort", abort_reason(e))
             _safe_disable(act)
             raise
+        finally:
+            log.metadata["loop_wall_s"] = time.perf_counter() - began
 
     def _run_cycles(self, si: int, q_all: np.ndarray, qd_all: np.ndarray, t_next: float,
                     log: TrialLog) -> tuple[float, Optional[RunResult]]:
         """One chunk, cycle by cycle: read, record, check, command, wait."""
         act, dt, interlocks = self.act, self.dt, self.interlocks
         report_every, check = self._report_every, self.interrupts.check
+        bus_time = self._bus_time  # None when not paced: no clock read beyond the backend's own
         for k in range(len(q_all)):
             q_c, qd_c = q_all[k], qd_all[k]
+            started = act.now() if bus_time is not None else 0.0
             st = act.read()
             log.append(st.time, si, q_c, qd_c, st.position, st.velocity, st.effort)
             if interlocks is not None:
@@ -175,6 +194,8 @@ class Runner:
                     return t_next, self._tripped(trip, st, si, log)
             act.command(q_c, qd_c)
             t_next += dt
+            if bus_time is not None:  # the deadline is the next cycle's start
+                log.time_cycle(started, act.now() - t_next, bus_time())
             act.wait_until(t_next)
             check()
             log.maybe_flush()

@@ -21,7 +21,8 @@ from typing import Callable
 
 import numpy as np
 
-from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
+from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TIMING_SERIES, TrialLog
+from bench.core.looptiming import MISSED_SHARE_LIMIT, loop_timing
 from bench.core.result import PreparedTrial
 from bench.trial.margins import MarginMeter
 
@@ -50,6 +51,9 @@ class Snapshot:
     phase: str = "starting"
     progress: float = 0.0
     margins: dict = field(default_factory=dict)
+    #: The loop's timing so far (a paced trial's): cycles, missed deadlines, the latest period and
+    #: bus time, in s; ``paced`` False for a simulator's (no deadline), None before the journal says.
+    timing: dict = field(default_factory=dict)
     result: dict | None = None
     #: Changes when the rows start again (a new run followed, or the final log read in whole).
     epoch: int = 0
@@ -60,7 +64,8 @@ class Snapshot:
         return {"run": self.run, "run_dir": self.run_dir, "joints": self.joints, "kinds": self.kinds,
                 "segments": self.segments, "first": n, "time": self.time[n:], "q_cmd": self.q_cmd[n:],
                 "q": self.q[n:], "events": self.events, "phase": self.phase,
-                "progress": self.progress, "margins": self.margins, "result": self.result,
+                "progress": self.progress, "margins": self.margins, "timing": self.timing,
+                "result": self.result,
                 "epoch": self.epoch}
 
 
@@ -80,6 +85,7 @@ class RunFollower:
         self._meta_mtime = -1.0
         self._meta: dict = {}
         self._rows = np.empty((0, 0))
+        self._timed = False
         self._next_t = -np.inf
         self.snapshot = Snapshot()
 
@@ -144,7 +150,11 @@ class RunFollower:
         s.joints = list(meta.get("joint_names", []))
         s.segments = list(meta.get("segment_names", []))
         s.events = [e for e in meta.get("events", []) if isinstance(e, dict)]
-        self._width = 2 + 5 * len(s.joints)
+        self._timed = meta.get("timing") is True
+        self._width = 2 + 5 * len(s.joints) + (len(TIMING_SERIES) if self._timed else 0)
+        if not s.timing:
+            s.timing = {"cycles": 0, "missed": 0, "worst_late_s": None}
+        s.timing["paced"] = self._timed
         self._phase()
 
     def _read_rows(self) -> None:
@@ -163,6 +173,8 @@ class RunFollower:
         self._offset += whole
         rows = np.frombuffer(raw[:whole], dtype=float).reshape(-1, self._width)
         n = len(self.snapshot.joints)
+        if self._timed:
+            self._count_deadlines(rows[:, 2 + 5 * n:])
         keep, self._next_t = decimate(rows[:, 0], self._next_t)
         rows = rows[keep]
         q_cmd, q = rows[:, 2:2 + n], rows[:, 2 + 2 * n:2 + 3 * n]
@@ -172,6 +184,24 @@ class RunFollower:
         s.q.extend(q.tolist())
         self._margins(q[-1], q_cmd[-1], int(rows[-1, 1]))
         self._phase()
+
+    def _count_deadlines(self, timing: np.ndarray) -> None:
+        """Every row's timing counted (before the page's decimation): a miss is never skipped."""
+        start, late, bus = timing.T
+        timed = np.isfinite(late)
+        tm = self.snapshot.timing
+        tm["cycles"] += int(timed.sum())
+        missed = timed & (late > 0)
+        tm["missed"] += int(missed.sum())
+        if missed.any():
+            worst = float(late[missed].max())
+            tm["worst_late_s"] = max(worst, tm["worst_late_s"] or 0.0)
+        periods = np.diff(start[np.isfinite(start)])
+        if periods.size:  # the latest half second's, as a meter shows it
+            tm["period_s"] = float(np.median(periods))
+        if np.isfinite(bus).any():
+            tm["bus_s"] = float(np.nanmedian(bus))
+        tm["late"] = tm["missed"] > MISSED_SHARE_LIMIT * tm["cycles"]
 
     def _margins(self, q: np.ndarray, q_cmd: np.ndarray, segment: int) -> None:
         m = self.meter(q, q_cmd)
@@ -228,6 +258,11 @@ class RunFollower:
         if not len(log):
             return
         keep, _ = decimate(log.time, -np.inf)
+        whole = loop_timing(log)
+        if whole.state == "paced":  # the saved log's count: the journal's last half second included
+            s.timing = {"paced": True, "cycles": whole.cycles, "missed": whole.missed,
+                        "worst_late_s": whole.worst_late_s, "period_s": whole.period_median_s,
+                        "bus_s": whole.bus_median_s, "late": whole.late}
         s.epoch += 1
         s.time = log.time[keep].tolist()
         s.q_cmd = log.q_cmd[keep].tolist()

@@ -163,7 +163,8 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
     o = result.outcome
     meta = log.metadata
     verdict = ("PASSED" if result.passed else "FAILED")
-    lines = [f"# Trial {cfg.name}: {verdict}", "",
+    late = result.timing.verdict_note()  # a loop that did not keep time says so beside the verdict
+    lines = [f"# Trial {cfg.name}: {verdict}" + (f"; {late}" if late else ""), "",
              f"- robot: {cfg.robot}, backend: {cfg.backend.kind} ({meta.get('rig') or 'rig not recorded'}), "
              f"trajectory: {cfg.plan.trajectory}, "
              f"control rate: {cfg.control_hz:g} Hz, seed: {cfg.seed}",
@@ -210,7 +211,8 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
                       f"joints).*", ""]
         else:
             lines += [f"*The robot {where}, in the CT room.*", ""]
-    lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Events", "",
+    lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Loop timing", "",
+              result.timing.markdown(), "## Events", "",
               _events_markdown(log), "## Versions", "",
               ", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()), ""]
     return "\n".join(lines)

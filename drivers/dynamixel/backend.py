@@ -293,6 +293,11 @@ class DynamixelActuators(ActuatorsBase):
         self._lost = False
         return st
 
+    def bus_time(self) -> float:
+        """Seconds this backend's servo-bus transactions took since the last call (BusTiming)."""
+        took, self._cycle.bus_s = self._cycle.bus_s, 0.0
+        return took
+
     def status_lost(self, joints: Sequence[str]) -> None:
         """The bench lost the train's last reading: the host loop holds until the next, as for a stale one."""
         u = self.settings.ultrasonic

@@ -84,10 +84,14 @@ class SyncCycle:
         # Late answers are expected after this long: wire time of the reply, plus slack.
         self.timeout_s = latency_s + 3 * (self._expect + len(self._read_packet)) * self._byte_time + 0.003
         self.last_error = ""
+        #: Seconds spent in this cycle's transactions (writes and reads, failed ones included),
+        #: timed here where they happen; the backend hands it to the runner once a cycle.
+        self.bus_s = 0.0
 
     # -- send -----------------------------------------------------------------
     def write_goals(self, ticks: Sequence[int]) -> None:
         """One Sync Write of Goal Position (4 bytes each) to every servo; no reply."""
+        began = time.perf_counter()
         args = self._goal_args
         args[3::2] = ticks
         params = self._goals.pack(*args)
@@ -97,7 +101,10 @@ class SyncCycle:
             packet = self._write_prefix + params
             crc = _crc(packet, 0)
             packet += bytes((crc & 0xFF, crc >> 8))
-        self._send(packet)
+        try:
+            self._send(packet)
+        finally:
+            self.bus_s += time.perf_counter() - began
 
     def _send(self, packet: bytes) -> None:
         view = memoryview(packet)
@@ -120,6 +127,14 @@ class SyncCycle:
         Current (model units). On failure ``last_error`` says what went wrong
         (timeout, CRC, servo error).
         """
+        began = time.perf_counter()
+        try:
+            return self._transact()
+        finally:
+            self.bus_s += time.perf_counter() - began
+
+    def _transact(self) -> np.ndarray | None:
+        """The read's request and its status, parsed; a failure waits for a quiet line."""
         self._drain()
         self._send(self._read_packet)
         raw = self._receive(self._expect)
