@@ -253,7 +253,7 @@ def markdown_to_html(md: str, images: dict[str, Path], title: str) -> str:
             out.append(f"<p><img alt='{html.escape(alt)}' src='data:image/png;base64,{data}'></p>")
         elif line.startswith("#"):
             level = len(line) - len(line.lstrip("#"))
-            text = _inline(line[level:].strip())
+            text = _inline(line[level:].strip()).replace(" %", "\u00a0%")  # "100.0 %" on one line
             text = text.replace("PASSED", "<span class='pass'>PASSED</span>").replace(
                 "FAILED", "<span class='fail'>FAILED</span>")
             out.append(f"<h{level}>{text}</h{level}>")
