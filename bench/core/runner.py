@@ -142,10 +142,10 @@ class Runner:
         if not act.enabled:
             act.enable()
         run_chunk = self._run_blocks if runs_blocks(act, self.interlocks) else self._run_cycles
-        self._bus = find_capability(act, BusTiming)
-        if self._bus is not None and not log.timed and not len(log):
+        bus = find_capability(act, BusTiming)
+        if bus is not None and not log.timed and not len(log):
             log.start_timing()
-        self._bus_time = self._bus.bus_time if self._bus is not None and log.timed else None
+        self._bus_time = bus.bus_time if bus is not None and log.timed else None
         if self._bus_time is not None:
             self._bus_time()  # the set-up's transactions are not the first cycle's
         began = time.perf_counter()
