@@ -243,3 +243,29 @@ def test_an_emulated_trial_beside_cpu_hogs_names_its_missed_deadlines(tmp_path):
     md = (run_dir / "report.md").read_text()
     assert md.splitlines()[0].endswith(tm["verdict"]) and "## Loop timing" in md
     assert "| achieved period (set 2.00 ms) |" in md
+
+
+def test_the_mcap_export_carries_each_timed_cycles_lateness_and_bus_time(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from bench.export.mcap_bag import TIMING_TOPICS, write_mcap
+
+    prep = prepare(load_trial_config(SIM))
+    sim = TrialLog.load(run_trial(prep, tmp_path, TrialHooks(report=False)).log_path)
+    log = TrialLog(sim.joint_names, sim.segment_names, dict(sim.metadata), list(sim.events))
+    log.start_timing()  # the sim's log, as a paced loop would have timed it: every 50th cycle late
+    for i in range(len(sim)):
+        log.append(sim.time[i], int(sim.segment[i]), sim.q_cmd[i], sim.qd_cmd[i], sim.q[i], sim.qd[i],
+                   sim.effort[i])
+        if i < len(sim) - 1:  # the last row, as the runner's final reading, is not timed
+            log.time_cycle(sim.time[i], 0.001 if i % 50 == 0 else -0.001, 0.0005)
+    got: dict[str, list[float]] = {t: [] for t in TIMING_TOPICS}
+    with open(write_mcap(log, prep, tmp_path / "t.mcap"), "rb") as f:
+        for _, channel, _, decoded in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            if channel.topic in got:
+                got[channel.topic].append(decoded.data)
+    late, bus = got["/loop_timing/late"], got["/loop_timing/bus"]
+    assert len(late) == len(bus) == len(sim) - 1 == loop_timing(log).cycles
+    assert sum(v > 0 for v in late) == loop_timing(log).missed == (len(sim) - 2) // 50 + 1
+    assert set(bus) == {0.0005}

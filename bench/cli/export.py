@@ -30,7 +30,7 @@ def export(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
            as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Write a trial's log as an MCAP file: joint states and commands, interlock margins, events."""
     from drivers import BenchError  # deferred: --help and completion stay fast
-    from bench.export.mcap_bag import TOPICS, write_mcap  # deferred: --help and completion stay fast
+    from bench.export.mcap_bag import TIMING_TOPICS, TOPICS, write_mcap  # deferred: --help stays fast
     from bench.trial.record import load_record  # deferred: --help and completion stay fast
 
     if mcap.exists() and mcap.is_dir():
@@ -44,8 +44,9 @@ def export(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
     if len(log) == 0:
         fail(f"{run_dir}: the trial's log holds no cycle; nothing to export")
     path = write_mcap(log, prep, mcap, _result_of(Path(run_dir)))
+    topics = list(TOPICS) + (list(TIMING_TOPICS) if log.timed else [])  # a paced trial's loop timing
     if as_json:
-        emit_json({"run_dir": str(run_dir), "mcap": str(path), "messages": len(log), "topics": list(TOPICS)})
+        emit_json({"run_dir": str(run_dir), "mcap": str(path), "messages": len(log), "topics": topics})
     else:
-        console.print(f"wrote {path} ({len(log)} cycles; topics {', '.join(TOPICS)})", highlight=False,
+        console.print(f"wrote {path} ({len(log)} cycles; topics {', '.join(topics)})", highlight=False,
                       markup=False)

@@ -10,6 +10,9 @@ Topics (ROS 2 message types, SI units, one message per control cycle unless said
   from tripping that interlock (its limit, its tracking bound); negative trips.
 * ``/interlock_margins/gantry`` (``std_msgs/Float64``): the gantry-clearance bound
   the interlock checks, less its margin (m); negative trips.
+* ``/loop_timing/late`` and ``/loop_timing/bus`` (``std_msgs/Float64``, s), a paced
+  trial's only, per timed cycle: how late the cycle's work ended against its deadline
+  (positive: it missed it) and how long its bus transactions took.
 * ``/phase`` (``std_msgs/String``): the segment, at each change.
 * ``/rosout`` (``rcl_interfaces/Log``): the trial's events (interlock trips, aborts,
   safe stop as errors and warnings).
@@ -26,6 +29,7 @@ import json
 from pathlib import Path
 from typing import Iterator
 
+import numpy as np
 from mcap_ros2.writer import Writer
 
 from bench.core.log import TrialLog
@@ -33,10 +37,12 @@ from bench.core.result import PreparedTrial
 from bench.export import ros2_messages as msgs
 from bench.trial.margins import margins_of
 
-__all__ = ["write_mcap", "TOPICS"]
+__all__ = ["write_mcap", "TIMING_TOPICS", "TOPICS"]
 
 TOPICS = ("/joint_states", "/joint_commands", "/tracking_error", "/interlock_margins/joint_limits",
           "/interlock_margins/tracking", "/interlock_margins/gantry", "/phase", "/rosout")
+#: A paced trial's loop timing, per timed cycle (s): lateness against the deadline, bus time.
+TIMING_TOPICS = ("/loop_timing/late", "/loop_timing/bus")
 
 
 def _stamp(ns: int) -> dict:
@@ -90,6 +96,8 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
                   (("joint", msgs.JOINT_STATE), ("float", msgs.FLOAT64), ("string", msgs.STRING),
                    ("log", msgs.LOG))}
         last_segment = None
+        timing = zip(TIMING_TOPICS, (log.loop_late, log.bus_s)) if log.timed else ()
+        timing = [(topic, series, np.isfinite(log.loop_late)) for topic, series in timing]
         for i, ns in enumerate(stamps):
             stamp = _stamp(ns)
             w.write_message("/joint_states", schema["joint"],
@@ -105,6 +113,9 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
             if margins.gantry is not None:
                 w.write_message("/interlock_margins/gantry", schema["float"],
                                 {"data": float(margins.gantry[i])}, ns, ns, i)
+            for topic, series, timed in timing:
+                if timed[i]:
+                    w.write_message(topic, schema["float"], {"data": float(series[i])}, ns, ns, i)
             segment = int(log.segment[i])
             if segment != last_segment and 0 <= segment < len(log.segment_names):
                 w.write_message("/phase", schema["string"], {"data": log.segment_names[segment]}, ns, ns)
