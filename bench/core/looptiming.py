@@ -112,8 +112,9 @@ class LoopTiming:
         return "\n".join(rows) + "\n\n" + said + "\n"
 
     def as_dict(self) -> dict:
-        """For ``--json`` and result.json (s; ``late`` and the verdict note spelled out)."""
-        return asdict(self) | {"late": self.late, "verdict": self.verdict_note()}
+        """For ``--json`` and result.json (s to 0.1 µs; ``late`` and the verdict note spelled out)."""
+        tidy = {k: round(v, 7) if isinstance(v, float) else v for k, v in asdict(self).items()}
+        return tidy | {"late": self.late, "verdict": self.verdict_note()}
 
 
 def _p(values: np.ndarray, q: float) -> Optional[float]:
