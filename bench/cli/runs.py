@@ -58,7 +58,7 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
         emit_json({"out": str(out), "runs": [r.as_dict() for r in found]})
         return
     if not found:
-        console.print(f"no trial runs (nor compares, nor campaigns) in {out}", highlight=False)
+        console.print(f"no trial runs in {out}", highlight=False)  # nor compares, nor campaigns
         return
     t = Table(title=f"runs in {out}", title_justify="left", show_edge=False, pad_edge=False)  # fits 80 columns
     t.add_column("kind", no_wrap=True)
