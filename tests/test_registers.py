@@ -4,6 +4,7 @@ the emulated servo holds it; --watch refreshes the RAM area while the joint move
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -83,3 +84,37 @@ def test_the_cli_prints_one_json_line_and_refuses_bad_calls_in_one_line():
         bad = subprocess.run([HILBENCH, "registers", *args], capture_output=True, text=True, timeout=120)
         assert bad.returncode in (1, 2) and words in bad.stderr, bad.stderr
         assert len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr
+
+
+def test_the_cli_watch_shows_present_position_follow_a_jog_until_ctrl_c(cold_rig):
+    """`registers --watch` as the technician runs it, in a terminal: while another master on the
+    bus jogs the joint 300 ticks, the live table's Present Position walks there; Ctrl-C ends it."""
+    pexpect = pytest.importorskip("pexpect")
+    rig, cfg = cold_rig
+    sid = cfg.backend.servos["theta4"].id
+    table = model_spec(XM430_W350).table
+    servo = rig.bus.servo(sid)
+    child = pexpect.spawn(HILBENCH, ["registers", "--port", cfg.backend.port, "--baud", str(cfg.backend.baud),
+                                     "--id", str(sid), "--watch"], timeout=60, dimensions=(200, 140),
+                          env={**os.environ, "LINES": "200", "COLUMNS": "140"}, encoding="utf-8")
+    row = r"Present Position\W+%d\W+4\W+R\W+(-?\d+)" % table["Present Position"].address  # across the │
+    try:
+        child.expect(row)
+        start = int(child.match.group(1))
+        goal = start + 300
+        slow = int(table["Profile Velocity"].from_si(0.4))  # rad/s: 300 ticks take about a second
+        with rig.bus.lock:  # the jog: the WRITEs `hilbench jog` sends, applied as the servo applies them
+            assert servo.write(table["Profile Velocity"].address, slow.to_bytes(4, "little")) == 0
+            assert servo.write(table["Torque Enable"].address, bytes([1])) == 0
+            assert servo.write(table["Goal Position"].address, goal.to_bytes(4, "little", signed=True)) == 0
+        seen = []
+        while not seen or abs(seen[-1] - goal) > 10:
+            child.expect(row)  # each refresh redraws the table, Present Position with it
+            seen.append(int(child.match.group(1)))
+        child.sendintr()
+        child.expect(pexpect.EOF)
+    finally:
+        child.close(force=True)
+        with rig.bus.lock:
+            servo.write(table["Torque Enable"].address, bytes([0]))
+    assert len(set(seen)) >= 3 and all(start - 3 <= v <= goal + 10 for v in seen)  # seen on its way

@@ -33,7 +33,8 @@ from bench.cli.lab import calibrate, doctor, jog, scan
 from bench.cli.predict import predict
 from bench.cli.registers import registers
 from bench.cli.stand import stand
-from bench.cli.trial import check, emulate, report, runs, trial
+from bench.cli.runs import runs
+from bench.cli.trial import check, emulate, report, trial
 
 app = typer.Typer(no_args_is_help=True,
                   help="Hardware-in-the-loop test bench for CT-guided needle-placement robots.")

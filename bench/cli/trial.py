@@ -1,5 +1,5 @@
-"""``hilbench check | trial | emulate | report | runs``: one trial, from the check before moving
-to the list of past runs."""
+"""``hilbench check | trial | emulate | report``: one trial, from the check before moving to its
+report (the list of past runs: ``bench.cli.runs``)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,6 @@ from pathlib import Path
 
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-from rich.table import Table
-from rich.text import Text
 
 from bench.cli.common import console, emit_json, err_console, fail, load_config, say, stopped, styled
 from bench.cli.live import LIVE_HELP, live_view
@@ -24,7 +22,7 @@ from drivers.errors import (
     signal_exit_code,
 )
 
-__all__ = ["check", "emulate", "report", "runs", "trial"]
+__all__ = ["check", "emulate", "report", "trial"]
 
 
 # ---------------------------------------------------------------------------
@@ -233,36 +231,3 @@ def report(run_dir: Path = typer.Argument(..., help="A trial's run directory."),
         emit_json(res.summary())
     else:
         console.print(f"rebuilt {res.run_dir / 'report.md'} and {res.run_dir / 'report.html'}")
-
-
-def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory trials wrote into."),
-         as_json: bool = typer.Option(False, "--json", help="Print the runs as one JSON line.")) -> None:
-    """List past trials: date, config, verdict, deviations and report, oldest first."""
-    from bench.trial.runs import list_runs  # deferred: --help and completion stay fast
-
-    found = list_runs(out)
-    if as_json:
-        emit_json({"out": str(out), "runs": [r.as_dict() for r in found]})
-        return
-    if not found:
-        console.print(f"no trial runs in {out}", highlight=False)
-        return
-    colour = {"passed": "green", "failed": "red", "stopped": "red", "incomplete": "yellow",
-              "broken": "magenta"}
-    t = Table(title=f"trials in {out}", title_justify="left")
-    t.add_column("run (started, config)", no_wrap=True)
-    t.add_column("backend", no_wrap=True)
-    t.add_column("verdict", no_wrap=True)
-    t.add_column("tip mm", justify="right", no_wrap=True)
-    t.add_column("angle °", justify="right", no_wrap=True)
-    for r in found:
-        tip = "" if r.tip_deviation_mm is None else f"{r.tip_deviation_mm:.2f}"
-        angle = "" if r.angle_deviation_deg is None else f"{r.angle_deviation_deg:+.3f}"
-        backend = f"{r.backend or '?'} ({r.rig})" if r.rig and r.rig != "sim" else (r.backend or "?")
-        t.add_row(Path(r.run_dir).name, backend, Text(r.status, style=colour.get(r.status)),
-                  tip, angle)
-    console.print(t)
-    for r in found:
-        if r.reason:
-            console.print(f"{Path(r.run_dir).name}: {r.reason}", highlight=False, soft_wrap=True)
-    console.print(f"{len(found)} runs; reports: {out}/RUN/report.html", highlight=False)

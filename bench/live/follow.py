@@ -250,6 +250,8 @@ class RunFollower:
             except (OSError, ValueError, KeyError):
                 return
             self.snapshot.events = [e.as_dict() for e in log.events]
+            if not self.snapshot.joints:  # first seen finished (its journal already gone): the log says
+                self.snapshot.joints, self.snapshot.segments = list(log.joint_names), list(log.segment_names)
             self._final_rows(log)
 
     def _final_rows(self, log: TrialLog) -> None:

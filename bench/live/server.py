@@ -14,6 +14,7 @@ import hmac
 import ipaddress
 import json
 import secrets
+import sys
 import threading
 import time
 from http import HTTPStatus
@@ -42,6 +43,16 @@ def _page(token: str) -> bytes:
             .replace("__TOKEN__", token)).encode("utf-8")
 
 
+class _QuietServer(ThreadingHTTPServer):
+    """Python's threaded server, minus its traceback on stderr (the operator's) for each request
+    that fails: a browser that goes away mid-request is nothing to report, anything else one line."""
+
+    def handle_error(self, request, client_address) -> None:
+        error = sys.exc_info()[1]
+        if not isinstance(error, (ConnectionError, TimeoutError)):
+            sys.stderr.write(f"live view: a request failed ({type(error).__name__}: {error})\n")
+
+
 class LiveServer:
     """Serves the live view of the runs under ``follower.out`` until :meth:`close`."""
 
@@ -54,7 +65,7 @@ class LiveServer:
         self._last_poll = -float("inf")
         self._final_seen = False
         self._page = _page(self.token)
-        self._httpd = ThreadingHTTPServer((host, port), self._handler())
+        self._httpd = _QuietServer((host, port), self._handler())
         self._httpd.daemon_threads = True
         self._thread = threading.Thread(target=self._httpd.serve_forever, name="live-view", daemon=True)
 

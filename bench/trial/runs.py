@@ -1,5 +1,9 @@
 """Past trials in an output directory: what ran, when, and how it ended.
 
+One :class:`RunSummary` per run directory; a comparison and a campaign are summarised
+in the same shape by their own packages (``bench.compare.listing``,
+``bench.campaign.listing``), and ``hilbench runs`` lists the three kinds together.
+
 Reads what each run directory already holds (``result.json``, the log's metadata,
 or the journal of a run that was killed), each file checked as every reader checks it
 (:mod:`bench.core.rundir`), and never rewrites anything, so it is safe beside a trial
@@ -17,12 +21,13 @@ from typing import Optional
 from bench.core.log import JOURNAL_META
 from bench.core.rundir import RECORD, RunDirError, has_run_files, load_run, read_journal, read_result
 
-__all__ = ["RunSummary", "list_runs"]
+__all__ = ["RunSummary", "broken", "list_runs", "trial_summary"]
 
 
 @dataclass(frozen=True)
 class RunSummary:
-    """One trial's run directory, summarised (mm and degrees, like the result)."""
+    """One trial's run directory, summarised (mm and degrees, like the result); a comparison's
+    or a campaign's in the same shape, its deviations those of its worst repeat or trial."""
 
     run_dir: str
     started: Optional[str]  # ISO 8601, UTC
@@ -34,6 +39,7 @@ class RunSummary:
     angle_deviation_deg: Optional[float]
     report: Optional[str]  # report.html when it was drawn
     rig: Optional[str] = None  # sim, emulated or real: what the record says ran it (None: older runs)
+    kind: str = "trial"  # trial | compare | campaign
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -44,16 +50,22 @@ def list_runs(out: Path) -> list[RunSummary]:
     out = Path(out)
     if not out.is_dir():
         return []
-    runs = [_summary(d) for d in sorted(out.iterdir()) if d.is_dir() and has_run_files(d)]
+    runs = [trial_summary(d) for d in sorted(out.iterdir()) if d.is_dir() and has_run_files(d)]
     return sorted(runs, key=lambda r: (r.started or "", r.run_dir))
 
 
-def _summary(run_dir: Path) -> RunSummary:
+def broken(where: Path, why: Exception, kind: str = "trial") -> RunSummary:
+    """A directory that failed a check, listed as such: what is wrong, in one line."""
+    return RunSummary(str(where), None, None, None, "broken",
+                      " ".join(str(why).removeprefix(f"{where}: ").split()), None, None, None, kind=kind)
+
+
+def trial_summary(run_dir: Path) -> RunSummary:
+    """One trial's run directory summarised; ``broken`` with the fault when a file fails its checks."""
     try:
         return _checked_summary(run_dir)
     except RunDirError as e:
-        return RunSummary(str(run_dir), None, None, None, "broken", str(e).removeprefix(f"{run_dir}: "),
-                          None, None, None)
+        return broken(run_dir, e)
 
 
 def _checked_summary(run_dir: Path) -> RunSummary:
