@@ -22,12 +22,18 @@ is integrated semi-implicitly, with M and h = C q̇ + g from PyBullet's
 ``calculateMassMatrix`` and ``calculateInverseDynamics``. Stable for any
 damping; joint limits act as hard stops.
 
+h is computed every step. The matrix on the left changes only with the pose, and slowly (the
+armature dominates it), so its inverse is kept and computed afresh only once a joint has moved
+:data:`MASS_MATRIX_TOLERANCE` from the pose it was computed at: a 9×9 mass matrix, its
+conversion and a solve cost more than the rest of a step together.
+
 Shaft angle and joint value: ``joint = offset + ratio · shaft``; joint torque
 is ``shaft torque / ratio``; armature and damping scale by ``1 / ratio²``.
 """
 
 from __future__ import annotations
 
+from itertools import chain
 from pathlib import Path
 from typing import Sequence
 
@@ -36,6 +42,11 @@ import numpy as np
 from drivers import BackendSetupError
 from drivers.quiet import muted_output, quiet_pybullet
 from drivers.servo.model import FRICTION_SMOOTHING_RAD_S, ServoParams, friction_torque
+
+#: How far (rad and m, Euclidean over the joints) the pose may move from where the mass matrix was
+#: computed before it is computed again: M(q) moves by about this fraction of the links' inertia
+#: (tests/test_servo_fast.py holds a move's trajectory to the one with a matrix every step).
+MASS_MATRIX_TOLERANCE = 1e-3
 
 
 class PyBulletPlant:
@@ -84,6 +95,17 @@ class PyBulletPlant:
         self._q = np.clip(np.asarray(initial_position, dtype=float), self._lower, self._upper)
         self._qd = np.zeros(n)
         self._zeros = [0.0] * n
+        # worked out once: the step's constants (the back-EMF's damping is implicit, in the matrix)
+        self._inv_ratio = 1.0 / self._ratio
+        self._viscous = servos.viscous / r2
+        self._implicit = self._Ja + physics_dt * self._B
+        self._inverse_q: np.ndarray | None = None  # the pose dt·A⁻¹ was computed at
+        self._inverse = np.zeros((n, n))
+        self._reach = MASS_MATRIX_TOLERANCE ** 2
+        self._near_stop = True
+        self._stale = True  # compute the matrix at the next step
+        self._diagonal = np.diag_indices(n)
+        self._has_joint_friction = bool(self._joint_friction.any())
 
     @property
     def limits(self) -> tuple[np.ndarray, np.ndarray]:
@@ -100,6 +122,11 @@ class PyBulletPlant:
 
     def joint_velocity(self) -> np.ndarray:
         return self._qd.copy()
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The joints' positions and velocities themselves, not copies: a step replaces them and
+        never changes them in place, so a caller may keep them (and must not write to them)."""
+        return self._q, self._qd
 
     def position(self) -> np.ndarray:
         return (self._q - self._offset) / self._ratio
@@ -124,33 +151,50 @@ class PyBulletPlant:
                                                  self._zeros, physicsClientId=c))
         return M, h
 
+    def _step_inverse(self, q: np.ndarray) -> np.ndarray:
+        """dt · (M(q) + J_a + dt·B)⁻¹ at ``q``, kept until the pose is :data:`MASS_MATRIX_TOLERANCE`
+        away; whether a hard stop is that near is worked out with it."""
+        n = len(q)
+        flat = np.fromiter(chain.from_iterable(
+            self._pb.calculateMassMatrix(self.body, q.tolist(), physicsClientId=self._c)), float, n * n)
+        A = flat.reshape(n, n)
+        A[self._diagonal] += self._implicit
+        self._inverse = self._dt * np.linalg.inv(A)
+        self._inverse_q = q
+        self._reach = MASS_MATRIX_TOLERANCE ** 2
+        # while the pose stays that near, no joint can reach a stop farther than the tolerance
+        self._near_stop = bool((np.minimum(q - self._lower, self._upper - q) <= MASS_MATRIX_TOLERANCE).any())
+        return self._inverse
+
     def step(self, dt: float, torque: np.ndarray) -> None:
         if abs(dt - self._dt) > 1e-12:
             raise ValueError(f"plant steps {self._dt} s, asked for {dt} s")
-        pb, c = self._pb, self._c
         q, qd = self._q, self._qd
-        # The servo's torque already holds the back-EMF's -B·qd (explicit); take the drive
-        # part and apply the damping (back-EMF and viscous) implicitly.
-        drive = np.asarray(torque, dtype=float) / self._ratio + self._B_emf * qd
-        ql = q.tolist()
-        M = np.array(pb.calculateMassMatrix(self.body, ql, physicsClientId=c))
-        h = np.array(pb.calculateInverseDynamics(self.body, ql, qd.tolist(), self._zeros,
-                                                 physicsClientId=c))
-        friction = self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)
+        if type(torque) is not np.ndarray:
+            torque = np.asarray(torque, dtype=float)
+        h = np.array(self._pb.calculateInverseDynamics(self.body, q.tolist(), qd.tolist(), self._zeros,
+                                                       physicsClientId=self._c))
+        # The servo's torque already holds the back-EMF's -B_emf·qd (explicit); its damping and
+        # the viscous friction are applied implicitly through the matrix, so only the viscous
+        # part stays here: τ/r + B_emf·qd − B·qd = τ/r − (viscous/r²)·qd.
+        rhs = torque * self._inv_ratio - self._viscous * qd - h
+        if self._has_joint_friction:
+            rhs -= self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)
         if self._has_friction:
             # the gearbox carries the motor's torque and the load's (gravity and the links' bias)
-            shaft = np.asarray(torque, dtype=float)
-            friction = friction + friction_torque(self._coulomb_only, qd / self._ratio, shaft,
-                                                  -h * self._ratio) / self._ratio
-        rhs = drive - self._B * qd - h - friction
-        A = M + np.diag(self._Ja + dt * self._B)
-        qd_new = qd + dt * np.linalg.solve(A, rhs)
+            rhs -= friction_torque(self._coulomb_only, qd * self._inv_ratio, torque,
+                                   -h * self._ratio) * self._inv_ratio
+        inverse = self._step_inverse(q) if self._stale else self._inverse
+        qd_new = qd + inverse.dot(rhs)
         q_new = q + dt * qd_new
-        # Hard stops at the URDF limits.
-        low, high = q_new < self._lower, q_new > self._upper
-        if low.any() or high.any():
-            q_new = np.clip(q_new, self._lower, self._upper)
-            qd_new[low | high] = 0.0
+        moved = q_new - self._inverse_q
+        self._stale = moved.dot(moved) > self._reach
+        if self._stale or self._near_stop:
+            # Hard stops at the URDF limits.
+            low, high = q_new < self._lower, q_new > self._upper
+            if low.any() or high.any():
+                q_new = np.clip(q_new, self._lower, self._upper)
+                qd_new[low | high] = 0.0
         self._q, self._qd = q_new, qd_new
 
     def close(self) -> None:
