@@ -32,30 +32,39 @@ TOLERANCE = plant_module.MASS_MATRIX_TOLERANCE
                                                       ((0, 0), 3, False)])
 def test_the_fused_position_loop_gives_the_servo_arrays_torque_bit_for_bit(profile, deadband, fused):
     """Nine servos with mixed gains through moves, a current limit lowered half-way: the fused
-    loop (or, outside the plain case, the general step it hands over to) gives the very torques."""
+    loop (or, outside the plain case, the general step it hands over to) gives the very torques,
+    and from joint values through transmissions the same torques at the joints."""
     rng = np.random.default_rng(3)
     n = 9
     gains = [(int(p), int(i), int(d)) for p, i, d in zip(rng.integers(400, 1500, n), rng.integers(0, 400, n),
                                                          rng.integers(0, 300, n))]
     params = ServoParams.datasheet([XM430_W350] * n, gains=gains, deadband_ticks=deadband).with_(
         profile_velocity=profile[0], profile_acceleration=profile[1], coulomb=0.02, viscous=0.05)
-    plain, fast = ServoArray(params), ServoArray(params)
+    plain, fast, geared = ServoArray(params), ServoArray(params), ServoArray(params)
     q, qd = rng.uniform(-0.5, 0.5, n), np.zeros(n)
     plain.reset(q)
     fast.reset(q)
+    geared.reset(q)
     loop = PositionLoop(fast, DT)
-    assert loop.fused is fused
+    # the same servos behind transmissions, stepped from joint values (joint = offset + ratio · shaft)
+    ratio, offset = rng.choice([0.01, 0.05, 1.0, -1.0], n), rng.uniform(-1.0, 1.0, n)
+    joint_loop = PositionLoop(geared, DT, ratio, offset)
+    assert loop.fused is fused and joint_loop.fused is fused
     start = q.copy()
     for k in range(3000):
         if k % 400 == 0:
             goal = q + rng.uniform(-0.4, 0.4, n)
             plain.set_goal(goal)
             loop.set_goal(goal)
+            joint_loop.set_goal(goal)
         if k == 1500:  # the owner lowers a limit, and says so
-            plain.current_limit[2] = fast.current_limit[2] = 0.4
+            plain.current_limit[2] = fast.current_limit[2] = geared.current_limit[2] = 0.4
             loop.refresh()
+            joint_loop.refresh()
         tau = plain.step(DT, q, qd)
         assert np.array_equal(loop.step(q, qd), tau), f"step {k}"
+        at_joint = joint_loop.step_joint(offset + ratio * q, ratio * qd)
+        np.testing.assert_allclose(at_joint * ratio, tau, rtol=1e-9, atol=1e-12, err_msg=f"step {k}")
         qd = qd + DT * (tau - friction_torque(params, qd)) / 0.02
         q = q + DT * qd
     assert np.array_equal(fast.integral, plain.integral) and np.array_equal(fast.current, plain.current)

@@ -142,7 +142,7 @@ class ServoSimActuators(SteppedActuators):
         table = x_series_table()
         self._tick_scale = table["Present Position"].scale
         self._velocity_units = table["Present Velocity"]
-        self._loop = PositionLoop(self.servos, self._dt)
+        self._loop = PositionLoop(self.servos, self._dt, self._ratio, self._offset)
         self._reading: tuple[int, float] = (-1, math.nan)  # the train's (sensor sample, joint value)
         self._block: tuple | None = None  # the last block's start and commands, for rewind()
 
@@ -203,9 +203,9 @@ class ServoSimActuators(SteppedActuators):
             while pending and pending[0][0] <= step:
                 loop.set_goal(pending.popleft()[1])
             if self._torque_on:
-                plant.step(dt, loop.step(plant.position(), plant.velocity()))
+                plant.step_joint(loop.step_joint(*plant.state()))
             else:
-                plant.step(dt, self._no_torque)
+                plant.step_joint(self._no_torque)
             step += 1
             self._step_count = step
 
@@ -267,6 +267,7 @@ class ServoSimActuators(SteppedActuators):
         q_rows, qd_rows, current_rows, steps, train = [], [], [], [], []
         tj = host.joint if host is not None else -1
         offset, ratio = float(self._offset[tj]), float(self._ratio[tj])
+        wanted = position[:, tj].tolist()
         for i in range(len(ends)):
             # read (the arrays are kept: each step replaces them, none is changed in place)
             step = self._step_count
@@ -276,14 +277,11 @@ class ServoSimActuators(SteppedActuators):
             current_rows.append(servos.current)
             steps.append(step)
             # command
-            goal = goals[i]
-            if host is not None:
+            if host is not None:  # each row of the block's goals is its own cycle's, written once
                 sensed = self._train_reading()
                 train.append(sensed)
-                goal = goal.copy()
-                wanted = float(position[i, tj])
-                goal[tj] = (wanted + host.correct(wanted, sensed, step * dt) - offset) / ratio
-            pending.append((step + delay, goal))
+                goals[i, tj] = (wanted[i] + host.correct(wanted[i], sensed, step * dt) - offset) / ratio
+            pending.append((step + delay, goals[i]))
             # wait
             self._advance(targets[i])
         return self._block_states(steps, q_rows, qd_rows, current_rows, train)

@@ -29,9 +29,13 @@ class PositionLoop:
     :meth:`step` is :meth:`ServoArray.step`.
     """
 
-    def __init__(self, servos: ServoArray, dt: float) -> None:
+    def __init__(self, servos: ServoArray, dt: float, ratio: np.ndarray | None = None,
+                 offset: np.ndarray | None = None) -> None:
         self.servos = servos
         self.dt = float(dt)
+        # the transmissions (joint = offset + ratio · shaft) for step_joint
+        self._ratio = np.ones(servos.params.n) if ratio is None else np.asarray(ratio, dtype=float)
+        self._offset = np.zeros(servos.params.n) if offset is None else np.asarray(offset, dtype=float)
         self.refresh()
 
     def refresh(self) -> None:
@@ -53,6 +57,12 @@ class PositionLoop:
         self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
         self._ke, self._resistance, self._kt = p.ke, p.resistance, p.kt
         self._ilim, self._neg_ilim = s.current_limit.copy(), -s.current_limit
+        # the same through the transmissions: ticks from joint values, torque at the joint
+        r = self._ratio
+        self._joint_tick = self._inv_tick / r
+        self._joint_zero = 0.5 - self._offset * self._inv_tick / r
+        self._joint_ke = self._ke / r
+        self._joint_kt = self._kt / r
 
     def set_goal(self, goal: np.ndarray) -> None:
         """New goal positions (rad), in ticks as the bus writes them: with no profile the
@@ -86,3 +96,25 @@ class PositionLoop:
         s.present, s.omega, s.integral, s.prev_error, s.pwm, s.current = (present, velocity, integral, error,
                                                                           pwm, current)
         return self._kt * current
+
+    def step_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """:meth:`step` from joint values and speeds, torques at the joints (shaft torque / ratio),
+        the transmissions folded into the constants: the same physics, with the encoder's
+        reading rounded from the joint value directly (it may differ from :meth:`step`'s in the
+        last bit, and a tick's boundary by as much)."""
+        s = self.servos
+        if not (self.fused and self._primed):
+            return self.step((q - self._offset) / self._ratio, qd / self._ratio) / self._ratio
+        present = np.floor(q * self._joint_tick + self._joint_zero)
+        error = s.traj - present
+        integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
+        u = self._kp * error + integral
+        u += self._kd * (error - s.prev_error)
+        pwm = np.minimum(np.maximum(u, self._neg_cap), self._cap)
+        if s.supply is not self._supply:
+            self._supply = s.supply
+            self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
+        current = (pwm * self._volts - self._joint_ke * qd) / self._resistance
+        current = np.minimum(np.maximum(current, self._neg_ilim), self._ilim)
+        s.present, s.integral, s.prev_error, s.pwm, s.current = present, integral, error, pwm, current
+        return self._joint_kt * current

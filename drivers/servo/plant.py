@@ -102,10 +102,12 @@ class PyBulletPlant:
         self._inverse_q: np.ndarray | None = None  # the pose dt·A⁻¹ was computed at
         self._inverse = np.zeros((n, n))
         self._reach = MASS_MATRIX_TOLERANCE ** 2
-        self._near_stop = True
+        self._near_stop: list[int] = []  # the joints within the tolerance of a stop
+        self._lower_stop, self._upper_stop = self._lower.tolist(), self._upper.tolist()
         self._stale = True  # compute the matrix at the next step
         self._diagonal = np.diag_indices(n)
         self._has_joint_friction = bool(self._joint_friction.any())
+        self._has_viscous = bool(self._viscous.any())
 
     @property
     def limits(self) -> tuple[np.ndarray, np.ndarray]:
@@ -163,38 +165,54 @@ class PyBulletPlant:
         self._inverse_q = q
         self._reach = MASS_MATRIX_TOLERANCE ** 2
         # while the pose stays that near, no joint can reach a stop farther than the tolerance
-        self._near_stop = bool((np.minimum(q - self._lower, self._upper - q) <= MASS_MATRIX_TOLERANCE).any())
+        self._near_stop = np.flatnonzero(np.minimum(q - self._lower, self._upper - q)
+                                         <= MASS_MATRIX_TOLERANCE).tolist()
         return self._inverse
 
     def step(self, dt: float, torque: np.ndarray) -> None:
+        """One physics step of ``dt`` (the plant's own) under the servos' shaft torques (N·m)."""
         if abs(dt - self._dt) > 1e-12:
             raise ValueError(f"plant steps {self._dt} s, asked for {dt} s")
+        torque = np.asarray(torque, dtype=float)
+        self.step_joint(torque * self._inv_ratio, torque)
+
+    def step_joint(self, joint_torque: np.ndarray, torque: np.ndarray | None = None) -> None:
+        """One physics step under the servos' torques at the joints (N·m or N: shaft torque / ratio;
+        ``torque``, the shaft torques themselves, where the caller has them)."""
         q, qd = self._q, self._qd
-        if type(torque) is not np.ndarray:
-            torque = np.asarray(torque, dtype=float)
         h = np.array(self._pb.calculateInverseDynamics(self.body, q.tolist(), qd.tolist(), self._zeros,
                                                        physicsClientId=self._c))
         # The servo's torque already holds the back-EMF's -B_emf·qd (explicit); its damping and
         # the viscous friction are applied implicitly through the matrix, so only the viscous
         # part stays here: τ/r + B_emf·qd − B·qd = τ/r − (viscous/r²)·qd.
-        rhs = torque * self._inv_ratio - self._viscous * qd - h
+        rhs = joint_torque - h
+        if self._has_viscous:
+            rhs -= self._viscous * qd
         if self._has_joint_friction:
             rhs -= self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)
         if self._has_friction:
             # the gearbox carries the motor's torque and the load's (gravity and the links' bias)
-            rhs -= friction_torque(self._coulomb_only, qd * self._inv_ratio, torque,
+            shaft = joint_torque * self._ratio if torque is None else torque
+            rhs -= friction_torque(self._coulomb_only, qd * self._inv_ratio, shaft,
                                    -h * self._ratio) * self._inv_ratio
         inverse = self._step_inverse(q) if self._stale else self._inverse
         qd_new = qd + inverse.dot(rhs)
-        q_new = q + dt * qd_new
+        q_new = q + self._dt * qd_new
         moved = q_new - self._inverse_q
         self._stale = moved.dot(moved) > self._reach
-        if self._stale or self._near_stop:
-            # Hard stops at the URDF limits.
+        # Hard stops at the URDF limits: every joint once the pose left the tolerance, else only
+        # those that were within it of a stop (no other can have reached one).
+        if self._stale:
             low, high = q_new < self._lower, q_new > self._upper
             if low.any() or high.any():
-                q_new = np.clip(q_new, self._lower, self._upper)
+                q_new = np.minimum(np.maximum(q_new, self._lower), self._upper)
                 qd_new[low | high] = 0.0
+        else:
+            for j in self._near_stop:
+                if q_new[j] < self._lower_stop[j]:
+                    q_new[j], qd_new[j] = self._lower_stop[j], 0.0
+                elif q_new[j] > self._upper_stop[j]:
+                    q_new[j], qd_new[j] = self._upper_stop[j], 0.0
         self._q, self._qd = q_new, qd_new
 
     def close(self) -> None:
