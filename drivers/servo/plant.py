@@ -23,9 +23,9 @@ is integrated semi-implicitly, with M and h = C q̇ + g from PyBullet's
 damping; joint limits act as hard stops.
 
 h is computed every step. The matrix on the left changes only with the pose, and slowly (the
-armature dominates it), so its inverse is kept and computed afresh only once a joint has moved
-:data:`MASS_MATRIX_TOLERANCE` from the pose it was computed at: a 9×9 mass matrix, its
-conversion and a solve cost more than the rest of a step together.
+armature dominates it), so its Cholesky factor is kept and computed afresh only once the pose
+has moved :data:`MASS_MATRIX_TOLERANCE` from where it was: a 9×9 mass matrix, its conversion and
+a factorisation cost more than the rest of a step together.
 
 Shaft angle and joint value: ``joint = offset + ratio · shaft``; joint torque
 is ``shaft torque / ratio``; armature and damping scale by ``1 / ratio²``.
@@ -46,7 +46,7 @@ from drivers.servo.model import FRICTION_SMOOTHING_RAD_S, ServoParams, friction_
 #: How far (rad and m, Euclidean over the joints) the pose may move from where the mass matrix was
 #: computed before it is computed again: M(q) moves by about this fraction of the links' inertia
 #: (tests/test_servo_fast.py holds a move's trajectory to the one with a matrix every step).
-MASS_MATRIX_TOLERANCE = 1e-3
+MASS_MATRIX_TOLERANCE = 1e-4
 
 
 class PyBulletPlant:
@@ -99,15 +99,18 @@ class PyBulletPlant:
         self._inv_ratio = 1.0 / self._ratio
         self._viscous = servos.viscous / r2
         self._implicit = self._Ja + physics_dt * self._B
-        self._inverse_q: np.ndarray | None = None  # the pose dt·A⁻¹ was computed at
-        self._inverse = np.zeros((n, n))
-        self._reach = MASS_MATRIX_TOLERANCE ** 2
-        self._near_stop: list[int] = []  # the joints within the tolerance of a stop
-        self._lower_stop, self._upper_stop = self._lower.tolist(), self._upper.tolist()
-        self._stale = True  # compute the matrix at the next step
         self._diagonal = np.diag_indices(n)
         self._has_joint_friction = bool(self._joint_friction.any())
         self._has_viscous = bool(self._viscous.any())
+        self._past_stop = np.maximum.reduce
+        # the matrix's Cholesky factor and the pose it is of (LAPACK's own calls: numpy's solve
+        # costs five times the arithmetic of a 9×9 in its checks)
+        from scipy.linalg import lapack  # heavy: loaded with the first plant
+        self._potrf, self._potrs = lapack.dpotrf, lapack.dpotrs
+        self._cholesky = np.eye(n)
+        self._factored_q = self._q
+        self._reach = MASS_MATRIX_TOLERANCE ** 2
+        self._stale = True  # factor the matrix at the next step
 
     @property
     def limits(self) -> tuple[np.ndarray, np.ndarray]:
@@ -153,21 +156,19 @@ class PyBulletPlant:
                                                  self._zeros, physicsClientId=c))
         return M, h
 
-    def _step_inverse(self, q: np.ndarray) -> np.ndarray:
-        """dt · (M(q) + J_a + dt·B)⁻¹ at ``q``, kept until the pose is :data:`MASS_MATRIX_TOLERANCE`
-        away; whether a hard stop is that near is worked out with it."""
+    def _factor(self, q: np.ndarray) -> None:
+        """The Cholesky factor of M(q) + J_a + dt·B (symmetric, positive definite) at ``q``, kept
+        until the pose is :data:`MASS_MATRIX_TOLERANCE` away."""
         n = len(q)
-        flat = np.fromiter(chain.from_iterable(
+        A = np.fromiter(chain.from_iterable(
             self._pb.calculateMassMatrix(self.body, q.tolist(), physicsClientId=self._c)), float, n * n)
-        A = flat.reshape(n, n)
+        A = A.reshape(n, n)
         A[self._diagonal] += self._implicit
-        self._inverse = self._dt * np.linalg.inv(A)
-        self._inverse_q = q
+        self._cholesky, info = self._potrf(A)
+        if info != 0:
+            raise ValueError(f"the plant's matrix is not positive definite at {q.tolist()} (LAPACK info {info})")
+        self._factored_q = q
         self._reach = MASS_MATRIX_TOLERANCE ** 2
-        # while the pose stays that near, no joint can reach a stop farther than the tolerance
-        self._near_stop = np.flatnonzero(np.minimum(q - self._lower, self._upper - q)
-                                         <= MASS_MATRIX_TOLERANCE).tolist()
-        return self._inverse
 
     def step(self, dt: float, torque: np.ndarray) -> None:
         """One physics step of ``dt`` (the plant's own) under the servos' shaft torques (N·m)."""
@@ -195,24 +196,18 @@ class PyBulletPlant:
             shaft = joint_torque * self._ratio if torque is None else torque
             rhs -= friction_torque(self._coulomb_only, qd * self._inv_ratio, shaft,
                                    -h * self._ratio) * self._inv_ratio
-        inverse = self._step_inverse(q) if self._stale else self._inverse
-        qd_new = qd + inverse.dot(rhs)
-        q_new = q + self._dt * qd_new
-        moved = q_new - self._inverse_q
-        self._stale = moved.dot(moved) > self._reach
-        # Hard stops at the URDF limits: every joint once the pose left the tolerance, else only
-        # those that were within it of a stop (no other can have reached one).
         if self._stale:
+            self._factor(q)
+        dt = self._dt
+        qd_new = qd + dt * self._potrs(self._cholesky, rhs)[0]
+        q_new = q + dt * qd_new
+        moved = q_new - self._factored_q
+        self._stale = moved.dot(moved) > self._reach
+        # Hard stops at the URDF limits (one reduction says whether any joint is past one).
+        if self._past_stop(np.maximum(self._lower - q_new, q_new - self._upper)) > 0.0:
             low, high = q_new < self._lower, q_new > self._upper
-            if low.any() or high.any():
-                q_new = np.minimum(np.maximum(q_new, self._lower), self._upper)
-                qd_new[low | high] = 0.0
-        else:
-            for j in self._near_stop:
-                if q_new[j] < self._lower_stop[j]:
-                    q_new[j], qd_new[j] = self._lower_stop[j], 0.0
-                elif q_new[j] > self._upper_stop[j]:
-                    q_new[j], qd_new[j] = self._upper_stop[j], 0.0
+            q_new = np.minimum(np.maximum(q_new, self._lower), self._upper)
+            qd_new[low | high] = 0.0
         self._q, self._qd = q_new, qd_new
 
     def close(self) -> None:
