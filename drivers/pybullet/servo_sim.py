@@ -11,6 +11,11 @@ What the bench sees is what the rig's driver sees: positions quantised to encode
 velocities to 0.229 rev/min through each joint's transmission (joint = offset + ratio · shaft),
 goals that reach the servos ``transport_delay_s`` after they are commanded, and efforts from
 the motor current.
+
+The runner hands it whole blocks of cycles (:meth:`ServoSimActuators.execute_block`, the
+:class:`~drivers.capabilities.BlockExecution` capability): the same cycles, the same numbers,
+without a reading object per cycle; a rewind goes back to the block's start and runs its
+cycles again, which the simulator, deterministic, repeats exactly.
 """
 
 from __future__ import annotations
