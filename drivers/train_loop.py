@@ -46,15 +46,19 @@ class TrainLoop:
 
     def goal(self, q: np.ndarray, sensed: float, now: float, valid: bool = True) -> np.ndarray:
         """The goals with the train's nudged by the loop; ``sensed`` is the train's reading at ``now``."""
+        out = q.copy()
+        out[self.joint] += self.correct(float(q[self.joint]), sensed, now, valid)
+        return out
+
+    def correct(self, commanded: float, sensed: float, now: float, valid: bool = True) -> float:
+        """The loop's correction to the train's goal after one more reading (scalars, no arrays:
+        the simulator's block path calls it every cycle)."""
         dt = min(max(now - (self._last_time if self._last_time is not None else now), 0.0), 0.1)
         self._last_time = now
-        if valid:
-            err = q[self.joint] - sensed
-            self.correction = float(np.clip(self.correction + self.loop_gain * err * dt,
-                                            -self.max_correction, self.max_correction))
-        out = q.copy()
-        out[self.joint] += self.correction
-        return out
+        if valid:  # NaN stays NaN, as np.clip leaves it
+            c = self.correction + self.loop_gain * (commanded - sensed) * dt
+            self.correction = float(min(max(c, -self.max_correction), self.max_correction))
+        return self.correction
 
 
 @dataclass
@@ -73,6 +77,8 @@ class SensedDistance:
     _window: deque = field(default_factory=deque)
     _next_sample: float = 0.0
     _rng: np.random.Generator | None = None
+    #: Readings taken so far: the median changes only when this does.
+    samples: int = 0
 
     def update(self, now: float) -> None:
         """Take the readings due by ``now`` (s)."""
@@ -87,6 +93,12 @@ class SensedDistance:
             while len(self._window) > self.median_window:
                 self._window.popleft()
             self._next_sample += period
+            self.samples += 1
+
+    @property
+    def due(self) -> float:
+        """A time (s) just before the next reading is due: :meth:`update` earlier takes none."""
+        return self._next_sample - 2e-12
 
     def read(self) -> float:
         """The median distance (m); NaN before the first reading."""

@@ -20,6 +20,7 @@ import numpy as np
 
 from bench.identify.logs import LoggedRun, RigSetup
 from drivers.servo import ServoArray, ServoParams
+from drivers.servo.fast import PositionLoop
 from drivers.servo.model import FIRMWARE_PERIOD_S, FRICTION_SMOOTHING_RAD_S
 
 __all__ = ["FILE_KEYS", "PHYSICS", "SlotPhysics", "file_values", "merge_runs", "WINDOW_S", "simulate_run", "windows_of"]
@@ -160,6 +161,7 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     before = np.where(np.isin(first, list(log_starts)), first, first - 1)  # a log's first row: its own goal
     goal = (run.goal[before][:, slots.joint].reshape(-1) - off) * inv_r
     servo.resume((q - off) * inv_r, qd * inv_r, goal, run.current[first][:, slots.joint].reshape(-1))
+    loop = PositionLoop(servo, dt)  # the same torques as servo.step, for a fraction of its checks
     q_out = np.empty((len(t), S))
     i_out = np.empty((len(t), S))
     smoothing = 1.0 / FRICTION_SMOOTHING_RAD_S
@@ -171,9 +173,9 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
             q_out[rows] = q[idx]
             i_out[rows] = servo.current[idx]
             goal[idx] = (run.goal[rows[:, None], slots.joint[None, :]] - off[idx]) * inv_r[idx]
-            servo.set_goal(goal)
+            loop.set_goal(goal)
         w_ = qd * inv_r
-        tau = servo.step(dt, (q - off) * inv_r, w_)
+        tau = loop.step((q - off) * inv_r, w_)
         level = coulomb + (peak - coulomb) * np.exp(-(w_ / ws) ** 2)
         friction = level * np.tanh(w_ * smoothing) * inv_r
         qd = qd + dt * (tau * inv_r + (b_emf - b) * qd - load[s].take(flat) - friction) / (

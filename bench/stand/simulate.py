@@ -24,6 +24,7 @@ import numpy as np
 
 from bench.stand.logs import SAMPLE_S, StandLog
 from drivers.servo import FIRMWARE_PERIOD_S, ServoArray, ServoParams
+from drivers.servo.fast import PositionLoop
 from drivers.servo.model import friction_level, stopping_friction
 
 __all__ = ["GRAVITY", "Slots", "rollout", "stand_inertia"]
@@ -69,6 +70,7 @@ def rollout(logs: Sequence[StandLog], slots: Slots, substeps: int = int(round(SA
     q = np.array([g.position[0] for g in logs])[slots.log].astype(float)
     qd = np.array([g.velocity[0] for g in logs])[slots.log].astype(float)
     servo.reset(q)
+    loop = PositionLoop(servo, SAMPLE_S / substeps)
     dt = SAMPLE_S / substeps
     offset, viscous = slots.gravity_offset, p.viscous
     out = np.empty((K, S))
@@ -79,12 +81,13 @@ def rollout(logs: Sequence[StandLog], slots: Slots, substeps: int = int(round(SA
         started = on & ~on_before
         if started.any():  # torque on again: the firmware starts from where the shaft is
             servo.reset_slot(np.flatnonzero(started), servo.ticks(q[started]))
+            loop.refresh()
         on_before = on
-        servo.set_goal(goal[k])
+        loop.set_goal(goal[k])
         servo.supply = supply[k]
         enable = torque[k]
         for _ in range(substeps):
-            tau_m = servo.step(dt, q, qd) * enable
+            tau_m = loop.step(q, qd) * enable
             tau_g = -weight * np.sin(q + offset)
             net = tau_m + tau_g
             level = friction_level(p, qd, tau_m, tau_g)

@@ -20,7 +20,7 @@ from typing import Callable, Literal, Sequence
 import numpy as np
 
 from drivers import ActuatorError, BackendSetupError, JointLimits, JointState, NotEnabledError, frozen_array
-from drivers.pybullet.stepped import SteppedActuators
+from drivers.pybullet.stepped import SteppedActuators, block_commands
 from drivers.quiet import muted_output, quiet_pybullet
 
 
@@ -246,18 +246,9 @@ class PyBulletActuators(SteppedActuators):
         """
         if not self._enabled:
             raise NotEnabledError(f"{type(self).__name__}.execute_block() before enable()")
-        position = np.asarray(position, dtype=float)
-        velocity = np.asarray(velocity, dtype=float)
+        position, velocity = block_commands(position, velocity, ends, self._limits)
         k, n = len(ends), self._n_joints
-        if position.shape != (k, n) or velocity.shape != (k, n):
-            raise ValueError(f"a block of {k} cycles needs ({k}, {n}) positions and velocities, "
-                             f"got {position.shape} and {velocity.shape}")
-        if not np.isfinite(position).all():
-            raise ValueError(f"command position is not finite in row "
-                             f"{int(np.flatnonzero(~np.isfinite(position).all(axis=1))[0])}")
-        lim = self._limits
-        targets = np.minimum(np.maximum(position, lim.lower), lim.upper).tolist()
-        speeds = np.minimum(np.maximum(velocity, -lim.velocity), lim.velocity).tolist()
+        targets, speeds = position.tolist(), velocity.tolist()
         targets_steps = np.floor(np.asarray(ends) / self._dt + 1e-6).astype(np.int64)
         # the step count when each cycle reads: it only moves forward
         counts = np.maximum.accumulate(np.concatenate(([self._step_count], targets_steps)))

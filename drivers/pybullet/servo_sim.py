@@ -11,10 +11,16 @@ What the bench sees is what the rig's driver sees: positions quantised to encode
 velocities to 0.229 rev/min through each joint's transmission (joint = offset + ratio · shaft),
 goals that reach the servos ``transport_delay_s`` after they are commanded, and efforts from
 the motor current.
+
+The runner hands it whole blocks of cycles (:meth:`ServoSimActuators.execute_block`, the
+:class:`~drivers.capabilities.BlockExecution` capability): the same cycles, the same numbers,
+without a reading object per cycle; a rewind goes back to the block's start and runs its
+cycles again, which the simulator, deterministic, repeats exactly.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -23,11 +29,12 @@ from typing import Callable, Literal, Sequence
 
 import numpy as np
 
-from drivers import BackendSetupError, JointLimits, JointState
+from drivers import ActuatorError, BackendSetupError, JointLimits, JointState, NotEnabledError, frozen_array
 from drivers.dynamixel.control_table import x_series_table
-from drivers.pybullet.backend import steps_per_period
-from drivers.pybullet.stepped import SteppedActuators
+from drivers.pybullet.backend import BlockStates, steps_per_period
+from drivers.pybullet.stepped import SteppedActuators, block_commands
 from drivers.servo import ServoArray, ServoParams
+from drivers.servo.fast import PositionLoop
 from drivers.servo.plant import PyBulletPlant
 from drivers.train_loop import SensedDistance, TrainLoop
 
@@ -114,6 +121,7 @@ class ServoSimActuators(SteppedActuators):
                              else np.asarray(s.reported_kt, dtype=float))
         self._torque_on = False
         self._pending: deque[tuple[int, np.ndarray]] = deque()
+        self._no_torque = np.zeros(n)
         self._delay_steps = int(round(s.transport_delay_s / self._dt))
         self._step_count = 0
         self.safe_stop_report: str | None = None
@@ -135,25 +143,44 @@ class ServoSimActuators(SteppedActuators):
                 held = effort * self._ratio / self._reported_kt * s.servos.kt
                 torque = np.where(np.isfinite(held), held, torque)
             self.servos.hold(self.plant.position(), torque)
+        # what read() converts with, from the control table
+        table = x_series_table()
+        self._tick_scale = table["Present Position"].scale
+        self._velocity_units = table["Present Velocity"]
+        self._loop = PositionLoop(self.servos, self._dt, self._ratio, self._offset)
+        self._reading: tuple[int, float] = (-1, math.nan)  # the train's (sensor sample, joint value)
+        self._block: tuple | None = None  # the last block's start and commands, for rewind()
 
     # -- the Actuators interface ---------------------------------------------
 
     def read(self) -> JointState:
         """What the rig's driver reads: ticks and velocity units through the transmissions."""
-        shaft = self.plant.position()
-        table = x_series_table()
-        ticks = self.servos.ticks(shaft)
-        units = table["Present Velocity"]
-        velocity = units.to_si(np.round(units.from_si(self.plant.velocity())))
-        effort = (self._reported_kt * self.servos.current / self._ratio if self._torque_on
-                  else np.zeros_like(shaft))
-        position = self._offset + self._ratio * ticks * table["Present Position"].scale
+        position, velocity, effort = self._readings(self.plant.position(), self.plant.velocity(),
+                                                    self.servos.current)
         if self._sensed is not None:
-            ts = self.settings.train_sensor
-            position[ts.joint] = ts.to_joint(self._sensed.read())
-        self._last = JointState(self.now(), position, self._ratio * velocity, effort)  # read-only
+            position[self.settings.train_sensor.joint] = self._train_reading()
+        self._last = JointState(self.now(), position, velocity, effort)  # read-only
         self._lost = False
         return self._last
+
+    def _readings(self, shaft: np.ndarray, omega: np.ndarray, current: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity and effort as the driver reads them from shaft angles, speeds and
+        motor currents (one row, or a row per cycle of a block: the same numbers either way)."""
+        ticks = self.servos.ticks(shaft)
+        units = self._velocity_units
+        velocity = self._ratio * units.to_si(np.round(units.from_si(omega)))
+        effort = (self._reported_kt * current / self._ratio if self._torque_on
+                  else np.zeros_like(shaft))
+        return self._offset + self._ratio * ticks * self._tick_scale, velocity, effort
+
+    def _train_reading(self) -> float:
+        """The train's joint value from its sensor's median, as the driver maps it (mapped again
+        only when the sensor has taken a new reading)."""
+        sensed = self._sensed
+        if self._reading[0] != sensed.samples:
+            self._reading = (sensed.samples, self.settings.train_sensor.to_joint(sensed.read()))
+        return self._reading[1]
 
     def status_lost(self, joints: Sequence[str]) -> None:
         """The bench lost the train's last reading: the host loop holds its correction until the next."""
@@ -166,21 +193,26 @@ class ServoSimActuators(SteppedActuators):
         return self.plant.joint_position()
 
     def wait_until(self, t: float) -> None:
-        target = int(math.floor(t / self._dt + 1e-6))
-        plant, servos, dt, pending = self.plant, self.servos, self._dt, self._pending
-        zero = np.zeros(len(self._ratio))
-        sensed = self._sensed
-        while self._step_count < target:
-            if sensed is not None:
-                sensed.update(self._step_count * dt)
-            while pending and pending[0][0] <= self._step_count:
-                servos.set_goal(pending.popleft()[1])
+        self._advance(int(math.floor(t / self._dt + 1e-6)))
+
+    def _advance(self, target: int) -> None:
+        """Step the physics to step ``target``: the sensor's readings, the goals that arrived,
+        the firmware and the plant, every step."""
+        plant, loop, dt, pending, sensed = self.plant, self._loop, self._dt, self._pending, self._sensed
+        step = self._step_count
+        due = sensed.due if sensed is not None else math.inf
+        while step < target:
+            if step * dt >= due:
+                sensed.update(step * dt)
+                due = sensed.due
+            while pending and pending[0][0] <= step:
+                loop.set_goal(pending.popleft()[1])
             if self._torque_on:
-                torque = servos.step(dt, plant.position(), plant.velocity())
+                plant.step_joint(loop.step_joint(*plant.state()))
             else:
-                torque = zero
-            plant.step(dt, torque)
-            self._step_count += 1
+                plant.step_joint(self._no_torque)
+            step += 1
+            self._step_count = step
 
     def _enable(self) -> None:
         """As the rig's driver: goals = present positions, then torque on (a servo already holding
@@ -189,10 +221,11 @@ class ServoSimActuators(SteppedActuators):
         if self._train_loop is not None:
             self._train_loop.reset()
         if self._torque_on:
-            self.servos.set_goal(self.plant.position())
+            self._loop.set_goal(self.plant.position())
         else:
             self.servos.reset(self.plant.position())
             self._torque_on = True
+            self._loop.refresh()
 
     def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
         lim = self._limits
@@ -203,10 +236,100 @@ class ServoSimActuators(SteppedActuators):
         goal = (q - self._offset) / self._ratio
         self._pending.append((self._step_count + self._delay_steps, goal))
 
+    # -- block execution (the runner's fast path) -----------------------------
+    def execute_block(self, position: np.ndarray, velocity: np.ndarray, ends: np.ndarray) -> BlockStates:
+        """Run a block of control cycles: read, command row k, step to ``ends[k]``.
+
+        The cycles ``read(); command(position[k], velocity[k]); wait_until(ends[k])`` would run,
+        with the same numbers, without a reading object per cycle: the commands are checked,
+        clipped and turned into shaft goals for the whole block first, the host loop corrects
+        the train's goal each cycle by its reading, and the readings are converted for the whole
+        block after it ran. What the block started from is kept for :meth:`rewind`.
+        """
+        if not self._enabled:
+            raise NotEnabledError(f"{type(self).__name__}.execute_block() before enable()")
+        position, _ = block_commands(position, velocity, ends, self._limits)
+        self._block = (self._snapshot(), position, np.asarray(ends, dtype=float))
+        return self._run_block(position, self._block[2])
+
+    def rewind(self, cycle: int) -> JointState:
+        """Put the simulator back as it was read at ``cycle`` of the last block: the state the
+        block started from, and its first ``cycle`` cycles run again (the same steps, so the
+        same state, servos, sensor and host loop included)."""
+        if self._block is None:
+            raise ActuatorError("rewind() without a block to rewind")
+        start, position, ends = self._block
+        self._restore(start)
+        self._run_block(position[:cycle], ends[:cycle])
+        self._block = None
+        return self.read()
+
+    def _run_block(self, position: np.ndarray, ends: np.ndarray) -> BlockStates:
+        goals = (position - self._offset) / self._ratio
+        targets = np.floor(ends / self._dt + 1e-6).astype(np.int64).tolist()
+        host, delay, pending, dt = self._train_loop, self._delay_steps, self._pending, self._dt
+        plant, servos = self.plant, self.servos
+        q_rows, qd_rows, current_rows, steps, train = [], [], [], [], []
+        tj = host.joint if host is not None else -1
+        offset, ratio = float(self._offset[tj]), float(self._ratio[tj])
+        wanted = position[:, tj].tolist()
+        for i in range(len(ends)):
+            # read (the arrays are kept: each step replaces them, none is changed in place)
+            step = self._step_count
+            q, qd = plant.state()
+            q_rows.append(q)
+            qd_rows.append(qd)
+            current_rows.append(servos.current)
+            steps.append(step)
+            # command
+            if host is not None:  # each row of the block's goals is its own cycle's, written once
+                sensed = self._train_reading()
+                train.append(sensed)
+                goals[i, tj] = (wanted[i] + host.correct(wanted[i], sensed, step * dt) - offset) / ratio
+            pending.append((step + delay, goals[i]))
+            # wait
+            self._advance(targets[i])
+        return self._block_states(steps, q_rows, qd_rows, current_rows, train)
+
+    def _block_states(self, steps: list, q_rows: list, qd_rows: list, current_rows: list,
+                      train: list) -> BlockStates:
+        """The block's readings, converted whole as :meth:`read` converts one."""
+        n = len(self._ratio)
+        if not steps:
+            empty = frozen_array(np.zeros((0, n)))
+            return BlockStates(frozen_array(np.zeros(0)), empty, empty, empty)
+        q = np.array(q_rows)
+        position, velocity, effort = self._readings((q - self._offset) / self._ratio,
+                                                    np.array(qd_rows) / self._ratio, np.array(current_rows))
+        if self._train_loop is not None:
+            position[:, self._train_loop.joint] = train
+        time = np.array(steps, dtype=float) * self._dt
+        states = BlockStates(frozen_array(time), frozen_array(position), frozen_array(velocity),
+                             frozen_array(effort))
+        self._last = JointState(float(time[-1]), states.position[-1], states.velocity[-1], states.effort[-1])
+        self._lost = False
+        return states
+
+    def _snapshot(self) -> tuple:
+        """Everything a cycle's outcome depends on, copied."""
+        arrays = lambda obj: {k: v.copy() if isinstance(v, np.ndarray) else v  # noqa: E731
+                              for k, v in vars(obj).items()}
+        return (arrays(self.plant), arrays(self.servos), vars(self._loop).copy(), list(self._pending),
+                self._step_count, self._last, self._lost, self._reading,
+                copy.deepcopy(self._sensed), copy.copy(self._train_loop))
+
+    def _restore(self, snapshot: tuple) -> None:
+        plant, servos, loop, pending, self._step_count, self._last, self._lost, self._reading, \
+            self._sensed, self._train_loop = snapshot
+        vars(self.plant).update(plant)
+        vars(self.servos).update(servos)
+        vars(self._loop).update(loop)
+        self._pending = deque(pending)
+
     def _disable(self) -> None:
         self._pending.clear()
         if self.settings.safe_stop == "hold":
-            self.servos.set_goal(self.plant.position())
+            self._loop.set_goal(self.plant.position())
             self.safe_stop_report = "holding the measured position"
         else:
             self._torque_on = False
@@ -219,6 +342,7 @@ class ServoSimActuators(SteppedActuators):
     def set_effort_limit(self, joint: int, effort: float) -> None:
         """Lower a joint's available torque/force: its servo's current limit, through the transmission."""
         self.servos.current_limit[joint] = effort * abs(self._ratio[joint]) / self._reported_kt[joint]
+        self._loop.refresh()
         eff = self._limits.effort.copy()
         eff[joint] = effort
         self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)

@@ -5,9 +5,28 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
+import numpy as np
+
 from drivers import ActuatorsBase, JointLimits
 
-__all__ = ["SteppedActuators"]
+__all__ = ["SteppedActuators", "block_commands"]
+
+
+def block_commands(position: np.ndarray, velocity: np.ndarray, ends: np.ndarray,
+                   limits: JointLimits) -> tuple[np.ndarray, np.ndarray]:
+    """A block's commands checked whole before anything moves (a row per cycle, every joint,
+    finite positions), clipped to the joints' limits: (positions, velocities)."""
+    position = np.asarray(position, dtype=float)
+    velocity = np.asarray(velocity, dtype=float)
+    k, n = len(ends), len(limits.lower)
+    if position.shape != (k, n) or velocity.shape != (k, n):
+        raise ValueError(f"a block of {k} cycles needs ({k}, {n}) positions and velocities, "
+                         f"got {position.shape} and {velocity.shape}")
+    if not np.isfinite(position).all():
+        raise ValueError(f"command position is not finite in row "
+                         f"{int(np.flatnonzero(~np.isfinite(position).all(axis=1))[0])}")
+    return (np.minimum(np.maximum(position, limits.lower), limits.upper),
+            np.minimum(np.maximum(velocity, -limits.velocity), limits.velocity))
 
 
 class SteppedActuators(ActuatorsBase):

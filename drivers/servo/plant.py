@@ -22,12 +22,18 @@ is integrated semi-implicitly, with M and h = C q̇ + g from PyBullet's
 ``calculateMassMatrix`` and ``calculateInverseDynamics``. Stable for any
 damping; joint limits act as hard stops.
 
+h is computed every step. The matrix on the left changes only with the pose, and slowly (the
+armature dominates it), so its Cholesky factor is kept and computed afresh only once the pose
+has moved :data:`MASS_MATRIX_TOLERANCE` from where it was: a 9×9 mass matrix, its conversion and
+a factorisation cost more than the rest of a step together.
+
 Shaft angle and joint value: ``joint = offset + ratio · shaft``; joint torque
 is ``shaft torque / ratio``; armature and damping scale by ``1 / ratio²``.
 """
 
 from __future__ import annotations
 
+from itertools import chain
 from pathlib import Path
 from typing import Sequence
 
@@ -36,6 +42,11 @@ import numpy as np
 from drivers import BackendSetupError
 from drivers.quiet import muted_output, quiet_pybullet
 from drivers.servo.model import FRICTION_SMOOTHING_RAD_S, ServoParams, friction_torque
+
+#: How far (rad and m, Euclidean over the joints) the pose may move from where the mass matrix was
+#: computed before it is computed again: M(q) moves by about this fraction of the links' inertia
+#: (tests/test_servo_fast.py holds a move's trajectory to the one with a matrix every step).
+MASS_MATRIX_TOLERANCE = 1e-4
 
 
 class PyBulletPlant:
@@ -84,6 +95,22 @@ class PyBulletPlant:
         self._q = np.clip(np.asarray(initial_position, dtype=float), self._lower, self._upper)
         self._qd = np.zeros(n)
         self._zeros = [0.0] * n
+        # worked out once: the step's constants (the back-EMF's damping is implicit, in the matrix)
+        self._inv_ratio = 1.0 / self._ratio
+        self._viscous = servos.viscous / r2
+        self._implicit = self._Ja + physics_dt * self._B
+        self._diagonal = np.diag_indices(n)
+        self._has_joint_friction = bool(self._joint_friction.any())
+        self._has_viscous = bool(self._viscous.any())
+        self._past_stop = np.maximum.reduce
+        # the matrix's Cholesky factor and the pose it is of (LAPACK's own calls: numpy's solve
+        # costs five times the arithmetic of a 9×9 in its checks)
+        from scipy.linalg import lapack  # heavy: loaded with the first plant
+        self._potrf, self._potrs = lapack.dpotrf, lapack.dpotrs
+        self._cholesky = np.eye(n)
+        self._factored_q = self._q
+        self._reach = MASS_MATRIX_TOLERANCE ** 2
+        self._stale = True  # factor the matrix at the next step
 
     @property
     def limits(self) -> tuple[np.ndarray, np.ndarray]:
@@ -100,6 +127,11 @@ class PyBulletPlant:
 
     def joint_velocity(self) -> np.ndarray:
         return self._qd.copy()
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The joints' positions and velocities themselves, not copies: a step replaces them and
+        never changes them in place, so a caller may keep them (and must not write to them)."""
+        return self._q, self._qd
 
     def position(self) -> np.ndarray:
         return (self._q - self._offset) / self._ratio
@@ -124,32 +156,57 @@ class PyBulletPlant:
                                                  self._zeros, physicsClientId=c))
         return M, h
 
+    def _factor(self, q: np.ndarray) -> None:
+        """The Cholesky factor of M(q) + J_a + dt·B (symmetric, positive definite) at ``q``, kept
+        until the pose is :data:`MASS_MATRIX_TOLERANCE` away."""
+        n = len(q)
+        A = np.fromiter(chain.from_iterable(
+            self._pb.calculateMassMatrix(self.body, q.tolist(), physicsClientId=self._c)), float, n * n)
+        A = A.reshape(n, n)
+        A[self._diagonal] += self._implicit
+        self._cholesky, info = self._potrf(A)
+        if info != 0:
+            raise ValueError(f"the plant's matrix is not positive definite at {q.tolist()} (LAPACK info {info})")
+        self._factored_q = q
+        self._reach = MASS_MATRIX_TOLERANCE ** 2
+
     def step(self, dt: float, torque: np.ndarray) -> None:
+        """One physics step of ``dt`` (the plant's own) under the servos' shaft torques (N·m)."""
         if abs(dt - self._dt) > 1e-12:
             raise ValueError(f"plant steps {self._dt} s, asked for {dt} s")
-        pb, c = self._pb, self._c
+        torque = np.asarray(torque, dtype=float)
+        self.step_joint(torque * self._inv_ratio, torque)
+
+    def step_joint(self, joint_torque: np.ndarray, torque: np.ndarray | None = None) -> None:
+        """One physics step under the servos' torques at the joints (N·m or N: shaft torque / ratio;
+        ``torque``, the shaft torques themselves, where the caller has them)."""
         q, qd = self._q, self._qd
-        # The servo's torque already holds the back-EMF's -B·qd (explicit); take the drive
-        # part and apply the damping (back-EMF and viscous) implicitly.
-        drive = np.asarray(torque, dtype=float) / self._ratio + self._B_emf * qd
-        ql = q.tolist()
-        M = np.array(pb.calculateMassMatrix(self.body, ql, physicsClientId=c))
-        h = np.array(pb.calculateInverseDynamics(self.body, ql, qd.tolist(), self._zeros,
-                                                 physicsClientId=c))
-        friction = self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)
+        h = np.array(self._pb.calculateInverseDynamics(self.body, q.tolist(), qd.tolist(), self._zeros,
+                                                       physicsClientId=self._c))
+        # The servo's torque already holds the back-EMF's -B_emf·qd (explicit); its damping and
+        # the viscous friction are applied implicitly through the matrix, so only the viscous
+        # part stays here: τ/r + B_emf·qd − B·qd = τ/r − (viscous/r²)·qd.
+        rhs = joint_torque - h
+        if self._has_viscous:
+            rhs -= self._viscous * qd
+        if self._has_joint_friction:
+            rhs -= self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)
         if self._has_friction:
             # the gearbox carries the motor's torque and the load's (gravity and the links' bias)
-            shaft = np.asarray(torque, dtype=float)
-            friction = friction + friction_torque(self._coulomb_only, qd / self._ratio, shaft,
-                                                  -h * self._ratio) / self._ratio
-        rhs = drive - self._B * qd - h - friction
-        A = M + np.diag(self._Ja + dt * self._B)
-        qd_new = qd + dt * np.linalg.solve(A, rhs)
+            shaft = joint_torque * self._ratio if torque is None else torque
+            rhs -= friction_torque(self._coulomb_only, qd * self._inv_ratio, shaft,
+                                   -h * self._ratio) * self._inv_ratio
+        if self._stale:
+            self._factor(q)
+        dt = self._dt
+        qd_new = qd + dt * self._potrs(self._cholesky, rhs)[0]
         q_new = q + dt * qd_new
-        # Hard stops at the URDF limits.
-        low, high = q_new < self._lower, q_new > self._upper
-        if low.any() or high.any():
-            q_new = np.clip(q_new, self._lower, self._upper)
+        moved = q_new - self._factored_q
+        self._stale = moved.dot(moved) > self._reach
+        # Hard stops at the URDF limits (one reduction says whether any joint is past one).
+        if self._past_stop(np.maximum(self._lower - q_new, q_new - self._upper)) > 0.0:
+            low, high = q_new < self._lower, q_new > self._upper
+            q_new = np.minimum(np.maximum(q_new, self._lower), self._upper)
             qd_new[low | high] = 0.0
         self._q, self._qd = q_new, qd_new
 

@@ -1,0 +1,120 @@
+"""The firmware's position loop in its plain case, fused: what a simulator steps thousands of times.
+
+:meth:`ServoArray.step <drivers.servo.model.ServoArray.step>` serves every mode a register
+write can set (profiles, PWM and current modes, deadbands, a slot without its PID), and on
+nine joints its checks for them cost more than its arithmetic. A simulator whose servos all
+run the position PID on the integer encoder, with no profile (Profile Velocity 0, as the
+bench writes it), no deadband and no current-based mode, needs only the PID and the motor:
+:class:`PositionLoop` runs exactly that, with the gains turned into per-sample constants once,
+in the very operations and order of :meth:`ServoArray.step_ticks` (the same numbers, bit for
+bit), on the array's own state, so the general step can take over at any sample.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drivers.servo.model import FIRMWARE_PERIOD_S, ServoArray
+
+__all__ = ["PositionLoop"]
+
+
+class PositionLoop:
+    """The position PID and motor of every slot of ``servos`` at a sample of ``dt`` s.
+
+    :attr:`fused` says whether the plain case holds; :meth:`refresh` works the constants out
+    again after the owner changed a register array in place (gains, limits, modes) or reset
+    a servo; a new :attr:`ServoArray.supply` array is taken as it comes. Outside the plain case,
+    and on the first sample after a reset (the derivative has no previous error yet),
+    :meth:`step` is :meth:`ServoArray.step`.
+    """
+
+    def __init__(self, servos: ServoArray, dt: float, ratio: np.ndarray | None = None,
+                 offset: np.ndarray | None = None) -> None:
+        self.servos = servos
+        self.dt = float(dt)
+        # the transmissions (joint = offset + ratio · shaft) for step_joint
+        self._ratio = np.ones(servos.params.n) if ratio is None else np.asarray(ratio, dtype=float)
+        self._offset = np.zeros(servos.params.n) if offset is None else np.asarray(offset, dtype=float)
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Constants from the registers as they are now; whether the plain case holds."""
+        s, p = self.servos, self.servos.params
+        self.fused = bool(s.pid.all() and not s.profile_velocity.any() and np.isinf(s.vmax).all()
+                          and not (s.deadband > 0).any() and not s.current_based.any())
+        self._primed = bool(s.has_prev.all())
+        samples = self.dt / FIRMWARE_PERIOD_S
+        g = s.gains
+        self._inv_tick = 1.0 / s._rad_per_tick
+        self._rad_per_tick = s._rad_per_tick
+        self._ki = g[:, 1] * (samples / 65536.0)
+        self._kp = g[:, 0] / s.p_divisor
+        self._kd = g[:, 2] / (16.0 * samples)
+        self._lim, self._neg_lim = s.pwm_limit.copy(), -s.pwm_limit
+        self._cap, self._neg_cap = s.pwm_cap.copy(), -s.pwm_cap
+        self._supply = s.supply
+        self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
+        self._ke, self._resistance, self._kt = p.ke, p.resistance, p.kt
+        self._ilim, self._neg_ilim = s.current_limit.copy(), -s.current_limit
+        # the same through the transmissions: ticks from joint values, torque at the joint
+        r = self._ratio
+        self._joint_tick = self._inv_tick / r
+        self._joint_zero = 0.5 - self._offset * self._inv_tick / r
+        self._joint_ke = self._ke / r
+        self._joint_kt = self._kt / r
+
+    def set_goal(self, goal: np.ndarray) -> None:
+        """New goal positions (rad), in ticks as the bus writes them: with no profile the
+        trajectory is the goal at the next sample."""
+        s = self.servos
+        if not self.fused:
+            s.set_goal(goal)
+            return
+        ticks = np.rint(goal / self._rad_per_tick)  # np.round's own rounding, without its wrapper
+        s.goal = ticks
+        s.traj = ticks.copy()
+
+    def step(self, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        """One firmware sample at the shaft state (rad, rad/s); the motor torque (N·m)."""
+        s = self.servos
+        if not (self.fused and self._primed):
+            torque = s.step(self.dt, position, velocity)
+            self._primed = bool(s.has_prev.all())
+            return torque
+        present = np.floor(position * self._inv_tick + 0.5)
+        error = s.traj - present
+        integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
+        u = self._kp * error + integral
+        u += self._kd * (error - s.prev_error)
+        pwm = np.minimum(np.maximum(u, self._neg_cap), self._cap)
+        if s.supply is not self._supply:  # the owner handed in a new supply (a log's measured one)
+            self._supply = s.supply
+            self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
+        current = (pwm * self._volts - self._ke * velocity) / self._resistance
+        current = np.minimum(np.maximum(current, self._neg_ilim), self._ilim)
+        s.present, s.omega, s.integral, s.prev_error, s.pwm, s.current = (present, velocity, integral, error,
+                                                                          pwm, current)
+        return self._kt * current
+
+    def step_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """:meth:`step` from joint values and speeds, torques at the joints (shaft torque / ratio),
+        the transmissions folded into the constants: the same physics, with the encoder's
+        reading rounded from the joint value directly (it may differ from :meth:`step`'s in the
+        last bit, and a tick's boundary by as much)."""
+        s = self.servos
+        if not (self.fused and self._primed):
+            return self.step((q - self._offset) / self._ratio, qd / self._ratio) / self._ratio
+        present = np.floor(q * self._joint_tick + self._joint_zero)
+        error = s.traj - present
+        integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
+        u = self._kp * error + integral
+        u += self._kd * (error - s.prev_error)
+        pwm = np.minimum(np.maximum(u, self._neg_cap), self._cap)
+        if s.supply is not self._supply:
+            self._supply = s.supply
+            self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
+        current = (pwm * self._volts - self._joint_ke * qd) / self._resistance
+        current = np.minimum(np.maximum(current, self._neg_ilim), self._ilim)
+        s.present, s.integral, s.prev_error, s.pwm, s.current = present, integral, error, pwm, current
+        return self._joint_kt * current
