@@ -200,6 +200,9 @@ def test_a_value_fitted_to_the_edge_of_its_range_is_not_observable_and_takes_its
     peak = inside.copy()
     peak[PHYSICS.index("stribeck_nm")] = UPPER[PHYSICS.index("stribeck_nm")]
     assert set(at_bound_keys(peak)) == {"stribeck_nm", "coulomb_nm", "stribeck_velocity_rads"}
+    broad = inside.copy()  # a peak fading too slowly to tell from Coulomb and viscous friction
+    broad[PHYSICS.index("stribeck_velocity_rads")] = UPPER[PHYSICS.index("stribeck_velocity_rads")]
+    assert set(at_bound_keys(broad)) == {"stribeck_nm", "coulomb_nm", "stribeck_velocity_rads"}
     weak = inside.copy()
     weak[PHYSICS.index("kt_scale")] = LOWER[PHYSICS.index("kt_scale")]
     assert at_bound_keys(weak) == ("kt_scale",)

@@ -34,9 +34,12 @@ from drivers.dynamixel.control_table import x_series_table
 __all__ = ["FitResult", "JointFit", "fit_servos", "initial_physics"]
 
 #: Typical size of each parameter (its unit for steps and for the pull to the datasheet).
-SCALE = np.array([1.0, 0.01, 0.1, 0.05, 0.05, 0.1])
-LOWER = np.array([0.2, 1e-4, 0.0, 0.0, 0.0, 0.005])
-UPPER = np.array([5.0, 1.0, 5.0, 2.0, 2.0, 10.0])
+SCALE = np.array([1.0, 0.01, 0.1, 0.2, 0.05, 0.1])
+#: The Stribeck velocity's range: from half the slowest sweep's speed (slower, nothing the
+#: excitation runs at tells it) to 1 rad/s (faster, a peak fading that slowly and a Coulomb level
+#: near zero stand in for Coulomb and viscous friction over the speeds the joints move at).
+LOWER = np.array([0.2, 1e-4, 0.0, 0.0, 0.0, 0.05])
+UPPER = np.array([5.0, 1.0, 5.0, 2.0, 2.0, 1.0])
 #: The rise of the fit's cost (a fraction) that defines a parameter's uncertainty: the step that
 #: costs this much is one "standard error". The simulation error has no independent samples (the
 #: encoder's steps make it a staircase in the parameters), so the noise floor is empirical: a few
@@ -87,10 +90,11 @@ class FitResult:
 AT_BOUND = 0.01
 _EDGES = {"kt_scale": (True, True), "armature_kgm2": (True, True), "viscous_nms": (False, True),
           "coulomb_nm": (False, True), "stribeck_nm": (False, True), "stribeck_velocity_rads": (True, True)}
-#: The file keys a parameter at an edge takes with it: a friction level goes with the other and the shape.
+#: The file keys a parameter at an edge takes with it: a friction level goes with the other and the
+#: shape, and a shape at an edge (the peak split from Coulomb where the logs cannot tell it) with both.
 _FRICTION = ("coulomb_nm", "stribeck_nm", "stribeck_velocity_rads")
 _TAKES = {"kt_scale": ("kt_scale",), "armature_kgm2": ("armature_kgm2",), "viscous_nms": ("viscous_nms",),
-          "coulomb_nm": _FRICTION, "stribeck_nm": _FRICTION, "stribeck_velocity_rads": ("stribeck_velocity_rads",)}
+          "coulomb_nm": _FRICTION, "stribeck_nm": _FRICTION, "stribeck_velocity_rads": _FRICTION}
 
 
 def at_bound_keys(x: np.ndarray) -> tuple[str, ...]:
@@ -208,7 +212,7 @@ def learning_rows(setup: RigSetup, run: LoggedRun, joints: np.ndarray) -> np.nda
 
 
 #: Stribeck velocities (rad/s at the shaft) the regression tries; the best fit wins.
-STRIBECK_GRID = (0.05, 0.1, 0.2, 0.3, 0.5, 0.8, 1.2)
+STRIBECK_GRID = (0.05, 0.1, 0.2, 0.3, 0.5, 0.8, 1.0)
 
 
 def regression_guess(setup: RigSetup, runs: Sequence[LoggedRun], joints: np.ndarray) -> np.ndarray:
