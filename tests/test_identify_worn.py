@@ -20,19 +20,20 @@ HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 
 #: The worn rig's hidden physics (set W): every joint's gearbox heavy, θ4's friction at rest
 #: below Coulomb (0.24 against 0.32 N·m), θ5's above it and its motor weaker still.
-HIDDEN_W = {"all": {"coulomb_nm": 0.22, "stribeck_nm": 0.3, "stribeck_velocity_rads": 0.25, "viscous_nms": 0.04,
-                    "kt_scale": 0.9},
+HIDDEN_W = {"all": {"coulomb_nm": 0.22, "stribeck_nm": 0.3, "stribeck_velocity_rads": 0.25,
+                    "viscous_nms": 0.04, "kt_scale": 0.9},
             "theta4": {"coulomb_nm": 0.32, "stribeck_nm": 0.24},
             "theta5": {"stribeck_nm": 0.38, "kt_scale": 0.85}}
 EXCITED = ["theta4", "theta5", "theta6"]
 FRICTION = ("coulomb_nm", "stribeck_nm", "stribeck_velocity_rads", "viscous_nms")
 #: A short friction excitation: the pieces of the lab plan, each cut down.
-SHORT = {"joints": EXCITED, "amplitude_deg": 6.0, "chirp_s": 1.5, "multisine_s": 1.5, "multisine_period_s": 0.75, "pause_s": 0.2,
-         "sweep_speeds": 3, "sweep_s": 0.5, "reversal_s": 1.0, "hold_s": 0.3}
+SHORT = {"joints": EXCITED, "amplitude_deg": 6.0, "chirp_s": 1.5, "multisine_s": 1.5,
+         "multisine_period_s": 0.75, "pause_s": 0.2, "sweep_speeds": 3, "sweep_s": 0.5, "reversal_s": 1.0,
+         "hold_s": 0.3}
 
 
-DATASHEET = {"kt_scale": 1.0, "armature_kgm2": 0.012, "viscous_nms": 0.0, "coulomb_nm": 0.0, "stribeck_nm": 0.0,
-             "stribeck_velocity_rads": 0.1}
+DATASHEET = {"kt_scale": 1.0, "armature_kgm2": 0.012, "viscous_nms": 0.0, "coulomb_nm": 0.0,
+             "stribeck_nm": 0.0, "stribeck_velocity_rads": 0.1}
 
 
 def hidden(joint: str, key: str) -> float:
@@ -67,8 +68,8 @@ def worn(tmp_path_factory):
     res = _run("identify", run["run_dir"], "--out", str(model), "--json")
     assert res.returncode == 0, res.stderr
     fit = json.loads(res.stdout)
-    res = _run("compare", str(_config(tmp, "lab_real")), "--emulate", "--repeats", "2", "--sim-model", str(model),
-               "--json", "--out", str(tmp / "cmp"))
+    res = _run("compare", str(_config(tmp, "lab_real")), "--emulate", "--repeats", "2", "--sim-model",
+               str(model), "--json", "--out", str(tmp / "cmp"))
     assert res.returncode in (0, 1), res.stderr
     return {"fit": fit, "model": model, "compare": json.loads(res.stdout)}
 

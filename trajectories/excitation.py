@@ -6,9 +6,9 @@ For each excited joint, in turn, up to six pieces around the rest pose (the othe
   over the band the servos work in;
 * a **multi-sine**: a sum of harmonics of ``1/period`` with Schroeder phases (a low crest
   factor, so the amplitude is spent on excitation rather than one peak);
-* a **slow up-and-down** (``updown_s`` long; left out where the sweeps below do its work): out to the amplitude and back at one constant speed, the
-  friction's home ground (nearly no inertia, the velocity held long enough to read the
-  Coulomb and Stribeck levels on both sides);
+* a **slow up-and-down** (``updown_s`` long; left out where the sweeps below do its work): out
+  to the amplitude and back at one constant speed, the friction's home ground (nearly no
+  inertia, the velocity held long enough to read the Coulomb and Stribeck levels on both sides);
 * **constant-speed sweeps** (``sweep_speeds`` > 0): across and back at each of several speeds,
   log-spaced from ``sweep_slowest`` to ``sweep_fastest`` of the joint's top speed (the Stribeck
   region up to near its limit), each pass at most ``sweep_s`` long: friction against speed, so
@@ -150,14 +150,14 @@ class Excitation(PointToPoint):
             # out, back through the rest pose and home at `speed`, corners blended in 0.2 s
             self._legs[(j, "updown")] = _moves((0.0, a, -a, 0.0), speed, speed / 0.2)
             speeds = fractions * float(top[j])
-            if len(speeds):  # each speed across the room and back (passes of at most sweep_s), from rest to rest
+            if len(speeds):  # each speed across the room and back (passes at most sweep_s long)
                 d = np.minimum(a, speeds * s.sweep_s / 2)
                 self._legs[(j, "sweeps")] = [leg for v, dv in zip(speeds, d)
                                              for leg in _moves((0.0, -dv, dv, -dv, 0.0), v, v / SWEEP_RAMP_S)]
             if len(speeds) and s.hold_s > 0:  # top, rest, bottom, rest: a hold after each move
                 v = float(speeds[-1])
                 moves = _moves((0.0, a, 0.0, -a, 0.0), v, v / SWEEP_RAMP_S)
-                self._legs[(j, "holds")] = [x for leg in moves for x in (leg, s.hold_s)]
+                self._legs[(j, "holds")] = [x for leg in moves for x in (leg, float(s.hold_s))]
             # the sweeps do the up-and-down's work at several speeds: one or the other
             pieces = [("chirp", s.chirp_s), ("multisine", s.multisine_s),
                       ("sweeps", None) if len(speeds) else ("updown", None)]

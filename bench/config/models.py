@@ -317,12 +317,14 @@ class ExcitationConfig(Strict):
                                  description="the slowest sweep, a fraction of the joint's top speed (the "
                                              "lower of its limit and its servo's no-load speed)")
     sweep_fastest: float = Field(default=0.4, gt=0, le=1, description="the fastest sweep, the same fraction")
-    sweep_s: float = Field(default=1.0, gt=0, le=30, description="the longest a constant-speed pass lasts (s)")
+    sweep_s: float = Field(default=1.0, gt=0, le=30,
+                           description="the longest a constant-speed pass lasts (s)")
     reversal_s: float = Field(default=0.0, ge=0, le=60,
                               description="slow reversals: two periods of a sine at the second-slowest "
                                           "sweep's speed (s; 0: none)")
     hold_s: float = Field(default=0.0, ge=0, le=30,
-                          description="holds at the top, rest, bottom and rest again, each this long (s; 0: none)")
+                          description="holds at the top, rest, bottom and rest again, each this long "
+                                      "(s; 0: none)")
 
 
 class AcceptanceConfig(Strict):

@@ -127,7 +127,8 @@ class _Problem:
         self.q_scale = np.maximum(np.sqrt(np.mean(q_err ** 2, axis=0)), 2 * tick)
         # the train is fitted on its servo's velocity (its pinion encoder's), scaled by how far it
         # strays from the goals' velocity (at least two of the register's steps)
-        self.on_servo = joints == setup.train if setup.train is not None else np.zeros(len(joints), dtype=bool)
+        self.on_servo = (joints == setup.train if setup.train is not None
+                         else np.zeros(len(joints), dtype=bool))
         v_err = np.concatenate([(r.qd - np.gradient(r.goal, r.time, axis=0))[:, joints] for r in runs])
         v_step = np.abs(setup.ratio[joints]) * x_series_table()["Present Velocity"].scale
         self.v_scale = np.maximum(np.sqrt(np.mean(v_err ** 2, axis=0)), 2 * v_step)
@@ -157,7 +158,8 @@ class _Problem:
             parts = [f.result() for f in futures]
             q, cur, qd = (np.concatenate([p[i] for p in parts], axis=1) for i in (0, 1, 2))
         else:
-            q, cur, qd = simulate_run(self.setup, self.merged, slots, windows=self.windows, log_starts=self.starts)
+            q, cur, qd = simulate_run(self.setup, self.merged, slots, windows=self.windows,
+                                      log_starts=self.starts)
         return [(q[sl], cur[sl], qd[sl]) for sl in self.slices]
 
     def residuals(self, sims, which: np.ndarray) -> np.ndarray:
@@ -168,7 +170,8 @@ class _Problem:
         train = self.on_servo[which][None, :]
         for run, (q, cur, qd), w in zip(self.runs, sims, self.weights):
             j, wk = self.joints[which], w[:, which]
-            motion = np.where(train, (qd - run.qd[:, j]) / self.v_scale[which], (q - run.q[:, j]) / self.q_scale[which])
+            motion = np.where(train, (qd - run.qd[:, j]) / self.v_scale[which],
+                              (q - run.q[:, j]) / self.q_scale[which])
             parts.append((wk * motion).T)
             parts.append((wk * (cur - run.current[:, j]) / self.i_scale[which]).T)
         return np.concatenate(parts, axis=1) * self.norm[which][:, None]
