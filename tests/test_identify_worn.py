@@ -101,7 +101,7 @@ def test_the_worn_rigs_friction_is_recovered_or_said_not_observable(worn):
 def test_the_identified_sim_predicts_the_worn_rig_on_target_1(worn):
     """The identified sim tracks the worn rig far closer than the ideal one and places the tip at
     least twice as close to the rig's. Only three joints are excited here (the others take their
-    peers' median): 0.52 and 0.92 mm, gap ratios 0.12 and 0.20, in two runs on a busy machine,
+    peers' median): 0.52 to 1.04 mm, gap ratios 0.12 to 0.20, in three runs on a busy machine,
     where the full plan on every joint gave 0.34 mm (README, Identifying the rig's servos)."""
     pred = worn["compare"]["prediction"]
     print(pred)
