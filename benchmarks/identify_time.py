@@ -1,4 +1,4 @@
-"""How long identification takes: 9 joints from 3 logs of about 20 s.
+"""How long identification takes: 9 joints from 3 logs (two excitations with the plan's friction sweeps).
 
 Records three runs on the emulated lab rig given hidden servo physics, side by side: two
 excitations (``hil_configs/identify.yaml``, four joints each) and a Target 1 trial
@@ -32,7 +32,8 @@ HIDDEN = {"all": {"coulomb_nm": 0.08, "viscous_nms": 0.05, "stribeck_nm": 0.14, 
 
 
 def record(tmp: Path) -> list[Path]:
-    """Two excitation runs and a Target 1 trial side by side, about 20 s of log each."""
+    """Two excitation runs (the lab plan's pieces, its sweeps, reversals and holds included, shorter
+    chirps) and a Target 1 trial side by side."""
     configs = []
     for i, joints in enumerate(GROUPS):
         data = yaml.safe_load((REPO / "hil_configs" / "identify.yaml").read_text())

@@ -114,7 +114,52 @@ def test_the_lab_excitation_plan_checks_out_and_excites_every_joint_with_room():
     segs = plan(prep, prep.robot.chain.home, planned_limits(prep).velocity)
     excited = {prep.robot.joint_names[j] for _, _, j, _ in segs[1].trajectory.pieces}
     assert excited == set(prep.robot.joint_names) - {"d10"}  # the needle slide sits at its limit
-    assert segs[1].trajectory.duration < 120.0
+    kinds = {k for *_, k in segs[1].trajectory.pieces}
+    assert kinds == {"chirp", "multisine", "sweeps", "reversals", "holds"}
+    # the whole plan, approach and home included, under 3 minutes of rig time
+    assert sum(s.trajectory.duration + s.settle for s in segs) < 180.0
+
+
+def test_the_sweeps_hold_each_speed_both_ways_from_the_stribeck_region_to_near_the_top(arm):
+    """Sweeps at log-spaced speeds, each held at constant speed in both directions; slow reversals;
+    four holds at rest; all within the limits and smooth, the sweeps' top speed a joint's own."""
+    rest, lo, hi, lim = arm
+    spec = ExcitationSpec(chirp_s=1.0, multisine_s=1.0, multisine_period_s=1.0, sweep_speeds=4,
+                          sweep_slowest=0.02, sweep_fastest=0.4, sweep_s=0.6, reversal_s=2.0, hold_s=0.5,
+                          pause_s=0.2)
+    top = np.full(9, 4.8)
+    top[8] = 0.048
+    ex = Excitation(rest, [3, 8], np.r_[np.radians([10.0] * 8), 0.005], lo, hi, lim, spec, top_speed=top)
+    assert [k for _, _, j, k in ex.pieces if j == 3] == ["chirp", "multisine", "sweeps", "reversals", "holds"]
+    dt = 0.0005
+    t = np.arange(0.0, ex.duration + 1e-9, dt)
+    q, qd, qdd = ex.sample(t)
+    assert np.all(q >= lo - 1e-12) and np.all(q <= hi + 1e-12)
+    assert np.all(np.abs(qd) <= np.maximum(lim.velocity, top) * (1 + 1e-9))
+    assert np.abs(qd[:, [0, 1, 2, 4, 5, 6, 7]]).max() == 0.0
+    for j in (3, 8):
+        assert np.max(np.abs(np.gradient(q[:, j], t) - qd[:, j])) < 2e-3 * top[j]
+        t0, dur = next((t0, d) for t0, d, jj, k in ex.pieces if jj == j and k == "sweeps")
+        m = (t >= t0) & (t <= t0 + dur)
+        speeds = spec.sweep_fractions() * top[j]
+        assert speeds[-1] / speeds[0] == pytest.approx(20.0) and speeds[0] == pytest.approx(0.02 * top[j])
+        for v in speeds:  # each speed held, each way (the fastest across the room for over 0.1 s)
+            for sign in (1, -1):
+                held = np.isclose(qd[m, j], sign * v, rtol=1e-6)
+                assert held.sum() * dt >= 0.1, (j, v, sign)
+        t0, dur = next((t0, d) for t0, d, jj, k in ex.pieces if jj == j and k == "holds")
+        m = (t >= t0) & (t <= t0 + dur)
+        still = np.abs(qd[m, j]) == 0.0
+        offsets = np.round(q[m, j][still] - rest[j], 9)
+        assert set(offsets) == {0.0, round(ex.updown_amplitude[j], 9), round(-ex.updown_amplitude[j], 9)}
+        assert still.sum() * dt >= 4 * 0.5 - 1e-6
+        # the reversals turn round slowly: their peak speed is the second-slowest sweep's
+        t0, dur = next((t0, d) for t0, d, jj, k in ex.pieces if jj == j and k == "reversals")
+        m = (t >= t0) & (t <= t0 + dur)
+        assert np.abs(qd[m, j]).max() <= speeds[1] * (1 + 1e-9)
+        assert np.sum(np.diff(np.sign(qd[m, j][np.abs(qd[m, j]) > 1e-9])) != 0) >= 3
+    with pytest.raises(TrajectoryError, match="sweep_slowest"):
+        ExcitationSpec(sweep_speeds=3, sweep_slowest=0.5, sweep_fastest=0.2)
 
 
 def test_an_excitation_of_a_joint_that_cannot_move_is_refused_before_anything_moves(tmp_path):

@@ -294,7 +294,8 @@ class PlanConfig(Strict):
 
 class ExcitationConfig(Strict):
     """An excitation run for identifying the servos: around the target's entry pose, each joint in
-    turn gets a chirp, a multi-sine and a slow up-and-down (trajectories/excitation.py)."""
+    turn gets a chirp, a multi-sine, and a slow up-and-down or (with ``sweep_speeds``) constant-speed
+    sweeps, slow reversals and holds (trajectories/excitation.py)."""
 
     joints: Union[Literal["all"], list[str]] = Field(
         default="all", description="the joints excited, in order (all: every joint with room to move)")
@@ -307,8 +308,23 @@ class ExcitationConfig(Strict):
     multisine_period_s: float = Field(default=3.0, gt=0, le=60, description="the multi-sine's period (s)")
     harmonics: int = Field(default=6, ge=1, le=50, description="harmonics in the multi-sine")
     updown_s: float = Field(default=6.0, gt=0, le=120,
-                            description="length of the slow up-and-down, at one constant speed (s)")
+                            description="length of the slow up-and-down, at one constant speed (s; "
+                                        "left out where there are sweeps)")
     pause_s: float = Field(default=0.5, ge=0, le=60, description="rest between pieces (s)")
+    sweep_speeds: int = Field(default=0, ge=0, le=12,
+                              description="constant-speed sweeps, each out and back, log-spaced (0: none)")
+    sweep_slowest: float = Field(default=0.02, gt=0, le=1,
+                                 description="the slowest sweep, a fraction of the joint's top speed (the "
+                                             "lower of its limit and its servo's no-load speed)")
+    sweep_fastest: float = Field(default=0.4, gt=0, le=1, description="the fastest sweep, the same fraction")
+    sweep_s: float = Field(default=1.0, gt=0, le=30,
+                           description="the longest a constant-speed pass lasts (s)")
+    reversal_s: float = Field(default=0.0, ge=0, le=60,
+                              description="slow reversals: two periods of a sine at the second-slowest "
+                                          "sweep's speed (s; 0: none)")
+    hold_s: float = Field(default=0.0, ge=0, le=30,
+                          description="holds at the top, rest, bottom and rest again, each this long "
+                                      "(s; 0: none)")
 
 
 class AcceptanceConfig(Strict):

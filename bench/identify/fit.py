@@ -34,9 +34,12 @@ from drivers.dynamixel.control_table import x_series_table
 __all__ = ["FitResult", "JointFit", "fit_servos", "initial_physics"]
 
 #: Typical size of each parameter (its unit for steps and for the pull to the datasheet).
-SCALE = np.array([1.0, 0.01, 0.1, 0.05, 0.2, 0.1])
-LOWER = np.array([0.2, 1e-4, 0.0, 0.0, 0.0, 0.005])
-UPPER = np.array([5.0, 1.0, 5.0, 2.0, 1.0, 10.0])
+SCALE = np.array([1.0, 0.01, 0.1, 0.2, 0.05, 0.1])
+#: The Stribeck velocity's range: from half the slowest sweep's speed (slower, nothing the
+#: excitation runs at tells it) to 1 rad/s (faster, a peak fading that slowly and a Coulomb level
+#: near zero stand in for Coulomb and viscous friction over the speeds the joints move at).
+LOWER = np.array([0.2, 1e-4, 0.0, 0.0, 0.0, 0.05])
+UPPER = np.array([5.0, 1.0, 5.0, 2.0, 2.0, 1.0])
 #: The rise of the fit's cost (a fraction) that defines a parameter's uncertainty: the step that
 #: costs this much is one "standard error". The simulation error has no independent samples (the
 #: encoder's steps make it a staircase in the parameters), so the noise floor is empirical: a few
@@ -50,7 +53,7 @@ OBSERVABLE_FLOOR = {"kt_scale": 0.005, "armature_kgm2": 2e-4, "viscous_nms": 0.0
                     "stribeck_nm": 0.002, "stribeck_velocity_rads": 0.005}
 PRIOR_WEIGHT = 0.02
 FD_FRACTION = 0.1  # difference steps: this fraction of the value ...
-FD_FLOOR = np.array([0.02, 0.001, 0.02, 0.005, 0.05, 0.02])  # ... at least this
+FD_FLOOR = np.array([0.02, 0.001, 0.02, 0.005, 0.005, 0.02])  # ... at least this
 LAMBDAS = (0.25, 1.0, 4.0)  # damping factors tried together at each iteration
 
 Progress = Callable[[int, int], None]  # (iterations done, at most)
@@ -77,20 +80,21 @@ class JointFit:
 class FitResult:
     joints: dict[str, JointFit]
     skipped: dict[str, str] = field(default_factory=dict)  # joint: why it was not fitted
-    simulated_before: list = field(default_factory=list)  # per run: (q, current) (K, F), datasheet
+    simulated_before: list = field(default_factory=list)  # per run: (q, current, velocity) (K, F), datasheet
     simulated_after: list = field(default_factory=list)  # per run: (q, current) (K, F), fitted
 
 
 #: Where a fitted parameter (in the order of PHYSICS) counts as at the edge of its range: within
-#: this fraction of a bound. The Coulomb fraction's bounds (0: all Stribeck, 1: no peak) and a
-#: zero viscous friction are physical answers, not edges.
+#: this fraction of a bound. A zero friction term (no Coulomb, no peak, no viscous part) is a
+#: physical answer, not an edge.
 AT_BOUND = 0.01
 _EDGES = {"kt_scale": (True, True), "armature_kgm2": (True, True), "viscous_nms": (False, True),
-          "stribeck_nm": (False, True), "coulomb_fraction": (False, False), "stribeck_velocity_rads": (True, True)}
-#: The file keys a parameter at an edge takes with it: a friction peak goes with its level and shape.
+          "coulomb_nm": (False, True), "stribeck_nm": (False, True), "stribeck_velocity_rads": (True, True)}
+#: The file keys a parameter at an edge takes with it: a friction level goes with the other and the
+#: shape, and a shape at an edge (the peak split from Coulomb where the logs cannot tell it) with both.
+_FRICTION = ("coulomb_nm", "stribeck_nm", "stribeck_velocity_rads")
 _TAKES = {"kt_scale": ("kt_scale",), "armature_kgm2": ("armature_kgm2",), "viscous_nms": ("viscous_nms",),
-          "stribeck_nm": ("stribeck_nm", "coulomb_nm", "stribeck_velocity_rads"), "coulomb_fraction": (),
-          "stribeck_velocity_rads": ("stribeck_velocity_rads",)}
+          "coulomb_nm": _FRICTION, "stribeck_nm": _FRICTION, "stribeck_velocity_rads": _FRICTION}
 
 
 def at_bound_keys(x: np.ndarray) -> tuple[str, ...]:
@@ -104,11 +108,10 @@ def at_bound_keys(x: np.ndarray) -> tuple[str, ...]:
 
 
 def initial_physics(setup: RigSetup) -> np.ndarray:
-    """The datasheet's physics per joint, (n, len(PHYSICS)): no Stribeck peak (all Coulomb)."""
+    """The datasheet's physics per joint, (n, len(PHYSICS)): no Stribeck peak (rest at Coulomb)."""
     d = setup.datasheet
-    peak = np.maximum(np.where(d.stribeck > 0, d.stribeck, d.coulomb), d.coulomb)
-    fraction = np.divide(d.coulomb, peak, out=np.ones(d.n), where=peak > 0)
-    return np.stack([np.ones(d.n), d.armature, d.viscous, peak, fraction, d.stribeck_velocity], axis=1)
+    peak = np.where(d.stribeck > 0, d.stribeck, d.coulomb)
+    return np.stack([np.ones(d.n), d.armature, d.viscous, d.coulomb, peak, d.stribeck_velocity], axis=1)
 
 
 class _Problem:
@@ -122,6 +125,13 @@ class _Problem:
         current = np.concatenate([r.current[:, joints] for r in runs])
         tick = np.abs(setup.ratio[joints]) * x_series_table()["Present Position"].scale
         self.q_scale = np.maximum(np.sqrt(np.mean(q_err ** 2, axis=0)), 2 * tick)
+        # the train is fitted on its servo's velocity (its pinion encoder's), scaled by how far it
+        # strays from the goals' velocity (at least two of the register's steps)
+        self.on_servo = (joints == setup.train if setup.train is not None
+                         else np.zeros(len(joints), dtype=bool))
+        v_err = np.concatenate([(r.qd - np.gradient(r.goal, r.time, axis=0))[:, joints] for r in runs])
+        v_step = np.abs(setup.ratio[joints]) * x_series_table()["Present Velocity"].scale
+        self.v_scale = np.maximum(np.sqrt(np.mean(v_err ** 2, axis=0)), 2 * v_step)
         # all logs as one, each cut in windows; the window each residual belongs to (the columns of
         # :meth:`residuals`): windows are simulated apart, so they are the fit's independent clusters
         self.merged, self.windows, self.slices = merge_runs(self.runs)
@@ -146,17 +156,23 @@ class _Problem:
                                         SlotPhysics(joint=slots.joint[c], values=slots.values[c]),
                                         windows=self.windows, log_starts=self.starts) for c in chunks]
             parts = [f.result() for f in futures]
-            q, cur = (np.concatenate([p[i] for p in parts], axis=1) for i in (0, 1))
+            q, cur, qd = (np.concatenate([p[i] for p in parts], axis=1) for i in (0, 1, 2))
         else:
-            q, cur = simulate_run(self.setup, self.merged, slots, windows=self.windows, log_starts=self.starts)
-        return [(q[sl], cur[sl]) for sl in self.slices]
+            q, cur, qd = simulate_run(self.setup, self.merged, slots, windows=self.windows,
+                                      log_starts=self.starts)
+        return [(q[sl], cur[sl], qd[sl]) for sl in self.slices]
 
     def residuals(self, sims, which: np.ndarray) -> np.ndarray:
-        """(S, m) residual rows of the slots (data only)."""
+        """(S, m) residual rows of the slots (data only): position and current, but for the train
+        velocity and current, the readings of its own servo (its logged position is the
+        ultrasonic sensor's, a millimetre of noise the servo never steered by)."""
         parts = []
-        for run, (q, cur), w in zip(self.runs, sims, self.weights):
+        train = self.on_servo[which][None, :]
+        for run, (q, cur, qd), w in zip(self.runs, sims, self.weights):
             j, wk = self.joints[which], w[:, which]
-            parts.append((wk * (q - run.q[:, j]) / self.q_scale[which]).T)
+            motion = np.where(train, (qd - run.qd[:, j]) / self.v_scale[which],
+                              (q - run.q[:, j]) / self.q_scale[which])
+            parts.append((wk * motion).T)
             parts.append((wk * (cur - run.current[:, j]) / self.i_scale[which]).T)
         return np.concatenate(parts, axis=1) * self.norm[which][:, None]
 
@@ -176,10 +192,12 @@ COUPLING_SETTLE_S = 0.5
 
 def learning_rows(setup: RigSetup, run: LoggedRun, joints: np.ndarray) -> np.ndarray:
     """(K, F) bool: the rows each fitted joint is fitted on. A joint learns from its own motion and
-    from rest, but not from the time another joint moves while it holds (nor the
-    :data:`COUPLING_SETTLE_S` after): there its load is mostly the other joint's acceleration times
-    their coupling inertia, differentiated from a velocity the servos report in steps of 0.23 rpm,
-    and a tick's difference in where its friction holds it would be fitted into its friction."""
+    from the rest that follows it, but not from the time another joint moves while it holds, nor
+    from its rest after that (the :data:`COUPLING_SETTLE_S` after a motion of all joints together
+    apart): there its load is mostly the other joint's acceleration times their coupling inertia,
+    differentiated from a velocity the servos report in steps of 0.23 rpm, and where its
+    friction caught it after the other's jolt (a tick or two either way, on a worn gearbox more)
+    would be fitted into its friction."""
     t = run.time
     if len(t) < 2:
         return np.ones((len(t), len(joints)), dtype=bool)
@@ -191,13 +209,13 @@ def learning_rows(setup: RigSetup, run: LoggedRun, joints: np.ndarray) -> np.nda
     out = np.empty((len(t), len(joints)), dtype=bool)
     for f, k in enumerate(joints):
         others = np.delete(last_move, k, axis=1).max(axis=1) if last_move.shape[1] > 1 else np.full(len(t), -np.inf)
-        shaken = t - others <= COUPLING_SETTLE_S
+        shaken = (t - others <= COUPLING_SETTLE_S) | (others > last_move[:, k])
         out[:, f] = moving[:, k] | ~shaken
     return out
 
 
 #: Stribeck velocities (rad/s at the shaft) the regression tries; the best fit wins.
-STRIBECK_GRID = (0.05, 0.1, 0.2, 0.3, 0.5, 0.8, 1.2)
+STRIBECK_GRID = (0.05, 0.1, 0.2, 0.3, 0.5, 0.8, 1.0)
 
 
 def regression_guess(setup: RigSetup, runs: Sequence[LoggedRun], joints: np.ndarray) -> np.ndarray:
@@ -207,15 +225,16 @@ def regression_guess(setup: RigSetup, runs: Sequence[LoggedRun], joints: np.ndar
 
         s·Kt·I/r = (M_jj + J_a/r²)·q̈ + load + (b/r²)·q̇ + (c + e·exp(−(ω/ω_s)²))·sign(q̇)/r
 
-    for the motor scale s, armature J_a, viscous b, Coulomb c and Stribeck excess e, solved for
-    each ω_s of :data:`STRIBECK_GRID` and the best kept. Rows at rest are left out: static
+    for the motor scale s, armature J_a, viscous b, Coulomb c and Stribeck excess e (negative
+    where the friction at rest is below Coulomb), solved for each ω_s of :data:`STRIBECK_GRID`
+    and the best kept. Rows at rest are left out: static
     friction there can be anything up to the breakaway, and says nothing of the others. q̈ comes
     from the logged velocity (noisy), so this is a start for the simulation fit, not its answer."""
     from scipy.optimize import lsq_linear  # deferred: scipy loads in ~0.3 s, only fitting needs it
 
     x = initial_physics(setup)[joints]
-    # unknowns (s, J_a, b, c, e): c and e within the peak's bounds
-    lower, upper = np.r_[LOWER[:4], LOWER[3]], np.r_[UPPER[:4], UPPER[3]]
+    # unknowns (s, J_a, b, c, e): e = peak − c, either sign
+    lower, upper = np.r_[LOWER[:4], -UPPER[3]], np.r_[UPPER[:4], UPPER[4]]
     for f, k in enumerate(joints):
         r = setup.ratio[k]
         torque, qdd, qd, y = [], [], [], []
@@ -241,11 +260,10 @@ def regression_guess(setup: RigSetup, runs: Sequence[LoggedRun], joints: np.ndar
                 best = (sol.cost, sol.x / norm, ws)
         _, theta, ws = best
         # a value on its bound is the regression giving up on it (too little signal): datasheet
-        inside = ((theta > lower * 1.01) & (theta < upper * 0.99)) | (lower == 0)
-        theta = np.where(inside, np.clip(theta, lower, upper), np.r_[x[f, :3], x[f, 3] * x[f, 4], 0.0])
-        peak = theta[3] + theta[4]
-        x[f, :4] = [theta[0], theta[1], theta[2], peak]
-        x[f, 4] = theta[3] / peak if peak > 0 else 1.0
+        inside = ((theta > lower * 1.01) & (theta < upper * 0.99)) | (lower <= 0)
+        theta = np.where(inside, np.clip(theta, lower, upper), np.r_[x[f, :4], 0.0])
+        x[f, :4] = theta[:4]
+        x[f, 4] = float(np.clip(theta[3] + theta[4], LOWER[4], UPPER[4]))
         x[f, 5] = ws
     return x
 
@@ -358,7 +376,7 @@ def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: in
         sims = prob.simulate(np.concatenate([x, below.reshape(-1, P), above.reshape(-1, P)]), which)
         res = prob.residuals(sims, which)
         r0, r_lo, r_hi = res[:F], res[F:F + F * P].reshape(F, P, -1), res[F + F * P:].reshape(F, P, -1)
-        base_sims = [(q[:, :F], c[:, :F]) for q, c in sims]
+        base_sims = [(q[:, :F], c[:, :F]) for q, c, _ in sims]
         J = np.transpose((r_hi - r_lo) / (hi - lo)[:, :, None], (0, 2, 1))  # (F, m, P)
         data_cost = np.sum(r0 ** 2, axis=1)
         cost = data_cost + np.sum(_prior(x, x0) ** 2, axis=1)

@@ -131,7 +131,7 @@ def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
               "the logs do tell is its combination with the others (e.g. the friction at the speeds the "
               "joint moved at, not how it splits into Coulomb, Stribeck and viscous parts). Excite the "
               "joint faster or longer to resolve it. The Stribeck peak is the friction at rest; Coulomb "
-              "is the level it falls to with speed.", ""]
+              "is the level it falls to with speed (or, on some worn gearboxes, rises to).", ""]
     for name in fit.joints:
         lines += [f"## {name}", "", f"![{name}]({figures[name]})", ""]
     return "\n".join(lines)

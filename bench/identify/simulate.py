@@ -29,25 +29,19 @@ __all__ = ["FILE_KEYS", "PHYSICS", "SlotPhysics", "file_values", "merge_runs", "
 WINDOW_S = 5.0
 
 #: The physics identification fits, in this order: the motor constant's factor, the armature
-#: (kg·m²), viscous friction (N·m·s/rad), the Stribeck peak, i.e. the friction at rest (N·m), the
-#: Coulomb level as a fraction of that peak (so it is never above it), the Stribeck velocity (rad/s).
-PHYSICS = ("kt_scale", "armature_kgm2", "viscous_nms", "stribeck_nm", "coulomb_fraction",
-           "stribeck_velocity_rads")
+#: (kg·m²), viscous friction (N·m·s/rad), the Coulomb level (N·m), the friction at rest (the
+#: Stribeck peak, N·m: above the Coulomb level on a fresh gearbox, below it on some worn ones) and
+#: the Stribeck velocity (rad/s). Each is its own value, so a peak below Coulomb is one a fit can find.
+PHYSICS = ("kt_scale", "armature_kgm2", "viscous_nms", "coulomb_nm", "stribeck_nm", "stribeck_velocity_rads")
 #: The keys of a servo model file (``emulator.servo_physics``), in the order of the report.
 FILE_KEYS = ("kt_scale", "armature_kgm2", "viscous_nms", "coulomb_nm", "stribeck_nm", "stribeck_velocity_rads")
 
 
 def file_values(values: np.ndarray, stderr: np.ndarray) -> tuple[dict[str, float], dict[str, float]]:
-    """A fit's parameters and standard errors (in :data:`PHYSICS`) in the file's keys: the Coulomb
-    level is the fraction times the peak, its error propagated from both."""
+    """A fit's parameters and standard errors (in :data:`PHYSICS`) in the file's keys."""
     v = dict(zip(PHYSICS, map(float, values)))
     e = dict(zip(PHYSICS, map(float, stderr)))
-    peak, frac = v["stribeck_nm"], v["coulomb_fraction"]
-    out = {k: v[k] for k in FILE_KEYS if k in v}
-    err = {k: e[k] for k in FILE_KEYS if k in e}
-    out["coulomb_nm"] = frac * peak
-    err["coulomb_nm"] = float(np.hypot(peak * e["coulomb_fraction"], frac * e["stribeck_nm"]))
-    return {k: out[k] for k in FILE_KEYS}, {k: err[k] for k in FILE_KEYS}
+    return {k: v[k] for k in FILE_KEYS}, {k: e[k] for k in FILE_KEYS}
 
 
 @dataclass(frozen=True)
@@ -62,8 +56,8 @@ class SlotPhysics:
         j = self.joint
         base = ServoParams(**{f: getattr(datasheet, f)[j] for f in ServoParams.__dataclass_fields__})
         v = self.values
-        return base.with_(armature=v[:, 1], viscous=v[:, 2], coulomb=v[:, 3] * v[:, 4],
-                          stribeck=v[:, 3], stribeck_velocity=v[:, 5]).with_motor_scale(v[:, 0])
+        return base.with_(armature=v[:, 1], viscous=v[:, 2], coulomb=v[:, 3],
+                          stribeck=v[:, 4], stribeck_velocity=v[:, 5]).with_motor_scale(v[:, 0])
 
 
 def windows_of(time: np.ndarray, window_s: float = WINDOW_S) -> list[tuple[int, int]]:
@@ -105,8 +99,9 @@ def merge_runs(runs: Sequence[LoggedRun], window_s: float = WINDOW_S
 
 def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float = FIRMWARE_PERIOD_S,
                  window_s: float = WINDOW_S, windows: Sequence[tuple[int, int]] | None = None,
-                 log_starts: Sequence[int] = (0,)) -> tuple[np.ndarray, np.ndarray]:
-    """Position (joint units) and motor current (A) of every slot at the log's rows, (K, S) each.
+                 log_starts: Sequence[int] = (0,)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position (joint units), motor current (A) and velocity (joint units/s) of every slot at the
+    log's rows, (K, S) each.
 
     The log is cut into windows of about ``window_s``, each started from the logged state (position,
     velocity, and the integrator that gives the logged current), and all windows of all slots
@@ -164,6 +159,7 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     loop = PositionLoop(servo, dt)  # the same torques as servo.step, for a fraction of its checks
     q_out = np.empty((len(t), S))
     i_out = np.empty((len(t), S))
+    qd_out = np.empty((len(t), S))
     smoothing = 1.0 / FRICTION_SMOOTHING_RAD_S
     for s in range(n_steps):
         ev = events.get(s)
@@ -172,6 +168,7 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
             idx = (np.array([e[1] for e in ev])[:, None] * S + columns[None, :])
             q_out[rows] = q[idx]
             i_out[rows] = servo.current[idx]
+            qd_out[rows] = qd[idx]
             goal[idx] = (run.goal[rows[:, None], slots.joint[None, :]] - off[idx]) * inv_r[idx]
             loop.set_goal(goal)
         w_ = qd * inv_r
@@ -185,4 +182,4 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
             stop = (q < lower) | (q > upper)
             q = np.clip(q, lower, upper)
             qd = np.where(stop, 0.0, qd)
-    return q_out, i_out
+    return q_out, i_out, qd_out

@@ -181,7 +181,8 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
     if result.excitation:
         lines[-2:] = ["## Excitation", "",
                       "An excitation run for identifying the servos: around the target's entry pose each "
-                      "joint in turn took a chirp, a multi-sine and a slow up-and-down; no needle was "
+                      "joint in turn took a chirp, a multi-sine and a slow up-and-down or constant-speed "
+                      "sweeps, slow reversals and holds; no needle was "
                       "placed. It passes by completing with every interlock on; the log feeds "
                       "identification.", ""]
     elif o is not None:

@@ -12,7 +12,7 @@ from typing import Optional
 import numpy as np
 
 from bench.config.calibration import applied_calibration, calibration_path
-from bench.config.models import MAX_PLAN_S, ConfigError, TrialConfig
+from bench.config.models import MAX_PLAN_S, ConfigError, TrialConfig, model_number
 from bench.core.result import PreparedTrial, TrialError
 from bench.core.runner import Segment
 from bench.core.safety import (
@@ -25,9 +25,10 @@ from bench.core.safety import (
 )
 from bench.kinematics.needle import NeedleTarget, UnreachableError
 from bench.kinematics.registry import get_robot
-from bench.rig.backends import backend_limits
+from bench.rig.backends import backend_limits, servo_table
 from bench.trial.preflight import needle_direction_problem, off_bed_problem, planned_path_trip
 from drivers import Actuators, JointLimits
+from drivers.dynamixel.control_table import model_spec
 from trajectories import (
     LSPB,
     Excitation,
@@ -194,8 +195,19 @@ def excitation_of(prep: PreparedTrial, limits: Limits) -> Excitation:
                                   f"(at a limit, less the interlocks' margin); leave them out")
     spec = ExcitationSpec(chirp_s=ex.chirp_s, f0_hz=ex.f0_hz, f1_hz=ex.f1_hz, multisine_s=ex.multisine_s,
                           multisine_period_s=ex.multisine_period_s, harmonics=ex.harmonics,
-                          updown_s=ex.updown_s, pause_s=ex.pause_s)
-    return Excitation(prep.q_entry, joints, amp, lim.lower, lim.upper, limits, spec, margin)
+                          updown_s=ex.updown_s, pause_s=ex.pause_s, sweep_speeds=ex.sweep_speeds,
+                          sweep_slowest=ex.sweep_slowest, sweep_fastest=ex.sweep_fastest, sweep_s=ex.sweep_s,
+                          reversal_s=ex.reversal_s, hold_s=ex.hold_s)
+    return Excitation(prep.q_entry, joints, amp, lim.lower, lim.upper, limits, spec, margin,
+                      top_speed=np.minimum(lim.velocity, servo_top_speeds(prep)))
+
+
+def servo_top_speeds(prep: PreparedTrial) -> np.ndarray:
+    """Each joint's speed (rad/s or m/s) with its servo's shaft at the servo's no-load speed: the
+    fastest a sweep can ask of it, whatever the joint's own limit says."""
+    table = servo_table(prep.config, prep.robot)
+    return np.array([model_spec(model_number(table[n].model)).motor.no_load_speed * abs(table[n].ratio)
+                     for n in prep.robot.joint_names])
 
 
 def interlocks_for(prep: PreparedTrial, act: Actuators | JointLimits):

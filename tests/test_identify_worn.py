@@ -1,0 +1,112 @@
+"""A worn rig identified from the friction excitation: heavy gearbox friction (a quarter of a
+newton-metre and more), on θ4 a friction at rest below its Coulomb level, on θ5 one well above it
+with a weaker motor, Kt down a tenth everywhere. The excitation's sweeps, reversals and holds,
+``hilbench identify`` and ``hilbench compare --sim-model`` on Target 1, as a user would; the
+fitted values are held to the hidden ones, and the identified sim to the rig."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+
+#: The worn rig's hidden physics (set W): every joint's gearbox heavy, θ4's friction at rest
+#: below Coulomb (0.24 against 0.32 N·m), θ5's above it and its motor weaker still.
+HIDDEN_W = {"all": {"coulomb_nm": 0.22, "stribeck_nm": 0.3, "stribeck_velocity_rads": 0.25,
+                    "viscous_nms": 0.04, "kt_scale": 0.9},
+            "theta4": {"coulomb_nm": 0.32, "stribeck_nm": 0.24},
+            "theta5": {"stribeck_nm": 0.38, "kt_scale": 0.85}}
+EXCITED = ["theta4", "theta5", "theta6"]
+FRICTION = ("coulomb_nm", "stribeck_nm", "stribeck_velocity_rads", "viscous_nms")
+#: A short friction excitation: the pieces of the lab plan, each cut down.
+SHORT = {"joints": EXCITED, "amplitude_deg": 6.0, "chirp_s": 1.5, "multisine_s": 1.5,
+         "multisine_period_s": 0.75, "pause_s": 0.2, "sweep_speeds": 3, "sweep_s": 0.5, "reversal_s": 1.0,
+         "hold_s": 0.3}
+
+
+DATASHEET = {"kt_scale": 1.0, "armature_kgm2": 0.012, "viscous_nms": 0.0, "coulomb_nm": 0.0,
+             "stribeck_nm": 0.0, "stribeck_velocity_rads": 0.1}
+
+
+def hidden(joint: str, key: str) -> float:
+    return {**DATASHEET, **HIDDEN_W["all"], **HIDDEN_W.get(joint, {})}[key]
+
+
+def _config(tmp: Path, base: str, **changes) -> Path:
+    data = yaml.safe_load((REPO / "hil_configs" / f"{base}.yaml").read_text())
+    data["emulator"]["servo_physics"] = HIDDEN_W
+    data["backend"]["timeout_ms"] = 200  # a busy CI machine: the emulator may answer late
+    for key, value in changes.items():
+        data[key].update(value) if isinstance(value, dict) else data.__setitem__(key, value)
+    path = tmp / f"{base}_worn.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def worn(tmp_path_factory):
+    """The worn rig excited, identified and compared on Target 1 (one fixture for every assert)."""
+    tmp = tmp_path_factory.mktemp("worn")
+    res = _run("trial", str(_config(tmp, "identify", name="worn", excitation=SHORT)), "--emulate", "--json",
+               "--out", str(tmp / "runs"))
+    assert res.returncode == 0, res.stderr
+    run = json.loads(res.stdout)
+    assert run["passed"] and run["completed"], run
+    model = tmp / "worn_model.yaml"
+    res = _run("identify", run["run_dir"], "--out", str(model), "--json")
+    assert res.returncode == 0, res.stderr
+    fit = json.loads(res.stdout)
+    res = _run("compare", str(_config(tmp, "lab_real")), "--emulate", "--repeats", "2", "--sim-model",
+               str(model), "--json", "--out", str(tmp / "cmp"))
+    assert res.returncode in (0, 1), res.stderr
+    return {"fit": fit, "model": model, "compare": json.loads(res.stdout)}
+
+
+def test_the_worn_rigs_friction_is_recovered_or_said_not_observable(worn):
+    """Each friction value of each moved joint lies within 15 % of the hidden one, or is reported
+    not observable (the report says why); a motor constant told, within 5 %, the weak θ5's among them."""
+    from bench.config.servo_model import load_servo_model_file
+
+    model = load_servo_model_file(worn["model"])
+    wrong, told = [], []
+    for joint in EXCITED:
+        values = model.joints[joint].model_dump(exclude_none=True)
+        hidden_out = set(model.unobservable.get(joint, []))
+        for key in FRICTION + ("kt_scale",):
+            if key in hidden_out:
+                continue
+            told.append(f"{joint}.{key}")
+            truth = hidden(joint, key)
+            if abs(values[key] - truth) > (0.05 if key == "kt_scale" else 0.15) * truth:
+                wrong.append(f"{joint}.{key}: {values[key]:.4g} vs hidden {truth:.4g}")
+    assert not wrong, wrong
+    assert "theta5.kt_scale" in told, told
+    html = Path(worn["fit"]["report"]).read_text()
+    if len(told) < len(EXCITED) * (len(FRICTION) + 1):
+        assert "not observable" in html
+
+
+def test_the_identified_sim_predicts_the_worn_rig_on_target_1(worn):
+    """The identified sim tracks the worn rig far closer than the ideal one and places the tip at
+    least twice as close to the rig's. Only three joints are excited here (the others take their
+    peers' median): 0.52 to 1.04 mm, gap ratios 0.12 to 0.20, in three runs on a busy machine,
+    where the full plan on every joint gave 0.34 mm (README, Identifying the rig's servos)."""
+    pred = worn["compare"]["prediction"]
+    print(pred)
+    assert len(pred["tip_error_mm"]["per_repeat"]) == 2
+    assert pred["tracking_gap_ratio"] <= 0.25, pred
+    ideal = float(np.linalg.norm(worn["compare"]["tip_deviation_mm"]["mean"]))
+    assert ideal > 1.0  # the worn rig sags millimetres where the ideal motors do not
+    assert pred["tip_error_mm"]["mean"] <= 0.5 * ideal, (pred, ideal)
