@@ -6,13 +6,16 @@ cut a safe stop short if a second signal came during it. So the guard records
 the first signal and raises :class:`TrialInterrupted` once; the runner and the
 trial also poll :meth:`SignalGuard.check` at every phase boundary and control
 block, so a swallowed exception is still acted on; later signals are counted,
-never raised, so the safe stop and the saving of the log always finish.
+never raised, so the safe stop and the saving of the log always finish. A signal that lands while
+PyBullet's output is muted (:mod:`drivers.quiet`) is held and sent again once the output is back:
+raised there, it could leave stdout and stderr on /dev/null and the one line would be lost.
 """
 
 from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 from types import FrameType
@@ -35,6 +38,14 @@ class TrialInterrupted(KeyboardInterrupt):
     @property
     def exit_code(self) -> int:
         return signal_exit_code(self.signum)
+
+
+def _held_while_muted(signum: int) -> bool:
+    """Whether ``signum`` landed while stdout and stderr were muted and is held till they are
+    back (:func:`drivers.quiet.hold_signal`). Looked up, not imported: a process that never
+    loaded the module never muted anything, and the entry point stays light."""
+    quiet = sys.modules.get("drivers.quiet")
+    return quiet is not None and quiet.hold_signal(signum)
 
 
 def signal_name(signum: int) -> str:
@@ -64,6 +75,8 @@ class SignalGuard:
         if self.signum is not None:
             self.repeats += 1  # never raise twice: the safe stop in progress must finish
             return
+        if _held_while_muted(signum):
+            return  # sent again the moment the output is back
         self.signum = signum
         if not self._deferring:
             raise TrialInterrupted(signum, self.source)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -282,7 +283,8 @@ class EmulatorProcess:
         self.proc = subprocess.Popen(cmd + ["emulate", str(config_path), "--json"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=self._stderr, text=True, env=env,
-                                     start_new_session=True, preexec_fn=_die_with_parent)
+                                     start_new_session=True,
+                                     preexec_fn=functools.partial(_die_with_parent, os.getpid()))
         self.faults = RemoteBusFaults(self._send)
         line = self._first_line(start_timeout)
         try:
@@ -354,14 +356,20 @@ class EmulatorProcess:
         self.close()
 
 
-def _die_with_parent() -> None:
-    """In the child before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
+def _die_with_parent(parent: int) -> None:
+    """In the child before exec: killed by the kernel the moment ``parent`` dies (Linux prctl
+    PR_SET_PDEATHSIG).
+
+    SIGKILL, not SIGTERM: an orphaned rig has no one to answer and nothing to save, and a
+    graceful stop needs its own code to run (the handler, then joining two serving threads, up
+    to 5 s each, that a starved machine keeps busy catching up the physics): an emulator could
+    outlive its killed trial by over 10 s. The kernel's SIGKILL needs none of it."""
     if sys.platform.startswith("linux"):
 
         libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
-        if os.getppid() == 1:  # the parent died before prctl took effect
-            os._exit(ExitCode.ORPHANED)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
+        if os.getppid() != parent:  # the parent died before prctl took effect (adopted by init
+            os._exit(ExitCode.ORPHANED)  # or by a subreaper, whichever pid that is)
 
 
 def retarget(config: TrialConfig, ports: RigPorts) -> TrialConfig:
