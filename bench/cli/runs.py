@@ -63,7 +63,7 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
     t = Table(title=f"runs in {out}", title_justify="left", show_edge=False, pad_edge=False)  # fits 80 columns
     t.add_column("kind", no_wrap=True)
     t.add_column("run (started, config)", overflow="fold")  # a narrow terminal folds names, never a verdict
-    t.add_column("backend", overflow="fold", min_width=8, max_width=12)
+    t.add_column("backend", overflow="fold", min_width=8)
     t.add_column("verdict", no_wrap=True)
     t.add_column("tip mm", justify="right", no_wrap=True)
     t.add_column("angle °", justify="right", no_wrap=True)

@@ -69,7 +69,6 @@ def run_trial(prep: PreparedTrial, out: Path, hooks: Optional[TrialHooks] = None
     with interrupts.deferred():  # a run directory is never left without its journal
         run_dir = new_run_dir(out, prep.config.name)
         log.journal_to(run_dir)
-    hooks.tell("connecting")
     backend, act = _build(prep, hooks, run_dir, log, Path(out), out_existed)
     interrupted = _run(prep, hooks, act, backend, log, run_dir)
     with interrupts.deferred():
@@ -97,7 +96,8 @@ def _build(prep: PreparedTrial, hooks: TrialHooks, run_dir: Path, log: TrialLog,
     """The backend (inactive) and the stack the trial drives: the prepared faults around it, the
     caller's wrap outermost. Refused before anything moved: the run directory is removed."""
     backend = None
-    try:
+    try:  # from the first step after the run directory exists, a signal leaves it a record
+        hooks.tell("connecting")
         if hooks.backend is not None:
             backend = hooks.backend(prep)
         else:
