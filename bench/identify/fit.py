@@ -126,8 +126,10 @@ class _Problem:
         tick = np.abs(setup.ratio[joints]) * x_series_table()["Present Position"].scale
         self.q_scale = np.maximum(np.sqrt(np.mean(q_err ** 2, axis=0)), 2 * tick)
         # the train is fitted on its servo's velocity (its pinion encoder's), scaled by how far it
-        # strays from the goals' velocity (at least two of the register's steps)
-        self.on_servo = (joints == setup.train if setup.train is not None
+        # strays from the goals' velocity (at least two of the register's steps), unless every log
+        # holds its pinion encoder's position: then on that, like every other joint
+        on_encoder = all(r.train_on_encoder for r in runs)
+        self.on_servo = (joints == setup.train if setup.train is not None and not on_encoder
                          else np.zeros(len(joints), dtype=bool))
         v_err = np.concatenate([(r.qd - np.gradient(r.goal, r.time, axis=0))[:, joints] for r in runs])
         v_step = np.abs(setup.ratio[joints]) * x_series_table()["Present Velocity"].scale
