@@ -19,7 +19,10 @@ cycle a deadline, the next cycle's start: the runner then records, per cycle, wh
 how late its work (read, interlocks, command) ended against that deadline and how long its bus
 transactions took (:data:`bench.core.log.TIMING_SERIES`), three stores a cycle. A simulator's
 clock runs as fast as the CPU allows: it is not paced, has no deadline, and only the run's
-wall-clock time is kept (``loop_wall_s``), for its speed against real time.
+wall-clock time is kept (``loop_wall_s``), for its speed against real time. A backend that reads
+a joint through another sensor (:class:`drivers.capabilities.SensedEncoder`: the train on its
+ultrasonic sensor) has that joint's servo encoder recorded beside each reading
+(:data:`bench.core.log.ENCODER_SERIES`), what identification fits the joint on.
 """
 
 from __future__ import annotations
