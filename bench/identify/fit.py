@@ -165,9 +165,10 @@ class _Problem:
         return [(q[sl], cur[sl], qd[sl]) for sl in self.slices]
 
     def residuals(self, sims, which: np.ndarray) -> np.ndarray:
-        """(S, m) residual rows of the slots (data only): position and current, but for the train
-        velocity and current, the readings of its own servo (its logged position is the
-        ultrasonic sensor's, a millimetre of noise the servo never steered by)."""
+        """(S, m) residual rows of the slots (data only): position and current, but for a train whose
+        logs lack its encoder channel velocity and current, the readings of its own servo (its
+        logged position is then the ultrasonic sensor's, a millimetre of noise the servo never
+        steered by)."""
         parts = []
         train = self.on_servo[which][None, :]
         for run, (q, cur, qd), w in zip(self.runs, sims, self.weights):
