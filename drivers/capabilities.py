@@ -18,8 +18,8 @@ import numpy as np
 from drivers import Actuators, BackendSetupError, JointState
 
 __all__ = ["CAPABILITIES", "BlockExecution", "BusTiming", "EffortLimited", "EmulatorHooks", "HostLoop",
-           "JointKinds", "LinkPoses", "PositionReset", "SafeStopReport", "ServoInfo", "StartWarnings",
-           "TruePosition",
+           "JointKinds", "LinkPoses", "PositionReset", "SafeStopReport", "SensedEncoder", "ServoInfo",
+           "StartWarnings", "TruePosition",
            "find_capability", "layers", "members", "require_capability"]
 
 C = TypeVar("C")
@@ -116,6 +116,20 @@ class HostLoop(Protocol):
 
 
 @runtime_checkable
+class SensedEncoder(Protocol):
+    """The servo's own reading of the joint the backend reports through another sensor (the train's
+    pinion encoder, where its position comes from the ultrasonic sensor), in joint units (m or rad),
+    as of the last read: what the servo's physics did, apart from the sensor's noise.
+
+    ``encoder_joint`` is None when no joint is read through another sensor."""
+
+    @property
+    def encoder_joint(self) -> str | None: ...
+
+    def encoder_position(self) -> float: ...
+
+
+@runtime_checkable
 class BusTiming(Protocol):
     """A backend on a bus, paced by the wall clock: its clock is real time, so each control cycle
     has a deadline, and it times its own bus transactions where they happen.
@@ -130,8 +144,8 @@ class BusTiming(Protocol):
 
 #: Every capability a backend may offer, as the checker goes through them.
 CAPABILITIES: tuple[type, ...] = (BlockExecution, BusTiming, EffortLimited, EmulatorHooks, HostLoop,
-                                  JointKinds, LinkPoses, PositionReset, SafeStopReport, ServoInfo,
-                                  StartWarnings, TruePosition)
+                                  JointKinds, LinkPoses, PositionReset, SafeStopReport, SensedEncoder,
+                                  ServoInfo, StartWarnings, TruePosition)
 
 
 def layers(actuators: Actuators) -> Iterator[Actuators]:

@@ -35,6 +35,7 @@ from drivers.capabilities import (
     LinkPoses,
     PositionReset,
     SafeStopReport,
+    SensedEncoder,
     ServoInfo,
     StartWarnings,
     TruePosition,
@@ -214,6 +215,14 @@ def _check_active_capabilities(act: Actuators, n: int, q: np.ndarray) -> None:
             loop.status_lost(list(act.joint_names))
         except Exception as e:  # noqa: BLE001 - any exception is the finding
             raise ContractViolation(f"status_lost(joint names) raised {type(e).__name__}: {e}") from e
+    enc = find_capability(act, SensedEncoder)
+    if enc is not None and enc.encoder_joint is not None:  # what the servo read at the last read
+        _require(enc.encoder_joint in act.joint_names,
+                 f"encoder_joint {enc.encoder_joint!r} is not one of the joints {list(act.joint_names)}")
+        _read(act, n, "for the encoder's reading")
+        got = enc.encoder_position()
+        _require(isinstance(got, float) and math.isfinite(got),
+                 f"encoder_position() after a read is {got!r}, not a position")
     bus = find_capability(act, BusTiming)
     if bus is not None:  # a read is a bus transaction: its time shows in the next take, then none
         bus.bus_time()

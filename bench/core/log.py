@@ -31,7 +31,11 @@ SERIES = ("time", "segment", "q_cmd", "qd_cmd", "q", "qd", "effort")
 #: cycle started (the backend's clock), how late its work ended against its deadline (negative: the
 #: slack it had), and how long its bus transactions took. NaN where a cycle was not timed.
 TIMING_SERIES = ("loop_start", "loop_late", "bus_s")
-JOURNAL_ROWS = "trial.journal"  # float64 records: time, segment, q_cmd qd_cmd q qd effort[, timing]
+#: The servo's own reading of the joint a rig reads through another sensor (the train's pinion
+#: encoder under its ultrasonic reading), per cycle, in joint units; the log's ``encoder_joint``
+#: names that joint. NaN where a cycle was not read from the servo.
+ENCODER_SERIES = "q_encoder"
+JOURNAL_ROWS = "trial.journal"  # float64 records: time, segment, q_cmd qd_cmd q qd effort[, timing][, encoder]
 JOURNAL_META = "trial.journal.json"  # joint and segment names, metadata, events
 FLUSH_EVERY_S = 0.5
 
@@ -66,6 +70,8 @@ class TrialLog:
         self._arr = {k: np.empty((self.capacity, n)) for k in ("q_cmd", "qd_cmd", "q", "qd", "effort")}
 
         self._timing: dict[str, np.ndarray] | None = None  # TIMING_SERIES once timing started
+        self.encoder_joint: str | None = None  # the joint of ENCODER_SERIES once it started
+        self._encoder: np.ndarray | None = None
         self._journal = None  # (rows file, meta path) while journaling
         self._journaled = 0
         self._meta_dirty = True
@@ -87,6 +93,27 @@ class TrialLog:
                 grown = np.full(cap, np.nan)  # rows not yet timed read as NaN, whatever follows
                 grown[: self._n] = a[: self._n]
                 self._timing[k] = grown
+        if self._encoder is not None:
+            grown = np.full(cap, np.nan)
+            grown[: self._n] = self._encoder[: self._n]
+            self._encoder = grown
+
+    def start_encoder(self, joint: str) -> None:
+        """Record ``joint``'s servo encoder (:data:`ENCODER_SERIES`) from the first row on; a log
+        that already holds rows, or a joint it does not have, is refused."""
+        if self._n:
+            raise ValueError(f"the encoder's channel starts with the first cycle; this log has {self._n} rows")
+        if joint not in self.joint_names:
+            raise ValueError(f"no joint {joint!r} to record the encoder of; the log has {self.joint_names}")
+        self.encoder_joint = joint
+        self._encoder = np.full(len(self._t), np.nan)
+        self._meta_dirty = True
+        if self._journal is not None:
+            self._write_meta()
+
+    def encode(self, position: float) -> None:
+        """The encoder's reading (joint units) of the cycle last appended."""
+        self._encoder[self._n - 1] = position
 
     def start_timing(self) -> None:
         """Record the loop's timing from the first row on (a paced trial); a log that already holds
@@ -170,6 +197,8 @@ class TrialLog:
                     a["qd_cmd"][i:n], a["q"][i:n], a["qd"][i:n], a["effort"][i:n]]
             if self._timing is not None:
                 cols += [self._timing[k][i:n, None] for k in TIMING_SERIES]
+            if self._encoder is not None:
+                cols.append(self._encoder[i:n, None])
             block = np.hstack(cols)
             rows.write(block.tobytes())
             rows.flush()
@@ -214,6 +243,9 @@ class TrialLog:
         if name in TIMING_SERIES:  # None in a log without the loop's timing (a sim's, an old one)
             timing = self.__dict__["_timing"]
             return None if timing is None else timing[name][: self.__dict__["_n"]]
+        if name == ENCODER_SERIES:  # None in a log without it (no joint read through another sensor)
+            enc = self.__dict__["_encoder"]
+            return None if enc is None else enc[: self.__dict__["_n"]]
         raise AttributeError(name)
 
     def joint(self, name: str) -> int:
@@ -231,6 +263,8 @@ class TrialLog:
         tmp = path.with_name(path.name + ".part")
         with open(tmp, "wb") as f:
             timing = {k: getattr(self, k) for k in TIMING_SERIES} if self.timed else {}
+            if self._encoder is not None:
+                timing[ENCODER_SERIES] = self.q_encoder
             np.savez_compressed(f, time=self.time, segment=self.segment,
                                 **{k: getattr(self, k) for k in SERIES[2:]}, **timing,
                                 meta=np.array(json.dumps(meta, default=_json_default)))
@@ -240,7 +274,7 @@ class TrialLog:
     def _meta(self) -> dict:
         return {"joint_names": self.joint_names, "segment_names": self.segment_names,
                 "events": [e.as_dict() for e in self.events], "metadata": self.metadata,
-                "timing": self.timed}
+                "timing": self.timed, "encoder_joint": self.encoder_joint}
 
     @classmethod
     def load(cls, path: Path) -> "TrialLog":
@@ -261,6 +295,9 @@ class TrialLog:
                 log.start_timing()
                 for k in TIMING_SERIES:
                     log._timing[k][:n] = z[k]
+            if ENCODER_SERIES in z.files and meta.get("encoder_joint"):
+                log.start_encoder(meta["encoder_joint"])
+                log._encoder[:n] = z[ENCODER_SERIES]
             log._n = n
         return log
 

@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 
 from bench.config.base import describe_validation_error
-from bench.core.log import JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES, Event, TrialLog
+from bench.core.log import ENCODER_SERIES, JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES, Event, TrialLog
 from bench.core.record import sha256_of
 from drivers.errors import RunDirError
 
@@ -81,6 +81,7 @@ class _LogMeta(BaseModel):
     events: list[_EventEntry]
     metadata: dict[str, Any]
     timing: StrictBool = False  # the loop's timing follows each row (TIMING_SERIES): a paced trial
+    encoder_joint: Optional[str] = None  # the joint whose servo encoder follows (ENCODER_SERIES)
 
 
 class _ConfigView(BaseModel):
@@ -262,6 +263,29 @@ def _check_timing(where: object, name: str, rows: int, arrays: dict[str, np.ndar
                                  f"seconds (NaN where a cycle was not timed)")
 
 
+def _check_encoder(where: object, name: str, meta: _LogMeta, rows: int, arrays: dict[str, np.ndarray]) -> None:
+    """The servo encoder's channel, when the log has it: one of the log's joints named for it, a
+    float per row, no infinity (NaN: a cycle not read from the servo). A log without it (one
+    written before the channel, a simulator's) reads as before."""
+    has = ENCODER_SERIES in arrays
+    if has != (meta.encoder_joint is not None):
+        raise _refuse(where, f"{name}: " + (f"{ENCODER_SERIES} without the joint it belongs to" if has else
+                                             f"encoder_joint {meta.encoder_joint!r} without {ENCODER_SERIES}"))
+    if not has:
+        return
+    if meta.encoder_joint not in meta.joint_names:
+        raise _refuse(where, f"{name}: encoder_joint {meta.encoder_joint!r} is not one of its joints "
+                             f"{meta.joint_names}")
+    a = arrays[ENCODER_SERIES]
+    if a.dtype.kind != "f" or a.shape != (rows,):
+        raise _refuse(where, f"{name}: {ENCODER_SERIES} is {a.dtype} of shape {a.shape}, not a float per row "
+                             f"({rows} rows)")
+    if np.any(np.isinf(a)):
+        i = int(np.argmax(np.isinf(a)))
+        raise _refuse(where, f"{name}: {ENCODER_SERIES} holds {a[i]} at row {i}; an encoder reads a "
+                             f"finite position (NaN where a cycle was not read)")
+
+
 def _build(meta: _LogMeta, arrays: dict[str, np.ndarray]) -> TrialLog:
     events = [Event(e.time, e.kind, e.message) for e in meta.events]
     log = TrialLog(list(meta.joint_names), list(meta.segment_names), dict(meta.metadata), events,
@@ -273,6 +297,10 @@ def _build(meta: _LogMeta, arrays: dict[str, np.ndarray]) -> TrialLog:
     if log.timed:
         for k in TIMING_SERIES:
             log._timing[k][: len(log)] = arrays[k]
+    if meta.encoder_joint is not None:
+        encoder = log._encoder = np.full(len(log._t), np.nan)  # its rows are in: filled directly
+        log.encoder_joint = meta.encoder_joint
+        encoder[: len(log)] = arrays[ENCODER_SERIES]
     return log
 
 
@@ -283,7 +311,7 @@ def _npy_headers(where: object, name: str, zf: zipfile.ZipFile) -> None:
     missing = [m.removesuffix(".npy") for m in want if m not in members]
     if missing:
         raise _refuse(where, f"{name} has no {', '.join(missing)}: not a trial log")
-    timing = [f"{k}.npy" for k in TIMING_SERIES if f"{k}.npy" in members]
+    timing = [f"{k}.npy" for k in (*TIMING_SERIES, ENCODER_SERIES) if f"{k}.npy" in members]
     total = 0
     for m in want + timing:
         with zf.open(members[m]) as f:
@@ -308,7 +336,7 @@ def read_log_file(path: Path, where: Optional[object] = None) -> TrialLog:
         with zipfile.ZipFile(path) as zf:
             _npy_headers(where, path.name, zf)
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in SERIES + TIMING_SERIES if k in z.files}
+            arrays = {k: z[k] for k in (*SERIES, *TIMING_SERIES, ENCODER_SERIES) if k in z.files}
             raw_meta = z["meta"]
     except RunDirError:
         raise
@@ -323,6 +351,7 @@ def read_log_file(path: Path, where: Optional[object] = None) -> TrialLog:
     meta = _meta(where, path.name, data)
     _check_series(where, path.name, meta, arrays)
     _check_timing(where, path.name, len(arrays["time"]), arrays)
+    _check_encoder(where, path.name, meta, len(arrays["time"]), arrays)
     return _build(meta, arrays)
 
 
@@ -361,7 +390,8 @@ def read_journal(run_dir: Path) -> TrialLog:
     if rows_path.stat().st_size > LOG_MAX_BYTES:
         raise _refuse(run_dir, f"{JOURNAL_ROWS} is larger than any trial's log")
     n = len(meta.joint_names)
-    width = 2 + 5 * n + (len(TIMING_SERIES) if meta.timing else 0)
+    timed = len(TIMING_SERIES) if meta.timing else 0
+    width = 2 + 5 * n + timed + (1 if meta.encoder_joint is not None else 0)
     raw = np.frombuffer(rows_path.read_bytes(), dtype="<f8")
     rows = raw[: len(raw) // width * width].reshape(-1, width)
     seg = rows[:, 1]
@@ -374,6 +404,9 @@ def read_journal(run_dir: Path) -> TrialLog:
     if meta.timing:
         for j, k in enumerate(TIMING_SERIES):
             arrays[k] = rows[:, 2 + 5 * n + j].copy()
+    if meta.encoder_joint is not None:
+        arrays[ENCODER_SERIES] = rows[:, 2 + 5 * n + timed].copy()
     _check_series(run_dir, JOURNAL_ROWS, meta, arrays)
     _check_timing(run_dir, JOURNAL_ROWS, len(rows), arrays)
+    _check_encoder(run_dir, JOURNAL_ROWS, meta, len(rows), arrays)
     return _build(meta, arrays)

@@ -19,7 +19,10 @@ cycle a deadline, the next cycle's start: the runner then records, per cycle, wh
 how late its work (read, interlocks, command) ended against that deadline and how long its bus
 transactions took (:data:`bench.core.log.TIMING_SERIES`), three stores a cycle. A simulator's
 clock runs as fast as the CPU allows: it is not paced, has no deadline, and only the run's
-wall-clock time is kept (``loop_wall_s``), for its speed against real time.
+wall-clock time is kept (``loop_wall_s``), for its speed against real time. A backend that reads
+a joint through another sensor (:class:`drivers.capabilities.SensedEncoder`: the train on its
+ultrasonic sensor) has that joint's servo encoder recorded beside each reading
+(:data:`bench.core.log.ENCODER_SERIES`), what identification fits the joint on.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ import numpy as np
 from bench.core.interrupts import NO_SIGNALS
 from bench.core.log import TrialLog
 from drivers import Actuators, JointState
-from drivers.capabilities import BlockExecution, BusTiming, find_capability
+from drivers.capabilities import BlockExecution, BusTiming, SensedEncoder, find_capability
 from trajectories import Trajectory
 
 #: Cycles sampled from a trajectory at once: bounds a segment's memory, amortises sampling.
@@ -118,6 +121,7 @@ class Runner:
         self.progress = progress
         self.phase = phase
         self.interrupts = interrupts
+        self._encoder: Optional[Callable[[], float]] = None  # set per run: the sensed joint's encoder
 
     def _cycles(self, seg: Segment) -> int:
         return int(math.ceil((seg.trajectory.duration + seg.settle) / self.dt - 1e-9)) + 1
@@ -148,6 +152,10 @@ class Runner:
         self._bus_time = bus.bus_time if bus is not None and log.timed else None
         if self._bus_time is not None:
             self._bus_time()  # the set-up's transactions are not the first cycle's
+        enc = find_capability(act, SensedEncoder)
+        if enc is not None and enc.encoder_joint is not None and log.encoder_joint is None and not len(log):
+            log.start_encoder(enc.encoder_joint)
+        self._encoder = enc.encoder_position if enc is not None and log.encoder_joint is not None else None
         began = time.perf_counter()
         t_next = act.now()
         q_c = None
@@ -166,6 +174,8 @@ class Runner:
             st = act.read()
             log.append(st.time, len(segments) - 1, st.position if q_c is None else q_c,
                        np.zeros(n_dof), st.position, st.velocity, st.effort)
+            if self._encoder is not None:
+                log.encode(self._encoder())
             log.event(st.time, "done", "all segments completed")
             if self.progress is not None:
                 self.progress(1.0)
@@ -183,11 +193,14 @@ class Runner:
         act, dt, interlocks = self.act, self.dt, self.interlocks
         report_every, check = self._report_every, self.interrupts.check
         bus_time = self._bus_time  # None when not paced: no clock read beyond the backend's own
+        encoder = self._encoder  # None unless a joint is read through another sensor
         for k in range(len(q_all)):
             q_c, qd_c = q_all[k], qd_all[k]
             started = act.now() if bus_time is not None else 0.0
             st = act.read()
             log.append(st.time, si, q_c, qd_c, st.position, st.velocity, st.effort)
+            if encoder is not None:
+                log.encode(encoder())
             if interlocks is not None:
                 trip = interlocks.check(st.time, st, q_c)
                 if trip is not None:
@@ -250,6 +263,8 @@ class Runner:
             act.wait_until(t)
             s = act.read()
             log.append(s.time, si, hold, zero, s.position, s.velocity, s.effort)
+            if self._encoder is not None:
+                log.encode(self._encoder())
         return RunResult(log, False, f"interlock {trip.interlock}: {trip.cause}", trip)
 
 

@@ -126,8 +126,10 @@ class _Problem:
         tick = np.abs(setup.ratio[joints]) * x_series_table()["Present Position"].scale
         self.q_scale = np.maximum(np.sqrt(np.mean(q_err ** 2, axis=0)), 2 * tick)
         # the train is fitted on its servo's velocity (its pinion encoder's), scaled by how far it
-        # strays from the goals' velocity (at least two of the register's steps)
-        self.on_servo = (joints == setup.train if setup.train is not None
+        # strays from the goals' velocity (at least two of the register's steps), unless every log
+        # holds its pinion encoder's position: then on that, like every other joint
+        on_encoder = all(r.train_on_encoder for r in runs)
+        self.on_servo = (joints == setup.train if setup.train is not None and not on_encoder
                          else np.zeros(len(joints), dtype=bool))
         v_err = np.concatenate([(r.qd - np.gradient(r.goal, r.time, axis=0))[:, joints] for r in runs])
         v_step = np.abs(setup.ratio[joints]) * x_series_table()["Present Velocity"].scale
@@ -163,9 +165,10 @@ class _Problem:
         return [(q[sl], cur[sl], qd[sl]) for sl in self.slices]
 
     def residuals(self, sims, which: np.ndarray) -> np.ndarray:
-        """(S, m) residual rows of the slots (data only): position and current, but for the train
-        velocity and current, the readings of its own servo (its logged position is the
-        ultrasonic sensor's, a millimetre of noise the servo never steered by)."""
+        """(S, m) residual rows of the slots (data only): position and current, but for a train whose
+        logs lack its encoder channel velocity and current, the readings of its own servo (its
+        logged position is then the ultrasonic sensor's, a millimetre of noise the servo never
+        steered by)."""
         parts = []
         train = self.on_servo[which][None, :]
         for run, (q, cur, qd), w in zip(self.runs, sims, self.weights):

@@ -64,6 +64,9 @@ class LoggedRun:
     inertia: np.ndarray  # (K, n) M_jj at the measured configuration (joint units)
     load: np.ndarray  # (K, n) h_j + Σ_{k≠j} M_jk q̈_k (N·m or N)
     excited: np.ndarray  # (n,) bool: the goals moved this joint enough to learn from
+    #: the train's ``q`` is its servo's pinion encoder (the log's encoder channel), not the sensor's
+    #: reading: it is then fitted on its position like every other joint
+    train_on_encoder: bool = False
 
     @property
     def duration(self) -> float:
@@ -119,6 +122,16 @@ def _host_loop_goals(log: TrialLog, setup: RigSetup) -> np.ndarray:
     return out
 
 
+def _train_encoder(log: TrialLog, setup: RigSetup) -> np.ndarray | None:
+    """The train's position as its own servo read it (the log's encoder channel), where the log has
+    it for the train on every row; None otherwise (an older log: the train is then fitted on its
+    servo's velocity). The host loop's goals still follow the sensor's reading, as the driver's did."""
+    encoder = log.q_encoder
+    if encoder is None or setup.train is None or log.encoder_joint != setup.joint_names[setup.train]:
+        return None
+    return encoder.copy() if np.all(np.isfinite(encoder)) else None
+
+
 def _dynamics(plant: PyBulletPlant, q: np.ndarray, qd: np.ndarray, time: np.ndarray):
     """M_jj and the rest of the robot's torque on each joint, along the measured motion."""
     qdd = np.gradient(qd, time, axis=0) if len(time) > 2 else np.zeros_like(qd)
@@ -163,13 +176,17 @@ def load_runs(run_dirs: Sequence[Path]) -> tuple[RigSetup, list[LoggedRun]]:
                 raise IdentifyError(f"{run_dir}: the log has {len(log)} rows; too short to learn from")
             t = log.time - log.time[0]
             q, qd = log.q.copy(), log.qd.copy()
+            on_encoder = _train_encoder(log, setup)
+            if on_encoder is not None:
+                q[:, setup.train] = on_encoder
             current = log.effort * setup.ratio / setup.kt_datasheet
             goal = _host_loop_goals(log, setup)
             inertia, load = _dynamics(plant, q, qd, t)
             span = goal.max(axis=0) - goal.min(axis=0)
             excited = span >= np.array([MIN_EXCURSION[k] for k in setup.kinds])
             runs.append(LoggedRun(run_dir=run_dir, sha256=saved.record.sha256, time=t, goal=goal,
-                                  q=q, qd=qd, current=current, inertia=inertia, load=load, excited=excited))
+                                  q=q, qd=qd, current=current, inertia=inertia, load=load, excited=excited,
+                                  train_on_encoder=on_encoder is not None))
     finally:
         if plant is not None:
             plant.close()

@@ -151,7 +151,8 @@ class RunFollower:
         s.segments = list(meta.get("segment_names", []))
         s.events = [e for e in meta.get("events", []) if isinstance(e, dict)]
         self._timed = meta.get("timing") is True
-        self._width = 2 + 5 * len(s.joints) + (len(TIMING_SERIES) if self._timed else 0)
+        self._width = (2 + 5 * len(s.joints) + (len(TIMING_SERIES) if self._timed else 0)
+                       + (1 if meta.get("encoder_joint") else 0))  # the train's encoder, last
         if not s.timing:
             s.timing = {"cycles": 0, "missed": 0, "worst_late_s": None}
         s.timing["paced"] = self._timed
@@ -174,7 +175,7 @@ class RunFollower:
         rows = np.frombuffer(raw[:whole], dtype=float).reshape(-1, self._width)
         n = len(self.snapshot.joints)
         if self._timed:
-            self._count_deadlines(rows[:, 2 + 5 * n:])
+            self._count_deadlines(rows[:, 2 + 5 * n:2 + 5 * n + len(TIMING_SERIES)])
         keep, self._next_t = decimate(rows[:, 0], self._next_t)
         rows = rows[keep]
         q_cmd, q = rows[:, 2:2 + n], rows[:, 2 + 2 * n:2 + 3 * n]

@@ -293,6 +293,17 @@ class DynamixelActuators(ActuatorsBase):
         self._lost = False
         return st
 
+    @property
+    def encoder_joint(self) -> Optional[str]:
+        """The joint whose position comes from the ultrasonic sensor (SensedEncoder); None without one."""
+        u = self.settings.ultrasonic
+        return u.joint if u is not None and self._sensor is not None else None
+
+    def encoder_position(self) -> float:
+        """That joint's pinion encoder through its ratio and offset (m or rad), as of the last read,
+        before the sensor's reading took its place (SensedEncoder); NaN before any read."""
+        return float(getattr(self, "_encoder_train", math.nan))
+
     def bus_time(self) -> float:
         """Seconds this backend's servo-bus transactions took since the last call (BusTiming)."""
         took, self._cycle.bus_s = self._cycle.bus_s, 0.0
