@@ -50,9 +50,9 @@ LAB = ROOT / "hil_configs" / "lab_real.yaml"
 _TICK = os.sysconf("SC_CLK_TCK")
 
 
-def _config():
+def _config(velocity_scale: float):
     lab = load_trial_config(LAB).backend
-    return load_trial_config(CONFIG, {"backend": {
+    return load_trial_config(CONFIG, {"plan": {"velocity_scale": velocity_scale}, "backend": {
         "kind": "pybullet", "servo_model": "datasheet",
         "servos": {n: s.model_dump() for n, s in lab.servos.items()},
         "ultrasonic": lab.ultrasonic.model_dump()}})
@@ -102,10 +102,10 @@ def _cores() -> tuple[set[int], set[int]] | None:
     return ({cpus[0]}, {cpus[-1]}) if len(cpus) >= 2 else None
 
 
-def loop(live: bool, browser_cores: set[int] | None = None) -> dict[str, float]:
-    """One trial's control loop: its wall time and CPU time (s) and, with the live view, the CPU
-    (s) the server's threads and the browser took meanwhile."""
-    cfg = _config()
+def loop(live: bool, browser_cores: set[int] | None = None, velocity_scale: float = 0.01) -> dict[str, float]:
+    """One trial's control loop: its wall time and CPU time (s), with the live view the CPU (s)
+    the server's threads and the browser took meanwhile and the page's polls."""
+    cfg = _config(velocity_scale)
     prep = prepare(cfg)
     out = Path(tempfile.mkdtemp(prefix="live-bench-"))
     profile = Path(tempfile.mkdtemp(prefix="live-bench-browser-"))  # beside the runs, not among them
@@ -130,13 +130,15 @@ def loop(live: bool, browser_cores: set[int] | None = None) -> dict[str, float]:
             runner = Runner(act, cfg.control_period, interlocks=interlocks_for(prep, act))
             me = threading.get_native_id()
             threads0, browser0 = _threads_cpu_s(me), group_cpu_s(browser.pid) if browser else 0.0
+            polls0 = server.polls if server else 0
             t0, cpu0 = time.perf_counter(), time.thread_time()
             runner.run(segments, log)
             wall, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
             threads = _threads_cpu_s(me) - threads0
             browser_cpu = group_cpu_s(browser.pid) - browser0 if browser else 0.0
             log.close_journal()
-        return {"wall": wall, "loop_cpu": cpu, "server": threads, "browser": browser_cpu}
+            polls = server.polls - polls0 if server else 0
+        return {"wall": wall, "loop_cpu": cpu, "server": threads, "browser": browser_cpu, "polls": polls}
     finally:
         if browser is not None:
             browser.kill()
@@ -151,14 +153,17 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--pin", action="store_true", help="the trial on one core, the browser on another")
+    ap.add_argument("--velocity-scale", type=float, default=0.01,
+                    help="the plan's speed: at 0.01 the loop lasts seconds, so the page polls during it "
+                         "(at the configured 0.5 it ends before the page's first poll)")
     args = ap.parse_args()
     cores = _cores() if args.pin else None
     if cores:
         os.sched_setaffinity(0, cores[0])
     plain, live = [], []
     for _ in range(args.repeats):
-        plain.append(loop(False))
-        live.append(loop(True, cores and cores[1]))
+        plain.append(loop(False, velocity_scale=args.velocity_scale))
+        live.append(loop(True, cores and cores[1], args.velocity_scale))
     for name, runs in (("plain", plain), ("live + browser", live)):
         times = [r["wall"] for r in runs]
         print(f"{name:>15}: best {min(times):.3f} s, median {statistics.median(times):.3f} s")
@@ -171,7 +176,8 @@ def main() -> None:
     print(f"the loop's own CPU time, live/plain (median of pairs): {cpu:.3f}")
     wall = statistics.median(r["wall"] for r in live)
     print(f"while the live loop ran (median): the server's threads {statistics.median(r['server'] for r in live):.3f} s"
-          f" of CPU, the browser {statistics.median(r['browser'] for r in live):.3f} s, in {wall:.3f} s")
+          f" of CPU, the browser {statistics.median(r['browser'] for r in live):.3f} s, in {wall:.3f} s; "
+          f"the page polled {statistics.median(r['polls'] for r in live):.0f} times")
     print(f"load average over the run: {os.getloadavg()[1]:.1f} on {os.cpu_count()} cores"
           + (f"; the trial pinned to core {min(cores[0])}, the browser to core {min(cores[1])}" if cores else ""))
 

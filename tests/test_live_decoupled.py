@@ -3,11 +3,14 @@ connect and never finish a request, leave a trial to run to its end with its who
 
 from __future__ import annotations
 
+import base64
 import json
 import socket
 import threading
 import urllib.request
 from pathlib import Path
+
+import numpy as np
 
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
@@ -70,6 +73,9 @@ def test_a_stuck_page_and_half_open_connections_never_hold_the_trial(tmp_path, c
     (answer,) = answers
     data = json.loads(answer)
     assert data["result"]["passed"] is True and data["joints"] == list(prep.robot.joint_names)
-    assert len(data["time"]) > 100 and data["phase"] == "done"
+    assert data["count"] > 100 and data["phase"] == "done"
+    rows = np.frombuffer(base64.b64decode(data["rows"]), dtype="<f8").reshape(data["count"], -1)
+    assert rows.shape[1] == 1 + 2 * len(data["joints"]) and np.all(np.diff(rows[:, 0]) > 0)
+    assert np.isfinite(rows).all()
     # browsers that went away mid-request print nothing on the operator's console
     assert capfd.readouterr().err == ""

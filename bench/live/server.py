@@ -63,6 +63,7 @@ class LiveServer:
         self.token = secrets.token_urlsafe(18)
         self.stop_requested = False
         self._last_poll = -float("inf")
+        self.polls = 0  # data requests answered: what a benchmark counts to know the page kept polling
         self._final_seen = False
         self._page = _page(self.token)
         self._httpd = _QuietServer((host, port), self._handler())
@@ -160,6 +161,7 @@ class LiveServer:
                     body = snap.since(since if epoch == snap.epoch else 0)
                     body["stop_requested"] = server.stop_requested
                     server._last_poll = time.monotonic()
+                    server.polls += 1
                     server._final_seen = snap.result is not None
                     self._send(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
                 elif url.path == "/report":
