@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.core.log import TrialLog
+from bench.core.log import TrialLog, journal_row_width
 
 REPO = Path(__file__).resolve().parent.parent
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
@@ -61,11 +61,17 @@ def _journal_rows(out: Path) -> int:
     j = d / "trial.journal" if d else None
     if not (j and j.is_file()):
         return 0
-    try:  # 2 + 5·9 doubles a row, and the loop's timing (3) in a paced trial
-        timed = json.loads((d / "trial.journal.json").read_text()).get("timing") is True
+    return j.stat().st_size // (8 * _row_width(d))
+
+
+def _row_width(run: Path) -> int:
+    """The journal's row width as its metadata gives it (timing in a paced trial, the train's
+    encoder on a rig); before the metadata is there, the narrowest."""
+    try:
+        meta = json.loads((run / "trial.journal.json").read_text())
     except (OSError, ValueError):
-        timed = False
-    return j.stat().st_size // (8 * (50 if timed else 47))
+        return journal_row_width(9, False, False)
+    return journal_row_width(len(meta["joint_names"]), meta.get("timing") is True, bool(meta.get("encoder_joint")))
 
 
 def _finish(proc: subprocess.Popen, sig: int) -> tuple[int, str]:

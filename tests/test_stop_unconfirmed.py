@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from bench.core.log import journal_row_width
 from drivers.errors import ExitCode
 
 REPO = Path(__file__).resolve().parent.parent
@@ -41,8 +42,15 @@ def _emulator_of(config: Path) -> int | None:
 
 
 def _journal_rows(out: Path) -> int:
-    journals = list(out.rglob("trial.journal"))
-    return max((j.stat().st_size // (8 * 50) for j in journals), default=0)  # 2 + 5·9 + 3 (timing)
+    widths = {}
+    for j in out.rglob("trial.journal"):
+        try:
+            meta = json.loads((j.parent / "trial.journal.json").read_text())
+        except (OSError, ValueError):
+            continue  # its metadata comes first; until then it holds no row
+        widths[j] = journal_row_width(len(meta["joint_names"]), meta.get("timing") is True,
+                                      bool(meta.get("encoder_joint")))
+    return max((j.stat().st_size // (8 * w) for j, w in widths.items()), default=0)
 
 
 def _pull_the_cable_mid_run(proc: subprocess.Popen, config: Path, out: Path) -> None:

@@ -40,6 +40,12 @@ JOURNAL_META = "trial.journal.json"  # joint and segment names, metadata, events
 FLUSH_EVERY_S = 0.5
 
 
+def journal_row_width(joints: int, timed: bool, encoder: bool) -> int:
+    """Doubles in one journal row (see :data:`JOURNAL_ROWS`): what every reader of a journal (the
+    recovery, the live view, a test counting rows) derives from its metadata, in one place."""
+    return 2 + 5 * joints + (len(TIMING_SERIES) if timed else 0) + (1 if encoder else 0)
+
+
 @dataclass
 class Event:
     """Something that happened during a trial (segment start, interlock, abort...)."""

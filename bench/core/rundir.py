@@ -24,7 +24,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 
 from bench.config.base import describe_validation_error
-from bench.core.log import ENCODER_SERIES, JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES, Event, TrialLog
+from bench.core.log import (ENCODER_SERIES, JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES, Event, TrialLog,
+                            journal_row_width)
 from bench.core.record import sha256_of
 from drivers.errors import RunDirError
 
@@ -391,7 +392,7 @@ def read_journal(run_dir: Path) -> TrialLog:
         raise _refuse(run_dir, f"{JOURNAL_ROWS} is larger than any trial's log")
     n = len(meta.joint_names)
     timed = len(TIMING_SERIES) if meta.timing else 0
-    width = 2 + 5 * n + timed + (1 if meta.encoder_joint is not None else 0)
+    width = journal_row_width(n, bool(timed), meta.encoder_joint is not None)
     raw = np.frombuffer(rows_path.read_bytes(), dtype="<f8")
     rows = raw[: len(raw) // width * width].reshape(-1, width)
     seg = rows[:, 1]

@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TIMING_SERIES, TrialLog
+from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TIMING_SERIES, TrialLog, journal_row_width
 from bench.core.looptiming import MISSED_SHARE_LIMIT, loop_timing
 from bench.core.result import PreparedTrial
 from bench.trial.margins import MarginMeter
@@ -164,8 +164,7 @@ class RunFollower:
         s.segments = list(meta.get("segment_names", []))
         s.events = [e for e in meta.get("events", []) if isinstance(e, dict)]
         self._timed = meta.get("timing") is True
-        self._width = (2 + 5 * len(s.joints) + (len(TIMING_SERIES) if self._timed else 0)
-                       + (1 if meta.get("encoder_joint") else 0))  # the train's encoder, last
+        self._width = journal_row_width(len(s.joints), self._timed, bool(meta.get("encoder_joint")))
         if not s.timing:
             s.timing = {"cycles": 0, "missed": 0, "worst_late_s": None}
         s.timing["paced"] = self._timed
