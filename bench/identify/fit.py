@@ -26,6 +26,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from bench.identify.coverage import speed_reasons, steady_speeds
 from bench.identify.logs import LoggedRun, RigSetup
 from bench.identify.search import cma_search
 from bench.identify.simulate import PHYSICS, SlotPhysics, file_values, merge_runs, simulate_run
@@ -51,7 +52,7 @@ OBSERVABLE_FRACTION = 0.05
 #: ... or this much in absolute terms (for values near zero).
 OBSERVABLE_FLOOR = {"kt_scale": 0.005, "armature_kgm2": 2e-4, "viscous_nms": 0.002, "coulomb_nm": 0.002,
                     "stribeck_nm": 0.002, "stribeck_velocity_rads": 0.005}
-PRIOR_WEIGHT = 0.02
+PRIOR_WEIGHT = 0.005
 FD_FRACTION = 0.1  # difference steps: this fraction of the value ...
 FD_FLOOR = np.array([0.02, 0.001, 0.02, 0.005, 0.005, 0.02])  # ... at least this
 LAMBDAS = (0.25, 1.0, 4.0)  # damping factors tried together at each iteration
@@ -74,6 +75,11 @@ class JointFit:
     iterations: int = 0
     #: File keys the fit ran to the edge of their range (:func:`at_bound_keys`).
     at_bound: tuple[str, ...] = ()
+    #: Windows of the logs the joint was not fitted on (log index, start s, end s): the one-joint
+    #: simulation could not follow them (:meth:`_Problem.leave_out`).
+    left_out: tuple[tuple[int, float, float], ...] = ()
+    #: Per key not observable, why (the speeds the logs lack, a parameter it trades against, an edge).
+    reasons: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -143,6 +149,7 @@ class _Problem:
             window_of_row[a:b] = w
         self.clusters = np.concatenate([c for sl in self.slices for c in (window_of_row[sl], window_of_row[sl])])
         self.i_scale = np.maximum(current.std(axis=0), 0.01)
+        self.delay_s = 0.0  # the loop's latency the simulations apply (:func:`estimate_delay`)
         # per run, the rows each joint learns from (1) or not (0), and each joint's count of them
         self.weights = [learning_rows(setup, r, joints).astype(float) for r in runs]
         counts = np.sum([w.sum(axis=0) for w in self.weights], axis=0)
@@ -156,12 +163,13 @@ class _Problem:
         if len(chunks) > 1:
             futures = [self.pool.submit(simulate_run, self.setup, self.merged,
                                         SlotPhysics(joint=slots.joint[c], values=slots.values[c]),
-                                        windows=self.windows, log_starts=self.starts) for c in chunks]
+                                        windows=self.windows, log_starts=self.starts, delay_s=self.delay_s)
+                       for c in chunks]
             parts = [f.result() for f in futures]
             q, cur, qd = (np.concatenate([p[i] for p in parts], axis=1) for i in (0, 1, 2))
         else:
             q, cur, qd = simulate_run(self.setup, self.merged, slots, windows=self.windows,
-                                      log_starts=self.starts)
+                                      log_starts=self.starts, delay_s=self.delay_s)
         return [(q[sl], cur[sl], qd[sl]) for sl in self.slices]
 
     def residuals(self, sims, which: np.ndarray) -> np.ndarray:
@@ -178,6 +186,43 @@ class _Problem:
             parts.append((wk * motion).T)
             parts.append((wk * (cur - run.current[:, j]) / self.i_scale[which]).T)
         return np.concatenate(parts, axis=1) * self.norm[which][:, None]
+
+    def leave_out(self, x: np.ndarray, factor: float) -> list[list[tuple[int, float, float]]]:
+        """Per fitted joint, the windows (log index, start and end s) it stops learning from: those
+        whose mean squared residual at ``x`` is over ``factor`` times the joint's median window's.
+        Each joint is simulated alone, the rest of the robot taken from the log; where the logged
+        motion is violent (a fast chirp swinging the arm) the others' accelerations, differentiated
+        from velocities read in steps, are too rough for that, and one such window would outweigh
+        all the others together."""
+        every = np.arange(len(self.joints))
+        sims = self.simulate(x, every)
+        sq = []  # per run, (K, F) squared residual per row (motion and current)
+        for run, (q, cur, qd), w in zip(self.runs, sims, self.weights):
+            j = self.joints
+            motion = np.where(self.on_servo[None, :], (qd - run.qd[:, j]) / self.v_scale,
+                              (q - run.q[:, j]) / self.q_scale)
+            sq.append(w * (motion ** 2 + ((cur - run.current[:, j]) / self.i_scale) ** 2))
+        left: list[list[tuple[int, float, float]]] = [[] for _ in every]
+        for f in every:
+            means, where = [], []
+            for w_i, (a, b) in enumerate(self.windows):
+                r = next(i for i, sl in enumerate(self.slices) if sl.start <= a < sl.stop)
+                lo, hi = a - self.slices[r].start, b - self.slices[r].start
+                rows = self.weights[r][lo:hi, f] > 0
+                if rows.sum() >= 10:
+                    means.append(sq[r][lo:hi, f][rows].mean())
+                    where.append((r, lo, hi))
+            if len(means) < 3:
+                continue
+            limit = factor * np.median(means)
+            for m, (r, lo, hi) in zip(means, where):
+                if m > limit:
+                    self.weights[r][lo:hi, f] = 0.0
+                    t = self.runs[r].time
+                    left[f].append((r, float(t[lo]), float(t[hi - 1])))
+        counts = np.sum([w.sum(axis=0) for w in self.weights], axis=0)
+        self.norm = 1.0 / np.sqrt(2 * np.maximum(counts, 1.0))
+        return left
 
     def mae(self, sims, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         j = self.joints[which]
@@ -271,6 +316,47 @@ def regression_guess(setup: RigSetup, runs: Sequence[LoggedRun], joints: np.ndar
     return x
 
 
+#: A window whose mean squared residual is over this many times its joint's median window's
+#: leaves that joint's fit (:meth:`_Problem.leave_out`): over 5 times the typical error, all along.
+LEAVE_OUT_FACTOR = 25.0
+
+#: The loop latencies (s) identification tries: from none to a few firmware samples (a USB
+#: adapter's latency timer left at 16 ms would show as the largest, and be worth fixing first).
+DELAY_GRID = tuple(np.arange(0, 7) * 1e-3)
+
+
+def estimate_delay(prob: "_Problem", x: np.ndarray, grid: Sequence[float] = DELAY_GRID) -> tuple[float, np.ndarray]:
+    """The loop's latency that best explains every fitted joint's logs at physics ``x``, and the
+    total cost at each of ``grid``. One latency serves all joints (it is the bus's and the host's,
+    not a servo's), so nine joints' motions tell it apart from any one joint's friction: a goal
+    that reaches the servo later leaves it further behind while it accelerates, which a fit
+    without the latency reads as friction rising with speed."""
+    every = np.arange(len(prob.joints))
+    costs = []
+    for d in grid:
+        prob.delay_s = float(d)
+        costs.append(float(np.sum(prob.residuals(prob.simulate(x, every), every) ** 2)))
+    prob.delay_s = float(grid[int(np.argmin(costs))])
+    return prob.delay_s, np.array(costs)
+
+
+def best_start(cost: Callable[[np.ndarray, np.ndarray], np.ndarray], guess: np.ndarray,
+               datasheet: np.ndarray) -> np.ndarray:
+    """Per joint, the best of four starts for the search: its own regression, its peers' (the
+    median of every joint's regression, with the joint's own motor constant and armature: one rig's
+    gearboxes wear alike, and a joint whose regression gave up, e.g. one gravity barely loads,
+    starts from what the others found), its own friction with the peers' Stribeck velocity (the
+    regression's grid of them is coarse), and the datasheet."""
+    peers = guess.copy()
+    peers[:, 2:] = np.median(guess[:, 2:], axis=0)
+    shape = guess.copy()  # its own friction levels, faded at the peers' Stribeck velocity
+    shape[:, 5] = peers[:, 5]
+    starts = np.stack([guess, peers, shape, datasheet])  # (4, F, P)
+    F, n = guess.shape[0], len(starts)
+    costs = cost(starts.reshape(-1, guess.shape[1]), np.tile(np.arange(F), n)).reshape(n, F)
+    return starts[np.argmin(costs, axis=0), np.arange(F)]
+
+
 def _prior(x: np.ndarray, x0: np.ndarray) -> np.ndarray:
     return PRIOR_WEIGHT * (x - x0) / SCALE
 
@@ -338,6 +424,29 @@ def variance_inflation(J: np.ndarray, D: np.ndarray) -> np.ndarray:
     return np.maximum(np.einsum("fpp->fp", H) * np.einsum("fpp->fp", inv), 1.0)
 
 
+def parameter_correlation(J: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """Per joint, the correlation between the parameters' estimates (F, P, P), from the Gauss-Newton
+    Hessian: near ±1 for two the logs can trade one for the other."""
+    inv = np.linalg.pinv(np.einsum("fmp,fmq->fpq", J, J) + D.T @ D)
+    d = np.sqrt(np.maximum(np.einsum("fpp->fp", inv), 1e-300))
+    return inv / (d[:, :, None] * d[:, None, :])
+
+
+#: Above this correlation, a parameter's uncertainty is put down to the one it trades against.
+TRADED = 0.8
+
+
+def _statistical_reason(key: str, value: float, stderr: float, corr: np.ndarray, i: int) -> str:
+    """Why a value the logs' speeds could tell still came out uncertain."""
+    share = f"{100 * stderr / abs(value):.0f} % of it" if value and np.isfinite(stderr) else "unbounded"
+    others = np.abs(np.where(np.arange(len(PHYSICS)) == i, 0.0, corr[i]))
+    j = int(np.argmax(others))
+    if others[j] > TRADED:
+        return (f"standard error {share}: the logs trade it against {PHYSICS[j]} "
+                f"(correlation {corr[i, j]:+.2f}), telling their combination only")
+    return f"standard error {share}: it moves the logs' simulation too little to tell"
+
+
 def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: int = 4, generations: int = 40,
                pool: Executor | None = None, workers: int = 1, progress: Progress | None = None) -> FitResult:
     """Fit the physics of every joint the logs excite (the others are listed in ``skipped``)."""
@@ -363,9 +472,16 @@ def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: in
         res = prob.residuals(prob.simulate(values, which), which)
         return np.sum(res ** 2, axis=1) + np.sum(_prior(values, x0[which]) ** 2, axis=1)
 
+    x = best_start(cost, x, x0)
+    left_out: list[list[tuple[int, float, float]]] = [[] for _ in range(F)]
     if generations > 0:
-        x, _ = cma_search(cost, x, SCALE, LOWER, UPPER, generations=generations,
+        first = max(1, generations // 2)
+        x, _ = cma_search(cost, x, SCALE, LOWER, UPPER, generations=first,
                           progress=(lambda g, _n: progress(g, total)) if progress else None)
+        # windows the one-joint simulation cannot follow leave the fit, which then goes on
+        left_out = prob.leave_out(x, LEAVE_OUT_FACTOR)
+        x, _ = cma_search(cost, x, SCALE, LOWER, UPPER, generations=generations - first, sigma=0.15,
+                          progress=(lambda g, _n: progress(first + g, total)) if progress else None)
     lam = np.full(F, 1e-2)
     done = np.zeros(F, dtype=bool)
     iterations = np.zeros(F, dtype=int)
@@ -423,13 +539,21 @@ def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: in
     with np.errstate(divide="ignore", invalid="ignore"):
         se = np.where(curvature > 0, np.sqrt(2 * UNCERTAINTY_RISE * c0[:, None] / curvature), np.inf)
         se = np.maximum(se * np.sqrt(variance_inflation(J, D)), cluster_robust_stderr(J, r0, D, prob.clusters))
+    corr = parameter_correlation(J, D)
     joints_fit: dict[str, JointFit] = {}
     for f, k in enumerate(joints):
         values, errors = file_values(x[f], se[f])
         edge = at_bound_keys(x[f])
-        observable = {key: bool(errors[key] <= max(OBSERVABLE_FRACTION * abs(values[key]), OBSERVABLE_FLOOR[key]))
-                      and key not in edge for key in values}
+        why = speed_reasons(values, steady_speeds(setup, runs, k))
+        for i, key in enumerate(PHYSICS):
+            if key in why:
+                continue
+            if key in edge:
+                why[key] = "the fit ran it to the edge of its range"
+            elif not errors[key] <= max(OBSERVABLE_FRACTION * abs(values[key]), OBSERVABLE_FLOOR[key]):
+                why[key] = _statistical_reason(key, values[key], errors[key], corr[f], i)
+        observable = {key: key not in why for key in values}
         joints_fit[names[k]] = JointFit(names[k], values, errors, observable, float(mae_b[0][f]),
                                         float(mae_a[0][f]), float(mae_b[1][f]), float(mae_a[1][f]),
-                                        int(iterations[f]), edge)
+                                        int(iterations[f]), edge, tuple(left_out[f]), why)
     return FitResult(joints_fit, skipped, before, base_sims)

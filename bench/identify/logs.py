@@ -23,6 +23,7 @@ from bench.rig.backends import servo_params, servo_table
 from bench.trial.record import load_checked
 from drivers.dynamixel.control_table import model_spec
 from drivers.servo import ServoParams
+from drivers.servo.model import FIRMWARE_PERIOD_S
 from drivers.servo.plant import PyBulletPlant
 from drivers.train_loop import TrainLoop
 
@@ -67,6 +68,10 @@ class LoggedRun:
     #: the train's ``q`` is its servo's pinion encoder (the log's encoder channel), not the sensor's
     #: reading: it is then fitted on its position like every other joint
     train_on_encoder: bool = False
+    #: (K,) when each row's reading was taken and when its goal took effect in the servos (s, the
+    #: clock of ``time``): the loop's latency (:func:`loop_latency`); None: both at ``time``
+    sampled: np.ndarray | None = None
+    applied: np.ndarray | None = None
 
     @property
     def duration(self) -> float:
@@ -132,6 +137,31 @@ def _train_encoder(log: TrialLog, setup: RigSetup) -> np.ndarray | None:
     return encoder.copy() if np.all(np.isfinite(encoder)) else None
 
 
+def loop_latency(log: TrialLog, time: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """When each row's reading was taken and when its goal took effect (s, on ``time``'s clock).
+
+    A row's time is stamped when its read returned. The servos answered the read when its request
+    went out (the cycle's start, ``loop_start``), and the goal went out after it, its Sync Write
+    taking the rest of the cycle's bus time; the firmware then takes it up at its next sample
+    (:data:`~drivers.servo.model.FIRMWARE_PERIOD_S`; its readings are as old again on average).
+    So the goal reaches the servo some milliseconds after the reading it answers: a fit that
+    ignored it would read the servo's extra lag while it accelerates as friction rising with
+    speed. A log without the loop's timing is taken as read and written at its rows' times,
+    plus the firmware's sample."""
+    if not log.timed:
+        return time.copy(), time + FIRMWARE_PERIOD_S
+    read = np.clip(log.time - log.loop_start, 0.0, None)
+    write = np.clip(log.bus_s - read, 0.0, None)
+    untimed = ~(np.isfinite(read) & np.isfinite(write))
+    if untimed.all():
+        read[:], write[:] = 0.0, 0.0
+    elif untimed.any():
+        read[untimed], write[untimed] = np.median(read[~untimed]), np.median(write[~untimed])
+    sampled = np.minimum(time - read, time)
+    applied = np.maximum.accumulate(time + write + FIRMWARE_PERIOD_S)
+    return sampled, applied
+
+
 def _dynamics(plant: PyBulletPlant, q: np.ndarray, qd: np.ndarray, time: np.ndarray):
     """M_jj and the rest of the robot's torque on each joint, along the measured motion."""
     qdd = np.gradient(qd, time, axis=0) if len(time) > 2 else np.zeros_like(qd)
@@ -184,9 +214,10 @@ def load_runs(run_dirs: Sequence[Path]) -> tuple[RigSetup, list[LoggedRun]]:
             inertia, load = _dynamics(plant, q, qd, t)
             span = goal.max(axis=0) - goal.min(axis=0)
             excited = span >= np.array([MIN_EXCURSION[k] for k in setup.kinds])
+            sampled, applied = loop_latency(log, t)
             runs.append(LoggedRun(run_dir=run_dir, sha256=saved.record.sha256, time=t, goal=goal,
                                   q=q, qd=qd, current=current, inertia=inertia, load=load, excited=excited,
-                                  train_on_encoder=on_encoder is not None))
+                                  train_on_encoder=on_encoder is not None, sampled=sampled, applied=applied))
     finally:
         if plant is not None:
             plant.close()

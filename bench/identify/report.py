@@ -126,12 +126,26 @@ def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
                   "value after the arrow: "
                   + "; ".join(edges) + "."]
     lines += ["", "± is one standard error: how far the value can move, the others free to make up for it, "
-              "before the fit's cost rises by 5 %. * marks a value **not observable** (standard error over 5 % "
-              "of it): one the logs cannot tell on its own; the fit held it near the datasheet, and what "
-              "the logs do tell is its combination with the others (e.g. the friction at the speeds the "
-              "joint moved at, not how it splits into Coulomb, Stribeck and viscous parts). Excite the "
-              "joint faster or longer to resolve it. The Stribeck peak is the friction at rest; Coulomb "
-              "is the level it falls to with speed (or, on some worn gearboxes, rises to).", ""]
+              "before the fit's cost rises by 5 %. * marks a value **not observable**: one the logs cannot "
+              "tell on its own (the list below says why). Friction against speed is told by constant-speed "
+              "motion: the Stribeck velocity by speeds on both sides of it, Coulomb by one past its fade, "
+              "viscous friction by two there a factor 2 apart; a value told by the fit's cost alone "
+              "must have a standard error within 5 % of it. What the logs do tell of a value not observable "
+              "is its combination with the others (e.g. the friction at the speeds the joint moved at). "
+              "The Stribeck peak is the friction at rest; Coulomb is the level it falls to with speed "
+              "(or, on some worn gearboxes, rises to).", ""]
+    why = [(name, key, jf.reasons[key]) for name, jf in fit.joints.items() for key in FILE_KEYS
+           if not jf.observable[key] and key in jf.reasons]
+    if why:
+        lines += ["## Not observable, and why", "", "| joint | value | why |", "| --- | --- | --- |"]
+        lines += [f"| {name} | {key} | {reason} |" for name, key, reason in why]
+        lines.append("")
+    left = [(name, a, b) for name, jf in fit.joints.items() for _, a, b in jf.left_out]
+    if left:
+        lines += ["Left out of the fit: " + "; ".join(f"{n} {a:.1f}–{b:.1f} s" for n, a, b in left)
+                  + " (windows the joint's simulation alone could not follow, over 5 times its typical "
+                  "error all along: a fast motion swinging the arm, whose coupling the log tells too "
+                  "roughly).", ""]
     for name in fit.joints:
         lines += [f"## {name}", "", f"![{name}]({figures[name]})", ""]
     return "\n".join(lines)

@@ -51,7 +51,8 @@ class IdentifyResult:
     def as_dict(self) -> dict:
         joints = {name: {"mae_before": j.mae_before, "mae_after": j.mae_after,
                          "current_mae_before": j.current_mae_before, "current_mae_after": j.current_mae_after,
-                         "unobservable": self.model.unobservable.get(name, [])}
+                         "unobservable": self.model.unobservable.get(name, []),
+                         "why": dict(j.reasons), "left_out_s": [[a, b] for _, a, b in j.left_out]}
                   for name, j in self.fit.joints.items()}
         return {"model": str(self.model_path), "report": str(self.report_path) if self.report_path else None,
                 "joints": joints, "skipped": self.fit.skipped,
@@ -67,6 +68,7 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
     uncertainty: dict[str, dict[str, float]] = {}
     unobservable: dict[str, list[str]] = {}
     notes_at_bound: list[str] = []
+    notes_why: list[str] = []
     for name, jf in fit.joints.items():
         values = dict(jf.values)
         if jf.at_bound:
@@ -85,9 +87,11 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
         hidden = [key for key, ok in jf.observable.items() if not ok]
         if hidden:
             unobservable[name] = hidden
+            notes_why.append(f"{name}: not observable: " + "; ".join(f"{k} ({jf.reasons[k]})" for k in hidden
+                                                                       if k in jf.reasons))
     notes = [f"identified from {len(runs)} log(s) by hilbench identify: each joint's servo simulated "
              f"along its logged motion, position and current fitted (CMA-ES, then Levenberg-Marquardt)"]
-    notes += notes_at_bound
+    notes += notes_at_bound + notes_why
     for name, why in fit.skipped.items():
         pooled = pooled_physics(setup, fit, name, joints)
         if pooled is None:

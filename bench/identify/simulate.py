@@ -86,20 +86,24 @@ def merge_runs(runs: Sequence[LoggedRun], window_s: float = WINDOW_S
         windows += [(a + offset, b + offset) for a, b in windows_of(r.time, window_s)]
         rows.append(slice(offset, offset + len(r.time)))
         offset += len(r.time)
-    times, t0 = [], 0.0
+    times, sampled, applied, t0 = [], [], [], 0.0
     for r in runs:
-        times.append(r.time - r.time[0] + t0)
+        shift = t0 - r.time[0]
+        times.append(r.time + shift)
+        sampled.append((r.time if r.sampled is None else r.sampled) + shift)
+        applied.append((r.time if r.applied is None else r.applied) + shift)
         t0 = times[-1][-1] + 1.0
     cat = lambda name: np.concatenate([getattr(r, name) for r in runs])  # noqa: E731
     merged = LoggedRun(run_dir=runs[0].run_dir, sha256="", time=np.concatenate(times), goal=cat("goal"), q=cat("q"),
                        qd=cat("qd"), current=cat("current"), inertia=cat("inertia"), load=cat("load"),
-                       excited=np.any([r.excited for r in runs], axis=0))
+                       excited=np.any([r.excited for r in runs], axis=0),
+                       sampled=np.concatenate(sampled), applied=np.concatenate(applied))
     return merged, windows, rows
 
 
 def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float = FIRMWARE_PERIOD_S,
                  window_s: float = WINDOW_S, windows: Sequence[tuple[int, int]] | None = None,
-                 log_starts: Sequence[int] = (0,)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 log_starts: Sequence[int] = (0,), delay_s: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position (joint units), motor current (A) and velocity (joint units/s) of every slot at the
     log's rows, (K, S) each.
 
@@ -107,7 +111,10 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     velocity, and the integrator that gives the logged current), and all windows of all slots
     step together in one servo array: a long log costs the steps of one window, and a model's
     error cannot pile up over minutes (multiple shooting). ``windows``: the row ranges to use
-    instead (several logs merged by :func:`merge_runs`, ``log_starts`` the rows where each begins)."""
+    instead (several logs merged by :func:`merge_runs`, ``log_starts`` the rows where each begins).
+    ``delay_s``: the loop's latency, from a row's reading to its goal taking effect in the servo
+    (the read's reply, the host's work, the write on the wire, the firmware's next sample): each
+    row is sampled at its logged time and its goal applied that much later."""
     wins = list(windows) if windows is not None else windows_of(run.time, window_s)
     W, S, n = len(wins), len(slots.joint), len(setup.joint_names)
     # one simulated servo per (window, slot): window-major
@@ -126,13 +133,19 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
 
     # each window's rows on its own step grid, and the robot around the joint along it
     t = run.time
-    steps = [np.maximum.accumulate(np.rint((t[a:z] - t[a]) / dt).astype(np.int64)) for a, z in wins]
-    n_steps = int(max(st[-1] for st in steps)) + 1
+    sampled = t if run.sampled is None else run.sampled
+    applied = t + delay_s if run.applied is None else run.applied + delay_s
+    # per window, the step of each row's reading and of its goal taking effect (a window starts
+    # at its first reading)
+    steps = [np.maximum.accumulate(np.rint((sampled[a:z] - sampled[a]) / dt).astype(np.int64)) for a, z in wins]
+    lands = [np.maximum(np.maximum.accumulate(np.rint((applied[a:z] - sampled[a]) / dt).astype(np.int64)), st)
+             for (a, z), st in zip(wins, steps)]
+    n_steps = int(max(max(st[-1], la[-1]) for st, la in zip(steps, lands))) + 1
     grid = np.arange(n_steps) * dt
     inertia = np.empty((n_steps, W, n))
     load = np.empty((n_steps, W, n))
     for w, (start, stop) in enumerate(wins):
-        tw = t[start:stop] - t[start]
+        tw = t[start:stop] - sampled[start]
         for k in range(n):
             inertia[:, w, k] = np.interp(grid, tw, run.inertia[start:stop, k])
             load[:, w, k] = np.interp(grid, tw, run.load[start:stop, k])
@@ -141,10 +154,12 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     load = load.reshape(n_steps, W * n)
     extra = ja + dt * b
     # the rows read and the goals written, per step: (row, window) events
-    events: dict[int, list[tuple[int, int]]] = {}
-    for w, ((a, _), st) in enumerate(zip(wins, steps)):
-        for i, s_ in enumerate(st):
-            events.setdefault(int(s_), []).append((a + i, w))
+    reads: dict[int, list[tuple[int, int]]] = {}
+    writes: dict[int, list[tuple[int, int]]] = {}
+    for w, ((a, _), st, la) in enumerate(zip(wins, steps, lands)):
+        for i, (s_, l_) in enumerate(zip(st.tolist(), la.tolist())):
+            reads.setdefault(s_, []).append((a + i, w))
+            writes.setdefault(l_, []).append((a + i, w))
     columns = np.arange(S)
 
     servo = ServoArray(p)
@@ -162,13 +177,17 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     qd_out = np.empty((len(t), S))
     smoothing = 1.0 / FRICTION_SMOOTHING_RAD_S
     for s in range(n_steps):
-        ev = events.get(s)
-        if ev is not None:  # the driver reads, then writes this cycle's goal
+        ev = reads.get(s)
+        if ev is not None:  # the driver reads ...
             rows = np.array([e[0] for e in ev])
             idx = (np.array([e[1] for e in ev])[:, None] * S + columns[None, :])
             q_out[rows] = q[idx]
             i_out[rows] = servo.current[idx]
             qd_out[rows] = qd[idx]
+        ev = writes.get(s)
+        if ev is not None:  # ... and its goal reaches the servo later (at the same step at the least)
+            rows = np.array([e[0] for e in ev])
+            idx = (np.array([e[1] for e in ev])[:, None] * S + columns[None, :])
             goal[idx] = (run.goal[rows[:, None], slots.joint[None, :]] - off[idx]) * inv_r[idx]
             loop.set_goal(goal)
         w_ = qd * inv_r
