@@ -99,14 +99,14 @@ def test_the_worn_rigs_friction_is_recovered_or_said_not_observable(worn):
 
 
 def test_the_identified_sim_predicts_the_worn_rig_on_target_1(worn):
-    """The identified sim tracks the worn rig far closer than the ideal one and places the tip at
-    least twice as close to the rig's. Only three joints are excited here (the others take their
-    peers' median): 0.52 to 1.04 mm, gap ratios 0.12 to 0.20, in three runs on a busy machine,
-    where the full plan on every joint gave 0.34 mm (README, Identifying the rig's servos)."""
+    """The identified sim predicts the worn rig as the issue asks of a held-out one: the needle tip
+    within 0.3 mm of the rig's (mean over the repeats) and a tracking gap at most a fifth of the
+    ideal sim's, where the ideal sim's tip lies millimetres away. Only three joints are excited
+    here (the others take their peers' median)."""
     pred = worn["compare"]["prediction"]
     print(pred)
     assert len(pred["tip_error_mm"]["per_repeat"]) == 2
-    assert pred["tracking_gap_ratio"] <= 0.25, pred
+    assert pred["tracking_gap_ratio"] <= 0.2, pred
     ideal = float(np.linalg.norm(worn["compare"]["tip_deviation_mm"]["mean"]))
     assert ideal > 1.0  # the worn rig sags millimetres where the ideal motors do not
-    assert pred["tip_error_mm"]["mean"] <= 0.5 * ideal, (pred, ideal)
+    assert pred["tip_error_mm"]["mean"] <= 0.3, (pred, ideal)

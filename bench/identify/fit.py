@@ -436,6 +436,27 @@ def parameter_correlation(J: np.ndarray, D: np.ndarray) -> np.ndarray:
 TRADED = 0.8
 
 
+#: A value this correlated with one the logs cannot tell is not told either: its estimate holds
+#: only given the other's (a Coulomb level traded against a viscous slope the sweeps cannot fix).
+ENTANGLED = 0.7
+
+
+def _entangled(why: dict[str, str], corr: np.ndarray) -> None:
+    """Add to ``why`` the values entangled (:data:`ENTANGLED`) with one already in it."""
+    changed = True
+    while changed:
+        changed = False
+        for i, key in enumerate(PHYSICS):
+            if key in why:
+                continue
+            for j, other in enumerate(PHYSICS):
+                if other in why and j != i and abs(corr[i, j]) > ENTANGLED:
+                    why[key] = (f"the logs trade it against {other} (correlation {corr[i, j]:+.2f}), which "
+                                f"they cannot tell: only their combination is known")
+                    changed = True
+                    break
+
+
 def _statistical_reason(key: str, value: float, stderr: float, corr: np.ndarray, i: int) -> str:
     """Why a value the logs' speeds could tell still came out uncertain."""
     share = f"{100 * stderr / abs(value):.0f} % of it" if value and np.isfinite(stderr) else "unbounded"
@@ -552,6 +573,7 @@ def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: in
                 why[key] = "the fit ran it to the edge of its range"
             elif not errors[key] <= max(OBSERVABLE_FRACTION * abs(values[key]), OBSERVABLE_FLOOR[key]):
                 why[key] = _statistical_reason(key, values[key], errors[key], corr[f], i)
+        _entangled(why, corr[f])
         observable = {key: key not in why for key in values}
         joints_fit[names[k]] = JointFit(names[k], values, errors, observable, float(mae_b[0][f]),
                                         float(mae_a[0][f]), float(mae_b[1][f]), float(mae_a[1][f]),

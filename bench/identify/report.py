@@ -119,6 +119,10 @@ def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
             cell = f"{_fmt(jf.values[key])} ± {_fmt(jf.stderr[key])}"
             cells.append(cell if jf.observable[key] else f"{cell} *")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    weak = [n for n in model.notes if ": too little to fit on: " in n]
+    if weak:
+        lines += ["", "**Too little to fit on** (the model file holds its peers' physics, not the values "
+                  "above): " + "; ".join(weak) + "."]
     edges = [n for n in model.notes if "edge of the fit's range" in n]
     if edges:
         lines += ["", "**edge (fitted) → written**: the fit drove the value (or the friction peak it goes "

@@ -20,7 +20,7 @@ import yaml
 
 from bench.config.servo_model import LogSource, ServoModelFile, ServoPhysics
 from bench.identify.errors import IdentifyError
-from bench.identify.fit import FitResult, JointFit, fit_servos
+from bench.identify.fit import MOVING_GOAL, FitResult, JointFit, fit_servos
 from bench.identify.logs import LoggedRun, RigSetup, load_runs
 from bench.identify.report import write_report
 
@@ -60,6 +60,22 @@ class IdentifyResult:
                 "logs": [str(r.run_dir) for r in self.runs], "seconds": round(self.seconds, 3)}
 
 
+#: A joint whose goals moved it for less than this (s, over all its logs) is fitted to too little
+#: (the way to and from the excitation, about 5 s on the lab plan): its file takes its peers' physics.
+MIN_MOTION_S = 8.0
+
+
+def motion_seconds(setup: RigSetup, runs: Sequence[LoggedRun], joint: int) -> float:
+    """How long the logs' goals moved ``joint`` (s), at a degree or a millimetre a second or more."""
+    total = 0.0
+    for run in runs:
+        if len(run.time) < 2:
+            continue
+        speed = np.abs(np.gradient(run.goal[:, joint], run.time))
+        total += float(np.sum(np.diff(run.time)[speed[1:] > MOVING_GOAL[setup.kinds[joint]]]))
+    return total
+
+
 def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) -> ServoModelFile:
     """The servo model file of a fit: every value as fitted (what the logs cannot tell on its own
     was held near the datasheet's by the fit's prior, and its combination with the others is what
@@ -92,8 +108,27 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
     notes = [f"identified from {len(runs)} log(s) by hilbench identify: each joint's servo simulated "
              f"along its logged motion, position and current fitted (CMA-ES, then Levenberg-Marquardt)"]
     notes += notes_at_bound + notes_why
+    # a joint whose logs do not tell even its motor constant (moved only on the way to the
+    # excitation, say) was fitted to too little: it takes its told peers' physics instead
+    weak = {}
+    for name, jf in fit.joints.items():
+        moved = motion_seconds(setup, runs, setup.joint_names.index(name))
+        if moved < MIN_MOTION_S:
+            weak[name] = f"its logs move it for {moved:.1f} s only (at least {MIN_MOTION_S:g} s to fit on)"
+        elif not jf.observable["kt_scale"]:
+            weak[name] = (f"its logs do not tell even its motor constant "
+                          f"({jf.reasons.get('kt_scale', 'not observable')})")
+    for name in sorted(weak, key=setup.joint_names.index):
+        pooled = pooled_physics(setup, fit, name, joints, exclude=frozenset(weak))
+        if pooled is None:
+            continue
+        physics, peers = pooled
+        joints[name] = ServoPhysics(**physics)
+        unobservable[name] = list(physics)
+        notes.append(f"{name}: too little to fit on: {weak[name]}; the median of the fitted joints with "
+                     f"its servo model ({', '.join(peers)}) instead")
     for name, why in fit.skipped.items():
-        pooled = pooled_physics(setup, fit, name, joints)
+        pooled = pooled_physics(setup, fit, name, joints, exclude=frozenset(weak))
         if pooled is None:
             notes.append(f"{name}: not fitted, {why}; datasheet values")
             continue
@@ -118,14 +153,15 @@ def peer_values(setup: RigSetup, fit: FitResult, joint: str,
     return {k: float(np.median([fit.joints[n].values[k] for n in peers])) for k in keys}, peers
 
 
-def pooled_physics(setup: RigSetup, fit: FitResult, joint: str,
-                   written: dict[str, ServoPhysics]) -> tuple[dict[str, float], list[str]] | None:
-    """For a joint the logs never moved: the median physics of the fitted joints with the same
-    servo model (the same motor and gearbox, so closer than the datasheet's bare values), as
-    ``written`` for them (a value a peer's fit ran to the edge of is pooled as its file holds it);
-    None when no such joint was fitted."""
+def pooled_physics(setup: RigSetup, fit: FitResult, joint: str, written: dict[str, ServoPhysics],
+                   exclude: frozenset[str] = frozenset()) -> tuple[dict[str, float], list[str]] | None:
+    """For a joint the logs never moved (or barely): the median physics of the fitted joints with
+    the same servo model (the same motor and gearbox, so closer than the datasheet's bare values),
+    as ``written`` for them (a value a peer's fit ran to the edge of is pooled as its file holds
+    it), ``exclude`` left out; None when no such joint was fitted."""
     model = setup.models[setup.joint_names.index(joint)]
-    peers = [n for n in fit.joints if setup.models[setup.joint_names.index(n)] == model]
+    peers = [n for n in fit.joints if setup.models[setup.joint_names.index(n)] == model
+             and n != joint and n not in exclude]
     if not peers:
         return None
     keys = list(fit.joints[peers[0]].values)
