@@ -420,3 +420,51 @@ def test_a_sensed_joint_is_placed_by_its_whole_stillness(prep):
     assert windows[0, 0] < windows[1, 0] - 1.0 and np.all(windows[:, 1] == windows[1, 1])
     assert np.mean(errors_still) < 0.4 * np.mean(errors_settle)
     assert max(errors_still) < 0.15
+
+
+def _stopped_early(log: TrialLog, rows: int) -> TrialLog:
+    """``log``'s first ``rows``, ended by an interlock (as a sim whose arc snapped at its start)."""
+    out = TrialLog(list(log.joint_names), list(log.segment_names), metadata=dict(log.metadata))
+    for k in range(rows):
+        out.append(log.time[k], int(log.segment[k]), log.q_cmd[k], log.qd_cmd[k], log.q[k], log.qd[k],
+                   log.effort[k])
+    out.event(log.time[rows - 1], "interlock", "velocity_limits: train moves at -54.59 °/s")
+    return out
+
+
+def test_a_sim_stopped_early_gives_no_tracking_gap_rather_than_a_small_one(prep):
+    """An ideal sim tripped in its first quarter second agrees with the rig over those rows only:
+    its gap would read a tenth of a whole run's and the model's ratio near 1. The gap counts the
+    repeats both sides completed, and with none it is not a number (None in the JSON)."""
+    from bench.compare.prediction import prediction, tracking_gap
+
+    rig = synthetic_log(prep)
+    ideal = _stopped_early(synthetic_log(prep, offset=OFFSET), 27)
+    model = synthetic_log(prep, offset=0.1 * OFFSET)
+    ideal_cmp = compare_logs([ideal], [rig], labels=("sim", "rig"))
+    assert ideal_cmp.reference.completed == [False]
+    assert math.isnan(tracking_gap(ideal_cmp))
+    d = prediction(compare_logs([model], [rig], labels=("model sim", "rig")), ideal_cmp).as_dict()
+    assert d["tracking_gap_ratio"] is None and d["tracking_gap"]["ideal"] is None
+    # with one repeat of two complete, the gap is that repeat's
+    whole = synthetic_log(prep, offset=OFFSET)
+    both = compare_logs([ideal, whole], [rig, rig], labels=("sim", "rig"))
+    assert tracking_gap(both) == pytest.approx(tracking_gap(compare_logs([whole], [rig])), rel=1e-9)
+
+
+def test_a_sim_without_the_rigs_sensor_starts_its_sensed_joint_where_the_rigs_plan_did(prep):
+    """The rig planned from its ultrasonic's first reading of the train; the ideal sim (no sensor)
+    starts the train there, not at the homing's mean a few millimetres of noise away (its position
+    motor snapped across that at 54 °/s, past the velocity interlock); a sim with the sensor, and
+    every other joint, start at the homing's mean."""
+    from bench.compare.session import sim_counterpart, sim_start
+
+    rig = synthetic_log(prep)
+    rig._arr["q_cmd"][0, 0] += 0.01  # the rig's plan started 2 mm of arc off where its homing settled
+    homing = synthetic_log(prep)
+    config = prep.config
+    ideal_start, plan_start = sim_start(sim_counterpart(config), rig, homing)
+    assert ideal_start["train"] == pytest.approx(plan_start[0]) == pytest.approx(rig.q_cmd[0, 0])
+    model_start, _ = sim_start(sim_counterpart(config, "datasheet"), rig, homing)
+    assert abs(model_start["train"] - plan_start[0]) > 0.009
+    assert ideal_start["theta5"] == model_start["theta5"]

@@ -99,11 +99,14 @@ def _excursions(cmp: Comparison) -> np.ndarray:
 
 
 def tracking_gap(cmp: Comparison) -> float:
-    """RMS over the moving joints and the repeats of (sim − rig) / excursion (unit-free)."""
+    """RMS over the moving joints and the repeats of (sim − rig) / excursion (unit-free), over the
+    repeats both sides completed (a run stopped early by an interlock is compared over its first
+    rows only, and would pass for a close one); NaN when none did."""
     exc = _excursions(cmp)
     still = [STILL_EXCURSION[row.kind] for row in cmp.robot.chain.rows]
+    done = [bool(a) and bool(b) for a, b in zip(cmp.reference.completed, cmp.subject.completed)]
     rel = [[d.rms / e for d, e, s in zip(pair, exc, still) if e > s and math.isfinite(d.rms)]
-           for pair in cmp.profile]
+           for pair, ok in zip(cmp.profile, done) if ok]
     values = np.array([v for pair in rel for v in pair])
     return float(np.sqrt(np.mean(values ** 2))) if values.size else math.nan
 

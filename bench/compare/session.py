@@ -47,7 +47,7 @@ from bench.compare.homing import (
     start_of,
     starting_at,
 )
-from bench.compare.prediction import Prediction, prediction
+from bench.compare.prediction import Prediction, prediction, sensed_joint
 from bench.compare.report import write_compare_report
 from bench.config.models import ConfigError, PyBulletBackendConfig, TrialConfig
 from bench.core.interrupts import NO_SIGNALS
@@ -286,6 +286,20 @@ def _emulated(prep: PreparedTrial) -> tuple[EmulatorProcess, PreparedTrial]:
     return emulator, prep.with_config(cfg)
 
 
+def sim_start(config: TrialConfig, log: TrialLog, homing: Optional[TrialLog]
+              ) -> tuple[dict[str, float], Optional[np.ndarray]]:
+    """Where a sim repeat of rig repeat ``log`` starts (per joint) and the pose its plan starts
+    from (the rig's, so both run the very same plan). A joint the rig read through its sensor
+    starts, on a sim without that sensor, where the plan does: the rig planned from the sensor's
+    first reading, a millimetre or two of noise off the homing's mean, and a sim reading the joint
+    exactly would snap across the difference (on the arc, past the velocity interlock)."""
+    start, plan_start = start_of(log, homing), plan_start_of(log)
+    sensed = sensed_joint(log)
+    if sensed is not None and plan_start is not None and getattr(config.backend, "ultrasonic", None) is None:
+        start[sensed] = float(plan_start[log.joint_names.index(sensed)])
+    return start, plan_start
+
+
 def _run_sim(config: TrialConfig, where: Path, found: list, label: str, k: int, n_sides: int,
              progress: ProgressFn, interrupts: Interruptible) -> list[Path]:
     """One sim side: each repeat starts where the rig's repeat did and runs its very plan."""
@@ -293,9 +307,10 @@ def _run_sim(config: TrialConfig, where: Path, found: list, label: str, k: int, 
     runs = []
     for i, (log, homing) in enumerate(found):
         what = f"{label} repeat {i + 1}/{n}"
-        cfg = starting_at(config, start_of(log, homing), start_of(log, homing, "effort"))
+        start, plan_start = sim_start(config, log, homing)
+        cfg = starting_at(config, start, start_of(log, homing, "effort"))
         try:
-            prep = prepare(cfg, plan_start=plan_start_of(log))
+            prep = prepare(cfg, plan_start=plan_start)
         except TrialError as e:
             raise CompareError(f"{what}: {e}") from None
         res = run_trial(prep, where, TrialHooks(
