@@ -110,19 +110,23 @@ def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
     lines += ["", "## Identified physics", "",
               "| joint | " + " | ".join(f"{k} ({UNITS[k]})" if UNITS[k] else k for k in FILE_KEYS) + " |",
               "| --- | " + " | ".join("---:" for _ in FILE_KEYS) + " |"]
+    weak = {n.split(":", 1)[0]: n.split(": too little to fit on: ", 1)[1] for n in model.notes
+            if ": too little to fit on: " in n}
     for name, jf in fit.joints.items():
         cells = []
         for key in FILE_KEYS:
+            if name in weak:  # the file holds its peers' physics
+                cells.append(f"({_fmt(jf.values[key])}) → {_fmt(getattr(model.joints[name], key))} *")
+                continue
             if key in jf.at_bound:  # the file holds its peers' value, not this one
                 cells.append(f"edge ({_fmt(jf.values[key])}) → {_fmt(getattr(model.joints[name], key))} *")
                 continue
             cell = f"{_fmt(jf.values[key])} ± {_fmt(jf.stderr[key])}"
             cells.append(cell if jf.observable[key] else f"{cell} *")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    weak = [n for n in model.notes if ": too little to fit on: " in n]
     if weak:
-        lines += ["", "**Too little to fit on** (the model file holds its peers' physics, not the values "
-                  "above): " + "; ".join(weak) + "."]
+        lines += ["", "**(fitted) → written**: too little to fit on, so the model file holds the median "
+                  "of the joint's told peers: " + "; ".join(f"{n}: {why}" for n, why in weak.items()) + "."]
     edges = [n for n in model.notes if "edge of the fit's range" in n]
     if edges:
         lines += ["", "**edge (fitted) → written**: the fit drove the value (or the friction peak it goes "
@@ -139,7 +143,7 @@ def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
               "The Stribeck peak is the friction at rest; Coulomb is the level it falls to with speed "
               "(or, on some worn gearboxes, rises to).", ""]
     why = [(name, key, jf.reasons[key]) for name, jf in fit.joints.items() for key in FILE_KEYS
-           if not jf.observable[key] and key in jf.reasons]
+           if not jf.observable[key] and key in jf.reasons and name not in weak]
     if why:
         lines += ["## Not observable, and why", "", "| joint | value | why |", "| --- | --- | --- |"]
         lines += [f"| {name} | {key} | {reason} |" for name, key, reason in why]
