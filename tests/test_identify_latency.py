@@ -99,3 +99,12 @@ def test_merged_logs_keep_each_rows_latency():
     np.testing.assert_allclose(merged.applied[slices[0]] - merged.time[slices[0]], 0.0015)
     np.testing.assert_allclose(merged.applied[slices[1]] - merged.time[slices[1]], 0.0)
     np.testing.assert_allclose(merged.sampled[slices[0]] - merged.time[slices[0]], -0.0004)
+
+
+def test_a_damaged_or_stalled_timing_puts_a_goal_off_by_a_bounded_time():
+    log = _timed_log(5, read_s=0.0004, bus_s=0.0009)
+    log._timing["bus_s"][2] = 1e9  # a hostile run directory's timing
+    log._timing["loop_start"][3] = 1e9
+    t = log.time - log.time[0]
+    sampled, applied = loop_latency(log, t)
+    assert np.all(applied - t <= 0.05 + FIRMWARE_PERIOD_S + 1e-12) and np.all(t - sampled <= 0.05)

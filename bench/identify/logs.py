@@ -137,6 +137,12 @@ def _train_encoder(log: TrialLog, setup: RigSetup) -> np.ndarray | None:
     return encoder.copy() if np.all(np.isfinite(encoder)) else None
 
 
+#: A read or a write taking longer than this (s) is taken as this long: a cycle's bus time beyond
+#: a few periods is a stall the loop already waited out (the next row's time holds it), or a
+#: damaged log, whose goals must not be put off without end.
+MAX_LATENCY_S = 0.05
+
+
 def loop_latency(log: TrialLog, time: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """When each row's reading was taken and when its goal took effect (s, on ``time``'s clock).
 
@@ -150,8 +156,8 @@ def loop_latency(log: TrialLog, time: np.ndarray) -> tuple[np.ndarray, np.ndarra
     plus the firmware's sample."""
     if not log.timed:
         return time.copy(), time + FIRMWARE_PERIOD_S
-    read = np.clip(log.time - log.loop_start, 0.0, None)
-    write = np.clip(log.bus_s - read, 0.0, None)
+    read = np.clip(log.time - log.loop_start, 0.0, MAX_LATENCY_S)
+    write = np.clip(log.bus_s - read, 0.0, MAX_LATENCY_S)
     untimed = ~(np.isfinite(read) & np.isfinite(write))
     if untimed.all():
         read[:], write[:] = 0.0, 0.0
