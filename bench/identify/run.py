@@ -118,25 +118,19 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
         elif not jf.observable["kt_scale"]:
             weak[name] = (f"its logs do not tell even its motor constant "
                           f"({jf.reasons.get('kt_scale', 'not observable')})")
-    for name in sorted(weak, key=setup.joint_names.index):
+    # each joint fitted to too little, then each not fitted, takes its told peers' physics
+    takes = [(n, f"too little to fit on: {weak[n]}") for n in sorted(weak, key=setup.joint_names.index)]
+    takes += [(n, f"not fitted, {why}") for n, why in fit.skipped.items()]
+    for name, what in takes:
         pooled = pooled_physics(setup, fit, name, joints, exclude=frozenset(weak))
-        if pooled is None:
+        if pooled is None:  # no told peer: a joint fitted to too little keeps its fit
+            if name in fit.skipped:
+                notes.append(f"{name}: {what}; datasheet values")
             continue
         physics, peers = pooled
         joints[name] = ServoPhysics(**physics)
         unobservable[name] = list(physics)
-        notes.append(f"{name}: too little to fit on: {weak[name]}; the median of the fitted joints with "
-                     f"its servo model ({', '.join(peers)}) instead")
-    for name, why in fit.skipped.items():
-        pooled = pooled_physics(setup, fit, name, joints, exclude=frozenset(weak))
-        if pooled is None:
-            notes.append(f"{name}: not fitted, {why}; datasheet values")
-            continue
-        physics, peers = pooled
-        joints[name] = ServoPhysics(**physics)
-        unobservable[name] = list(physics)
-        notes.append(f"{name}: not fitted, {why}; the median of the fitted joints with its servo model "
-                     f"({', '.join(peers)})")
+        notes.append(f"{name}: {what}; the median of the fitted joints with its servo model ({', '.join(peers)})")
     return ServoModelFile(robot=setup.robot, joints=joints, uncertainty=uncertainty, unobservable=unobservable,
                           sources=[LogSource(run=str(r.run_dir), sha256=r.sha256) for r in runs], notes=notes)
 
