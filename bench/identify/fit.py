@@ -8,11 +8,13 @@ much its current varies), plus a weak pull toward the datasheet so that what the
 tell stays where the datasheet put it. The Jacobian is a central difference with steps of a tenth
 of each value: the firmware reads an integer encoder, so the error is a staircase at finer scale.
 
-A parameter is *observable* when its standard error — the cost's curvature at the optimum, inflated
-by how far the other parameters can stand in for it, and at least the cluster-robust (per window)
-error — is within :data:`OBSERVABLE_FRACTION` of its value (or under its absolute floor where the
-value is near zero). The others are written as fitted (the prior held them near the datasheet)
-and listed as not observable. A value the fit drove to the edge of its range is not observable
+Each parameter gets a standard error — the cost's curvature at the optimum, inflated by how far
+the other parameters can stand in for it, and at least the cluster-robust (per window) error —
+and :mod:`bench.identify.observability` says which the logs tell and why not the others; those
+are written as fitted (the prior held them near the datasheet) and listed as not observable.
+The search starts from the best of several guesses (:func:`best_start`), and each log row's goal
+reaches the simulated servo with the loop's latency (:func:`bench.identify.logs.loop_latency`).
+A value the fit drove to the edge of its range is not observable
 either, whatever its error: the logs pushed it out of what the servo can be (a train read through
 its noisy ultrasonic sensor, barely moved, took a 2 N·m friction peak), and the model file takes
 its peers' value instead (:attr:`JointFit.at_bound`).
@@ -26,8 +28,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from bench.identify.coverage import speed_reasons, steady_speeds
+from bench.identify.coverage import steady_speeds
 from bench.identify.logs import LoggedRun, RigSetup
+from bench.identify.observability import (cluster_robust_stderr, not_observable, parameter_correlation,
+                                          variance_inflation)
 from bench.identify.search import cma_search
 from bench.identify.simulate import PHYSICS, SlotPhysics, file_values, merge_runs, simulate_run
 from drivers.dynamixel.control_table import x_series_table
@@ -46,12 +50,6 @@ UPPER = np.array([5.0, 1.0, 5.0, 2.0, 2.0, 1.0])
 #: encoder's steps make it a staircase in the parameters), so the noise floor is empirical: a few
 #: percent of the cost is what parameters the logs cannot tell move it by.
 UNCERTAINTY_RISE = 0.05
-#: Standard error below which a parameter counts as observable: this fraction of its value (two
-#: standard errors within 10 %, leaving room for the bias a model mismatch adds) ...
-OBSERVABLE_FRACTION = 0.05
-#: ... or this much in absolute terms (for values near zero).
-OBSERVABLE_FLOOR = {"kt_scale": 0.005, "armature_kgm2": 2e-4, "viscous_nms": 0.002, "coulomb_nm": 0.002,
-                    "stribeck_nm": 0.002, "stribeck_velocity_rads": 0.005}
 PRIOR_WEIGHT = 0.005
 FD_FRACTION = 0.1  # difference steps: this fraction of the value ...
 FD_FLOOR = np.array([0.02, 0.001, 0.02, 0.005, 0.005, 0.02])  # ... at least this
@@ -149,7 +147,6 @@ class _Problem:
             window_of_row[a:b] = w
         self.clusters = np.concatenate([c for sl in self.slices for c in (window_of_row[sl], window_of_row[sl])])
         self.i_scale = np.maximum(current.std(axis=0), 0.01)
-        self.delay_s = 0.0  # the loop's latency the simulations apply (:func:`estimate_delay`)
         # per run, the rows each joint learns from (1) or not (0), and each joint's count of them
         self.weights = [learning_rows(setup, r, joints).astype(float) for r in runs]
         counts = np.sum([w.sum(axis=0) for w in self.weights], axis=0)
@@ -163,13 +160,13 @@ class _Problem:
         if len(chunks) > 1:
             futures = [self.pool.submit(simulate_run, self.setup, self.merged,
                                         SlotPhysics(joint=slots.joint[c], values=slots.values[c]),
-                                        windows=self.windows, log_starts=self.starts, delay_s=self.delay_s)
+                                        windows=self.windows, log_starts=self.starts)
                        for c in chunks]
             parts = [f.result() for f in futures]
             q, cur, qd = (np.concatenate([p[i] for p in parts], axis=1) for i in (0, 1, 2))
         else:
             q, cur, qd = simulate_run(self.setup, self.merged, slots, windows=self.windows,
-                                      log_starts=self.starts, delay_s=self.delay_s)
+                                      log_starts=self.starts)
         return [(q[sl], cur[sl], qd[sl]) for sl in self.slices]
 
     def residuals(self, sims, which: np.ndarray) -> np.ndarray:
@@ -320,26 +317,6 @@ def regression_guess(setup: RigSetup, runs: Sequence[LoggedRun], joints: np.ndar
 #: leaves that joint's fit (:meth:`_Problem.leave_out`): over 5 times the typical error, all along.
 LEAVE_OUT_FACTOR = 25.0
 
-#: The loop latencies (s) identification tries: from none to a few firmware samples (a USB
-#: adapter's latency timer left at 16 ms would show as the largest, and be worth fixing first).
-DELAY_GRID = tuple(np.arange(0, 7) * 1e-3)
-
-
-def estimate_delay(prob: "_Problem", x: np.ndarray, grid: Sequence[float] = DELAY_GRID) -> tuple[float, np.ndarray]:
-    """The loop's latency that best explains every fitted joint's logs at physics ``x``, and the
-    total cost at each of ``grid``. One latency serves all joints (it is the bus's and the host's,
-    not a servo's), so nine joints' motions tell it apart from any one joint's friction: a goal
-    that reaches the servo later leaves it further behind while it accelerates, which a fit
-    without the latency reads as friction rising with speed."""
-    every = np.arange(len(prob.joints))
-    costs = []
-    for d in grid:
-        prob.delay_s = float(d)
-        costs.append(float(np.sum(prob.residuals(prob.simulate(x, every), every) ** 2)))
-    prob.delay_s = float(grid[int(np.argmin(costs))])
-    return prob.delay_s, np.array(costs)
-
-
 def best_start(cost: Callable[[np.ndarray, np.ndarray], np.ndarray], guess: np.ndarray,
                datasheet: np.ndarray) -> np.ndarray:
     """Per joint, the best of four starts for the search: its own regression, its peers' (the
@@ -397,75 +374,6 @@ def _central_steps(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lo = np.maximum(x - h, LOWER)
     hi = np.minimum(x + h, UPPER)
     return lo, hi
-
-
-def cluster_robust_stderr(J: np.ndarray, r: np.ndarray, D: np.ndarray, clusters: np.ndarray) -> np.ndarray:
-    """Per joint and parameter, the sandwich (cluster-robust) standard error H⁻¹BH⁻¹ with the
-    simulation windows as clusters: how far the estimate would move were the windows another
-    sample of the same motion. Where the model misses something, windows pull a parameter
-    different ways, and this says so where the cost's curvature alone would not."""
-    H = np.einsum("fmp,fmq->fpq", J, J) + D.T @ D
-    n_clusters = int(clusters.max()) + 1
-    g = np.zeros((J.shape[0], n_clusters, J.shape[2]))
-    contrib = J * r[:, :, None]  # (F, m, P)
-    for c in range(n_clusters):
-        g[:, c, :] = contrib[:, clusters == c, :].sum(axis=1)
-    B = np.einsum("fcp,fcq->fpq", g, g) * (n_clusters / max(n_clusters - 1, 1))
-    inv = np.linalg.pinv(H)
-    cov = inv @ B @ inv
-    return np.sqrt(np.maximum(np.einsum("fpp->fp", cov), 0.0))
-
-
-def variance_inflation(J: np.ndarray, D: np.ndarray) -> np.ndarray:
-    """Per joint and parameter, H_ii·(H⁻¹)_ii for H = JᵀJ + DᵀD (the prior keeps H invertible):
-    1 for a parameter nothing else can mimic, large for one the others can stand in for."""
-    H = np.einsum("fmp,fmq->fpq", J, J) + D.T @ D
-    inv = np.linalg.pinv(H)
-    return np.maximum(np.einsum("fpp->fp", H) * np.einsum("fpp->fp", inv), 1.0)
-
-
-def parameter_correlation(J: np.ndarray, D: np.ndarray) -> np.ndarray:
-    """Per joint, the correlation between the parameters' estimates (F, P, P), from the Gauss-Newton
-    Hessian: near ±1 for two the logs can trade one for the other."""
-    inv = np.linalg.pinv(np.einsum("fmp,fmq->fpq", J, J) + D.T @ D)
-    d = np.sqrt(np.maximum(np.einsum("fpp->fp", inv), 1e-300))
-    return inv / (d[:, :, None] * d[:, None, :])
-
-
-#: Above this correlation, a parameter's uncertainty is put down to the one it trades against.
-TRADED = 0.8
-
-
-#: A value this correlated with one the logs cannot tell is not told either: its estimate holds
-#: only given the other's (a Coulomb level traded against a viscous slope the sweeps cannot fix).
-ENTANGLED = 0.7
-
-
-def _entangled(why: dict[str, str], corr: np.ndarray) -> None:
-    """Add to ``why`` the values entangled (:data:`ENTANGLED`) with one already in it."""
-    changed = True
-    while changed:
-        changed = False
-        for i, key in enumerate(PHYSICS):
-            if key in why:
-                continue
-            for j, other in enumerate(PHYSICS):
-                if other in why and j != i and abs(corr[i, j]) > ENTANGLED:
-                    why[key] = (f"the logs trade it against {other} (correlation {corr[i, j]:+.2f}), which "
-                                f"they cannot tell: only their combination is known")
-                    changed = True
-                    break
-
-
-def _statistical_reason(key: str, value: float, stderr: float, corr: np.ndarray, i: int) -> str:
-    """Why a value the logs' speeds could tell still came out uncertain."""
-    share = f"{100 * stderr / abs(value):.0f} % of it" if value and np.isfinite(stderr) else "unbounded"
-    others = np.abs(np.where(np.arange(len(PHYSICS)) == i, 0.0, corr[i]))
-    j = int(np.argmax(others))
-    if others[j] > TRADED:
-        return (f"standard error {share}: the logs trade it against {PHYSICS[j]} "
-                f"(correlation {corr[i, j]:+.2f}), telling their combination only")
-    return f"standard error {share}: it moves the logs' simulation too little to tell"
 
 
 def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: int = 4, generations: int = 40,
@@ -565,15 +473,7 @@ def fit_servos(setup: RigSetup, runs: Sequence[LoggedRun], *, max_iterations: in
     for f, k in enumerate(joints):
         values, errors = file_values(x[f], se[f])
         edge = at_bound_keys(x[f])
-        why = speed_reasons(values, steady_speeds(setup, runs, k))
-        for i, key in enumerate(PHYSICS):
-            if key in why:
-                continue
-            if key in edge:
-                why[key] = "the fit ran it to the edge of its range"
-            elif not errors[key] <= max(OBSERVABLE_FRACTION * abs(values[key]), OBSERVABLE_FLOOR[key]):
-                why[key] = _statistical_reason(key, values[key], errors[key], corr[f], i)
-        _entangled(why, corr[f])
+        why = not_observable(values, errors, edge, steady_speeds(setup, runs, k), corr[f])
         observable = {key: key not in why for key in values}
         joints_fit[names[k]] = JointFit(names[k], values, errors, observable, float(mae_b[0][f]),
                                         float(mae_a[0][f]), float(mae_b[1][f]), float(mae_a[1][f]),

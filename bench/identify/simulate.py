@@ -103,7 +103,7 @@ def merge_runs(runs: Sequence[LoggedRun], window_s: float = WINDOW_S
 
 def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float = FIRMWARE_PERIOD_S,
                  window_s: float = WINDOW_S, windows: Sequence[tuple[int, int]] | None = None,
-                 log_starts: Sequence[int] = (0,), delay_s: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 log_starts: Sequence[int] = (0,)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position (joint units), motor current (A) and velocity (joint units/s) of every slot at the
     log's rows, (K, S) each.
 
@@ -112,9 +112,9 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     step together in one servo array: a long log costs the steps of one window, and a model's
     error cannot pile up over minutes (multiple shooting). ``windows``: the row ranges to use
     instead (several logs merged by :func:`merge_runs`, ``log_starts`` the rows where each begins).
-    ``delay_s``: the loop's latency, from a row's reading to its goal taking effect in the servo
-    (the read's reply, the host's work, the write on the wire, the firmware's next sample): each
-    row is sampled at its logged time and its goal applied that much later."""
+    A row is sampled when its reading was taken and its goal applied when it took effect
+    (``run.sampled`` and ``run.applied``, the loop's latency: :func:`~bench.identify.logs.loop_latency`;
+    both at the row's time when the run has none)."""
     wins = list(windows) if windows is not None else windows_of(run.time, window_s)
     W, S, n = len(wins), len(slots.joint), len(setup.joint_names)
     # one simulated servo per (window, slot): window-major
@@ -134,7 +134,7 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     # each window's rows on its own step grid, and the robot around the joint along it
     t = run.time
     sampled = t if run.sampled is None else run.sampled
-    applied = t + delay_s if run.applied is None else run.applied + delay_s
+    applied = t if run.applied is None else run.applied
     # per window, the step of each row's reading and of its goal taking effect (a window starts
     # at its first reading)
     steps = [np.maximum.accumulate(np.rint((sampled[a:z] - sampled[a]) / dt).astype(np.int64)) for a, z in wins]
