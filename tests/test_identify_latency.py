@@ -90,6 +90,9 @@ def test_friction_values_the_speeds_cannot_tell_are_named_with_the_speeds_missin
     assert "0.085, 0.22 rad/s" in why["coulomb_nm"]
     below = speed_reasons(told, np.array([0.3, 0.6, 1.5]))
     assert set(below) == {"stribeck_velocity_rads"} and "below it" in below["stribeck_velocity_rads"]
+    # one constant speed past the fade tells Coulomb's level and the viscous slope only as a sum
+    one = speed_reasons(told, np.array([0.1, 0.7]))
+    assert set(one) == {"coulomb_nm", "viscous_nms"} and "told only with the viscous slope" in one["coulomb_nm"]
     assert "none" in speed_reasons(told, np.zeros(0))["viscous_nms"]
 
 

@@ -2,8 +2,8 @@
 
 Friction against speed is told by motion at constant speed (the current then carries the
 friction and the load, nothing of the inertia): the Stribeck velocity by constant speeds on
-both sides of it, the Coulomb level by one past the Stribeck fade, viscous friction by two
-there far enough apart. A fit may still settle such a value in a narrow valley of its cost, but
+both sides of it, the Coulomb level and viscous friction by two past the Stribeck fade far
+enough apart (at one, only their sum). A fit may still settle such a value in a narrow valley of its cost, but
 what it settled on is then the model's way of following a chirp, not the gearbox's friction:
 where the logs lack those speeds, the value is reported not observable, saying which speeds
 are missing (:func:`speed_reasons`).
@@ -70,4 +70,8 @@ def speed_reasons(values: Mapping[str, float], speeds: np.ndarray) -> dict[str, 
     if past.size < 2 or past.max() < 2 * past.min():
         out["viscous_nms"] = (f"friction rising with speed needs two constant speeds past the Stribeck fade "
                               f"(over {2 * ws:.2g} rad/s) a factor 2 apart; {held}")
+        # one speed there tells Coulomb's level and the viscous slope as one sum
+        out.setdefault("coulomb_nm", f"told only with the viscous slope: Coulomb's level and it need two "
+                                     f"constant speeds past the Stribeck fade (over {2 * ws:.2g} rad/s) a "
+                                     f"factor 2 apart; {held}")
     return out

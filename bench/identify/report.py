@@ -136,9 +136,9 @@ def report_markdown(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult,
     lines += ["", "± is one standard error: how far the value can move, the others free to make up for it, "
               "before the fit's cost rises by 5 %. * marks a value **not observable**: one the logs cannot "
               "tell on its own (the list below says why). Friction against speed is told by constant-speed "
-              "motion: the Stribeck velocity by speeds on both sides of it, Coulomb by one past its fade, "
-              "viscous friction by two there a factor 2 apart; a value told by the fit's cost alone "
-              "must have a standard error within 5 % of it. What the logs do tell of a value not observable "
+              "motion: the Stribeck velocity by speeds on both sides of it, Coulomb and viscous friction "
+              "by two past its fade a factor 2 apart (at one, only their sum); a value told by the "
+              "fit's cost alone must have a standard error within 5 % of it. What the logs do tell of a value not observable "
               "is its combination with the others (e.g. the friction at the speeds the joint moved at). "
               "The Stribeck peak is the friction at rest; Coulomb is the level it falls to with speed "
               "(or, on some worn gearboxes, rises to).", ""]

@@ -130,7 +130,8 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
         physics, peers = pooled
         joints[name] = ServoPhysics(**physics)
         unobservable[name] = list(physics)
-        notes.append(f"{name}: {what}; the median of the fitted joints with its servo model ({', '.join(peers)})")
+        notes.append(f"{name}: {what}; the median of the fitted joints with its servo model "
+                     f"({', '.join(peers)})")
     return ServoModelFile(robot=setup.robot, joints=joints, uncertainty=uncertainty, unobservable=unobservable,
                           sources=[LogSource(run=str(r.run_dir), sha256=r.sha256) for r in runs], notes=notes)
 
