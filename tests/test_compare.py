@@ -468,3 +468,22 @@ def test_a_sim_without_the_rigs_sensor_starts_its_sensed_joint_where_the_rigs_pl
     model_start, _ = sim_start(sim_counterpart(config, "datasheet"), rig, homing)
     assert abs(model_start["train"] - plan_start[0]) > 0.009
     assert ideal_start["theta5"] == model_start["theta5"]
+
+
+def test_the_gap_ratio_compares_both_sims_over_the_same_repeats(prep):
+    """With the ideal sim stopped early in one repeat of two, both gaps are taken over the other
+    repeat alone: the ratio is the model's gap over the ideal's on the same motion (here 0.1
+    exactly), and the report's table says when no repeat is left."""
+    from bench.compare.prediction import prediction
+    from bench.compare.prediction_report import prediction_markdown
+
+    rig = synthetic_log(prep)
+    near = synthetic_log(prep, offset=0.5 * OFFSET)  # the model's first repeat, closer than 0.1 of the ideal's
+    ideal = [_stopped_early(synthetic_log(prep, offset=OFFSET), 27), synthetic_log(prep, offset=OFFSET)]
+    model = [near, synthetic_log(prep, offset=0.1 * OFFSET)]
+    pred = prediction(compare_logs(model, [rig, rig], labels=("model sim", "rig")),
+                      compare_logs(ideal, [rig, rig], labels=("sim", "rig")))
+    assert pred.tracking_gap_ratio == pytest.approx(0.1, rel=1e-6)
+    none = prediction(compare_logs([near], [rig]), compare_logs(ideal[:1], [rig]))
+    table = "\n".join(prediction_markdown(none, "p.png"))
+    assert "| tracking gap ratio (model / ideal) | — (no repeat completed by the rig and both sims) |" in table

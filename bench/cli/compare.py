@@ -116,9 +116,11 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
         console.print(f"worst joint: {summary['worst_joint']}")
         if predicted is not None:
             pr = summary["prediction"]
+            gap = (f"tracking gap {pr['tracking_gap_ratio']} of the ideal sim's"
+                   if pr["tracking_gap_ratio"] is not None else
+                   "no tracking gap: no repeat completed by the rig and both sims")
             console.print(f"prediction: tip {pr['tip_error_mm']['mean']} mm mean, "
-                          f"{pr['tip_error_mm']['max']} mm max; tracking gap {pr['tracking_gap_ratio']} "
-                          f"of the ideal sim's")
+                          f"{pr['tip_error_mm']['max']} mm max; {gap}")
         console.print(f"report: {out_dir / 'report.html'}")
     if unconfirmed:
         say("[bold red]check the rig:[/] {}", summary["reason"])

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -25,7 +26,8 @@ from bench.compare.analysis import Comparison
 from bench.core.log import TrialLog
 from bench.core.outcome import settle_rows
 
-__all__ = ["Prediction", "placement_windows", "prediction", "sensed_joint", "settled_tip_mm", "tracking_gap"]
+__all__ = ["Prediction", "completed_repeats", "placement_windows", "prediction", "sensed_joint", "settled_tip_mm",
+           "tracking_gap"]
 
 #: Commanded excursion below which a joint counts as still (its gap is left out): 0.5° or 0.5 mm,
 #: a few encoder ticks, where a plan's start at the measured pose is all that "moves" it.
@@ -98,13 +100,20 @@ def _excursions(cmp: Comparison) -> np.ndarray:
     return np.nanmax(q, axis=0) - np.nanmin(q, axis=0)
 
 
-def tracking_gap(cmp: Comparison) -> float:
+def completed_repeats(*cmps: Comparison) -> list[bool]:
+    """Per repeat, whether both sides of every comparison completed it."""
+    sides = [c for cmp in cmps for c in (cmp.reference.completed, cmp.subject.completed)]
+    return [all(bool(flags[i]) if i < len(flags) else False for flags in sides)
+            for i in range(min(len(flags) for flags in sides))]
+
+
+def tracking_gap(cmp: Comparison, repeats: Optional[list[bool]] = None) -> float:
     """RMS over the moving joints and the repeats of (sim − rig) / excursion (unit-free), over the
     repeats both sides completed (a run stopped early by an interlock is compared over its first
-    rows only, and would pass for a close one); NaN when none did."""
+    rows only, and would pass for a close one), or those ``repeats`` says; NaN when none."""
     exc = _excursions(cmp)
     still = [STILL_EXCURSION[row.kind] for row in cmp.robot.chain.rows]
-    done = [bool(a) and bool(b) for a, b in zip(cmp.reference.completed, cmp.subject.completed)]
+    done = completed_repeats(cmp) if repeats is None else repeats
     rel = [[d.rms / e for d, e, s in zip(pair, exc, still) if e > s and math.isfinite(d.rms)]
            for pair, ok in zip(cmp.profile, done) if ok]
     values = np.array([v for pair in rel for v in pair])
@@ -147,5 +156,7 @@ def prediction(model_vs_rig: Comparison, ideal_vs_rig: Comparison) -> Prediction
             for i, r in enumerate(rig) if r is not None and sim[min(i, len(sim) - 1)] is not None]
     placed = [(np.array(r.tip_mm), np.array(s.tip_mm)) for r, s in
               zip(model_vs_rig.subject.outcomes, model_vs_rig.reference.outcomes) if r and s]
-    return Prediction(tips, tracking_gap(model_vs_rig), tracking_gap(ideal_vs_rig),
+    # both gaps over the same repeats: those the rig and both sims completed
+    done = completed_repeats(model_vs_rig, ideal_vs_rig)
+    return Prediction(tips, tracking_gap(model_vs_rig, done), tracking_gap(ideal_vs_rig, done),
                       [float(np.linalg.norm(r - s)) for r, s in placed])

@@ -68,6 +68,8 @@ def prediction_markdown(pred: Prediction, figure: str) -> list[str]:
     """The section's lines: what the figures mean, the table, the figure."""
     d = pred.as_dict()
     tips = d["tip_error_mm"]["per_repeat"]
+    ratio = ("— (no repeat completed by the rig and both sims)" if d["tracking_gap_ratio"] is None
+             else d["tracking_gap_ratio"])
     still = ", ".join(f"{v:g} {'°' if k == 'revolute' else 'm'}" for k, v in
                       (("revolute", round(np.degrees(STILL_EXCURSION["revolute"]), 3)),
                        ("prismatic", STILL_EXCURSION["prismatic"])))
@@ -85,5 +87,5 @@ def prediction_markdown(pred: Prediction, figure: str) -> list[str]:
             f"{', '.join(f'{v:.3f}' for v in d['trial_tip_error_mm']) or '—'} |",
             f"| tracking gap, model sim | {d['tracking_gap']['model']} |",
             f"| tracking gap, ideal sim | {d['tracking_gap']['ideal']} |",
-            f"| tracking gap ratio (model / ideal) | {d['tracking_gap_ratio']} |", "",
+            f"| tracking gap ratio (model / ideal) | {ratio} |", "",
             f"![Commanded, rig, ideal sim and model sim]({figure})", ""]
