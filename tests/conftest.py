@@ -39,3 +39,52 @@ def cold_rig():
     cfg = cfg.model_copy(update={"emulator": cfg.emulator.model_copy(update={"start_torque_on": False})})
     with EmulatedRig(cfg) as r:
         yield r, r.retarget(cfg)
+
+
+@pytest.fixture
+def timed_journal(tmp_path):
+    """A live view following ``tmp_path`` and a timed trial log journaling into a run there, with the
+    sim config's joints: (follower, log). Rows appended and flushed are what the page is sent."""
+    from bench.config.models import load_trial_config
+    from bench.core.log import TrialLog
+    from bench.live.follow import RunFollower
+    from bench.paths import REPO_ROOT
+    from bench.trial.plan import prepare
+
+    prep = prepare(load_trial_config(REPO_ROOT / "hil_configs" / "sim_target1.yaml"))
+    follower = RunFollower(tmp_path, lambda: prep)
+    run = tmp_path / "20260101-000000-t"
+    run.mkdir()
+    log = TrialLog(list(prep.robot.joint_names), ["approach"], metadata={"control_period": 0.01})
+    log.journal_to(run)
+    log.start_timing()
+    return follower, log
+
+
+def assert_block_equals_cycles(one, block, q, qd, period: float, chunk: int):
+    """Run the plan ``q``, ``qd`` on ``one`` cycle by cycle (read, command, wait) and on ``block`` in
+    blocks of ``chunk`` cycles: every reading, field by field, and the clock are the same bit for bit.
+    Returns the readings cycle by cycle (time, position, velocity, effort) and each cycle's end."""
+    import numpy as np
+
+    k = len(q)
+    ends = np.add.accumulate(np.concatenate([[0.0], np.full(k, period)]))[1:]
+    rows, t = [], one.now()
+    for i in range(k):
+        st = one.read()
+        rows.append((st.time, st.position, st.velocity, st.effort))
+        one.command(q[i], qd[i])
+        t += period
+        one.wait_until(t)
+    got = [block.execute_block(q[a:a + chunk], qd[a:a + chunk], ends[a:a + chunk]) for a in range(0, k, chunk)]
+    assert one.now() == block.now()
+    for field, col in (("time", 0), ("position", 1), ("velocity", 2), ("effort", 3)):
+        expected = np.array([r[col] for r in rows])
+        assert np.array_equal(np.concatenate([getattr(g, field) for g in got]), expected), field
+    return rows, ends
+
+
+@pytest.fixture(scope="session")
+def block_equals_cycles():
+    """:func:`assert_block_equals_cycles`, for the backends' block-execution tests."""
+    return assert_block_equals_cycles

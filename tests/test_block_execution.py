@@ -28,27 +28,12 @@ def _plan(arc_train, period: float, cycles: int):
 
 
 @pytest.mark.parametrize("period", [0.001, 0.002])
-def test_a_block_equals_the_same_cycles_one_by_one(arc_train, period):
-    k = 600
-    q, qd = _plan(arc_train, period, k)
-    ends = np.add.accumulate(np.concatenate([[0.0], np.full(k, period)]))[1:]
+def test_a_block_equals_the_same_cycles_one_by_one(arc_train, period, block_equals_cycles):
+    q, qd = _plan(arc_train, period, 600)
     with _sim(arc_train, period=period) as one, _sim(arc_train, period=period) as block:
         one.enable()
         block.enable()
-        rows = []
-        t = one.now()
-        for i in range(k):
-            st = one.read()
-            rows.append((st.time, st.position, st.velocity, st.effort))
-            one.command(q[i], qd[i])
-            t += period
-            one.wait_until(t)
-        got = [block.execute_block(q[a:a + 150], qd[a:a + 150], ends[a:a + 150])
-               for a in range(0, k, 150)]
-        assert one.now() == block.now()
-        for field, col in (("time", 0), ("position", 1), ("velocity", 2), ("effort", 3)):
-            expected = np.array([r[col] for r in rows])
-            assert np.array_equal(np.concatenate([getattr(g, field) for g in got]), expected), field
+        block_equals_cycles(one, block, q, qd, period, 150)
         assert np.array_equal(one.read().position, block.read().position)
 
 

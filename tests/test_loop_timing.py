@@ -22,7 +22,6 @@ from bench.core.looptiming import loop_timing
 from bench.core.record import write_record
 from bench.core.rundir import RunDirError, read_journal, read_log_file
 from bench.core.runner import Runner, Segment
-from bench.live.follow import RunFollower
 from bench.trial.plan import prepare
 from bench.trial.record import rebuild_report
 from bench.trial.run import TrialHooks, run_trial
@@ -193,15 +192,9 @@ def test_the_runner_times_each_cycle_of_a_paced_backend():
     assert tm.period_median_s == pytest.approx(0.02, abs=0.002) and tm.bus_median_s < 0.01
 
 
-def test_the_live_view_counts_every_missed_deadline_from_the_journal(tmp_path):
-    follower = RunFollower(tmp_path, lambda: prepare(load_trial_config(SIM)))
-    run = tmp_path / "20260101-000000-t"
-    run.mkdir()
-    names = list(prepare(load_trial_config(SIM)).robot.joint_names)
-    log = TrialLog(names, ["approach"], metadata={"control_period": 0.01})
-    log.journal_to(run)
-    log.start_timing()
-    zero = np.zeros(len(names))
+def test_the_live_view_counts_every_missed_deadline_from_the_journal(timed_journal):
+    follower, log = timed_journal
+    zero = np.zeros(len(log.joint_names))
     for k in range(300):  # more rows than the page is sent: the count is taken before decimation
         log.append(k * 0.001, 0, zero, zero, zero, zero, zero)
         log.time_cycle(k * 0.001, 0.002 if k % 100 == 7 else -0.0005, 0.0004)

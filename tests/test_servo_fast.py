@@ -134,7 +134,8 @@ def _plan(arc_train, period: float, cycles: int):
 
 
 @pytest.mark.parametrize("delay_ms, control_hz", [(0.0, 500.0), (3.0, 1000.0)])
-def test_a_block_of_the_servo_sim_equals_the_same_cycles_one_by_one(arc_train, delay_ms, control_hz):
+def test_a_block_of_the_servo_sim_equals_the_same_cycles_one_by_one(arc_train, delay_ms, control_hz,
+                                                                     block_equals_cycles):
     """The lab's servo table and train sensor with its host loop, a transport delay or none: blocks
     give every reading of the cycles one by one, bit for bit, and a rewind puts the sim back
     where it was read, from where it goes on as it did."""
@@ -142,22 +143,10 @@ def test_a_block_of_the_servo_sim_equals_the_same_cycles_one_by_one(arc_train, d
     one, period = _servo_sim(delay_ms, control_hz)
     block, _ = _servo_sim(delay_ms, control_hz)
     q, qd = _plan(arc_train, period, k)
-    ends = np.add.accumulate(np.concatenate([[0.0], np.full(k, period)]))[1:]
     with one, block:
         one.enable()
         block.enable()
-        rows, t = [], one.now()
-        for i in range(k):
-            st = one.read()
-            rows.append((st.time, st.position, st.velocity, st.effort))
-            one.command(q[i], qd[i])
-            t += period
-            one.wait_until(t)
-        got = [block.execute_block(q[a:a + 200], qd[a:a + 200], ends[a:a + 200]) for a in range(0, k, 200)]
-        assert one.now() == block.now()
-        for field, col in (("time", 0), ("position", 1), ("velocity", 2), ("effort", 3)):
-            expected = np.array([r[col] for r in rows])
-            assert np.array_equal(np.concatenate([getattr(g, field) for g in got]), expected), field
+        rows, ends = block_equals_cycles(one, block, q, qd, period, 200)
         assert np.abs(rows[-1][1] - rows[0][1]).max() > 0.01  # it moved
         assert np.array_equal(one.read().position, block.read().position)
         # rewind into the last block, then on cycle by cycle: the same readings as before

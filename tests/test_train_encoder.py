@@ -213,23 +213,12 @@ def _friction(p: dict, v: float) -> float:
     return p["coulomb_nm"] + (p["stribeck_nm"] - p["coulomb_nm"]) * fade + p["viscous_nms"] * v
 
 
-def test_the_live_view_reads_a_journal_with_the_encoder_channel(tmp_path):
+def test_the_live_view_reads_a_journal_with_the_encoder_channel(timed_journal):
     """The encoder's column follows the loop's timing in each journal row: the live view's row width
     counts it, so positions and missed deadlines read as before."""
-    from bench.config.models import load_trial_config
-    from bench.live.follow import RunFollower
-    from bench.trial.plan import prepare
-
-    sim = REPO / "hil_configs" / "sim_target1.yaml"
-    follower = RunFollower(tmp_path, lambda: prepare(load_trial_config(sim)))
-    run = tmp_path / "20260101-000000-t"
-    run.mkdir()
-    names = list(prepare(load_trial_config(sim)).robot.joint_names)
-    log = TrialLog(names, ["approach"], metadata={"control_period": 0.01})
-    log.journal_to(run)
-    log.start_timing()
-    log.start_encoder(names[0])
-    q = np.full(len(names), 0.25)
+    follower, log = timed_journal
+    log.start_encoder(log.joint_names[0])
+    q = np.full(len(log.joint_names), 0.25)
     for k in range(50):
         log.append(k * 0.01, 0, q, q * 0, q, q * 0, q * 0)
         log.time_cycle(k * 0.01, 0.002 if k == 7 else -0.0005, 0.0004)
