@@ -149,6 +149,10 @@ class _Problem:
         self.i_scale = np.maximum(current.std(axis=0), 0.01)
         # per run, the rows each joint learns from (1) or not (0), and each joint's count of them
         self.weights = [learning_rows(setup, r, joints).astype(float) for r in runs]
+        self._weigh()
+
+    def _weigh(self) -> None:
+        """Each joint's residuals divided by the root of its count of learning rows (both channels)."""
         counts = np.sum([w.sum(axis=0) for w in self.weights], axis=0)
         self.norm = 1.0 / np.sqrt(2 * np.maximum(counts, 1.0))
 
@@ -175,14 +179,18 @@ class _Problem:
         logged position is then the ultrasonic sensor's, a millimetre of noise the servo never
         steered by)."""
         parts = []
-        train = self.on_servo[which][None, :]
-        for run, (q, cur, qd), w in zip(self.runs, sims, self.weights):
-            j, wk = self.joints[which], w[:, which]
-            motion = np.where(train, (qd - run.qd[:, j]) / self.v_scale[which],
-                              (q - run.q[:, j]) / self.q_scale[which])
-            parts.append((wk * motion).T)
-            parts.append((wk * (cur - run.current[:, j]) / self.i_scale[which]).T)
+        for run, sim, w in zip(self.runs, sims, self.weights):
+            motion, current = self._run_residuals(run, sim, w, which)
+            parts += [motion.T, current.T]
         return np.concatenate(parts, axis=1) * self.norm[which][:, None]
+
+    def _run_residuals(self, run: LoggedRun, sim, w: np.ndarray, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One log's (K, S) weighted motion and current residuals of the slots (not yet normed)."""
+        q, cur, qd = sim
+        j, wk = self.joints[which], w[:, which]
+        motion = np.where(self.on_servo[which][None, :], (qd - run.qd[:, j]) / self.v_scale[which],
+                          (q - run.q[:, j]) / self.q_scale[which])
+        return wk * motion, wk * (cur - run.current[:, j]) / self.i_scale[which]
 
     def leave_out(self, x: np.ndarray, factor: float) -> list[list[tuple[int, float, float]]]:
         """Per fitted joint, the windows (log index, start and end s) it stops learning from: those
@@ -194,15 +202,13 @@ class _Problem:
         every = np.arange(len(self.joints))
         sims = self.simulate(x, every)
         sq = []  # per run, (K, F) squared residual per row (motion and current)
-        for run, (q, cur, qd), w in zip(self.runs, sims, self.weights):
-            j = self.joints
-            motion = np.where(self.on_servo[None, :], (qd - run.qd[:, j]) / self.v_scale,
-                              (q - run.q[:, j]) / self.q_scale)
-            sq.append(w * (motion ** 2 + ((cur - run.current[:, j]) / self.i_scale) ** 2))
+        for run, sim, w in zip(self.runs, sims, self.weights):
+            motion, current = self._run_residuals(run, sim, w, every)
+            sq.append(motion ** 2 + current ** 2)
         left: list[list[tuple[int, float, float]]] = [[] for _ in every]
         for f in every:
             means, where = [], []
-            for w_i, (a, b) in enumerate(self.windows):
+            for a, b in self.windows:
                 r = next(i for i, sl in enumerate(self.slices) if sl.start <= a < sl.stop)
                 lo, hi = a - self.slices[r].start, b - self.slices[r].start
                 rows = self.weights[r][lo:hi, f] > 0
@@ -217,8 +223,7 @@ class _Problem:
                     self.weights[r][lo:hi, f] = 0.0
                     t = self.runs[r].time
                     left[f].append((r, float(t[lo]), float(t[hi - 1])))
-        counts = np.sum([w.sum(axis=0) for w in self.weights], axis=0)
-        self.norm = 1.0 / np.sqrt(2 * np.maximum(counts, 1.0))
+        self._weigh()
         return left
 
     def mae(self, sims, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -235,6 +240,13 @@ MOVING_GOAL = {"revolute": np.radians(1.0), "prismatic": 1e-3}
 COUPLING_SETTLE_S = 0.5
 
 
+def goal_moving(setup: RigSetup, run: LoggedRun) -> np.ndarray:
+    """(K, n) bool: the rows where each joint's goal moves (:data:`MOVING_GOAL`; a log of two rows
+    or more)."""
+    speed = np.abs(np.gradient(run.goal, run.time, axis=0))
+    return speed > np.array([MOVING_GOAL[k] for k in setup.kinds])
+
+
 def learning_rows(setup: RigSetup, run: LoggedRun, joints: np.ndarray) -> np.ndarray:
     """(K, F) bool: the rows each fitted joint is fitted on. A joint learns from its own motion and
     from the rest that follows it, but not from the time another joint moves while it holds, nor
@@ -246,8 +258,7 @@ def learning_rows(setup: RigSetup, run: LoggedRun, joints: np.ndarray) -> np.nda
     t = run.time
     if len(t) < 2:
         return np.ones((len(t), len(joints)), dtype=bool)
-    speed = np.abs(np.gradient(run.goal, t, axis=0))
-    moving = speed > np.array([MOVING_GOAL[k] for k in setup.kinds])
+    moving = goal_moving(setup, run)
     # each row: when any joint's goal last moved, ignoring the joint itself
     last_move = np.where(moving, t[:, None], -np.inf)
     last_move = np.maximum.accumulate(last_move, axis=0)

@@ -20,7 +20,7 @@ import yaml
 
 from bench.config.servo_model import LogSource, ServoModelFile, ServoPhysics
 from bench.identify.errors import IdentifyError
-from bench.identify.fit import MOVING_GOAL, FitResult, JointFit, fit_servos
+from bench.identify.fit import FitResult, JointFit, fit_servos, goal_moving
 from bench.identify.logs import LoggedRun, RigSetup, load_runs
 from bench.identify.report import write_report
 
@@ -71,8 +71,7 @@ def motion_seconds(setup: RigSetup, runs: Sequence[LoggedRun], joint: int) -> fl
     for run in runs:
         if len(run.time) < 2:
             continue
-        speed = np.abs(np.gradient(run.goal[:, joint], run.time))
-        total += float(np.sum(np.diff(run.time)[speed[1:] > MOVING_GOAL[setup.kinds[joint]]]))
+        total += float(np.sum(np.diff(run.time)[goal_moving(setup, run)[1:, joint]]))
     return total
 
 
