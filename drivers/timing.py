@@ -69,3 +69,68 @@ def drain_until_quiet(fd: int, quiet_s: float, max_s: float) -> int:
         if not chunk:
             return dropped
         dropped += len(chunk)
+
+
+#: The nice value a paced loop (a trial on a servo bus, the emulated rig) asks for: ahead of a
+#: browser, a desktop and a test suite at the default 0, behind the kernel's own real-time work.
+LOOP_NICE = -10
+
+
+def _threads() -> list[int]:
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return [0]
+
+
+def _set_nice(nice: int) -> None:
+    """Every thread of this process at ``nice`` (Linux keeps one per thread)."""
+    for tid in _threads():
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+        except ProcessLookupError:  # a thread that ended meanwhile
+            pass
+
+
+def raise_priority(nice: int = LOOP_NICE) -> str:
+    """Put every thread of this process (and the threads and children it starts later) at ``nice``.
+
+    A paced loop shares the bench computer's cores with whatever else runs there: the live
+    view's browser, the emulated rig, a second job. At equal priority a browser drawing its
+    plots takes its share of the loop's core at the moment a deadline falls. Every thread is
+    set, not only the caller: a thread left behind holding the interpreter's lock would make the
+    loop wait at its priority. Returns what was got, for the record: ``"nice -10"``, or the
+    priority kept and why (a user without CAP_SYS_NICE or an RLIMIT_NICE allowance is refused;
+    the docs' "At the rig" says how to allow it).
+    """
+    if not hasattr(os, "setpriority"):
+        return "normal (this OS has no nice values)"
+    current = os.getpriority(os.PRIO_PROCESS, 0)
+    if current <= nice:
+        return f"nice {current}"
+    try:
+        _set_nice(nice)
+    except PermissionError:
+        return f"nice {current} (raising it to {nice} was refused: no CAP_SYS_NICE or RLIMIT_NICE allowance)"
+    return f"nice {nice}"
+
+
+class LoopPriority:
+    """:func:`raise_priority` for the length of a ``with`` block, the previous priority restored
+    after (a trial run inside a longer-lived process, a campaign's worker or a test, leaves it
+    as it found it; lowering one's own priority is always allowed)."""
+
+    def __init__(self, nice: int = LOOP_NICE) -> None:
+        self.nice = nice
+        self.got = "normal"
+        self._before: int | None = None
+
+    def __enter__(self) -> "LoopPriority":
+        if hasattr(os, "getpriority"):
+            self._before = os.getpriority(os.PRIO_PROCESS, 0)
+            self.got = raise_priority(self.nice)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._before is not None and os.getpriority(os.PRIO_PROCESS, 0) != self._before:
+            _set_nice(self._before)

@@ -12,7 +12,7 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from bench.cli.common import console, emit_json, err_console, fail, load_config, say, stopped, styled
-from bench.cli.live import LIVE_HELP, live_view
+from bench.cli.live import LIVE_HELP, LIVE_WAIT_HELP, LIVE_WAIT_S, live_view
 from bench.core.interrupts import SignalGuard, TrialInterrupted
 from drivers.errors import (
     ActuatorError,
@@ -64,6 +64,7 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
                 help="Also run the sim through the servo model ('datasheet': the servo table's models and "
                      "gains; or a servo model file) and report how well it predicts the rig."),
             live: bool = typer.Option(False, "--live", help=LIVE_HELP),
+            live_wait: float = typer.Option(LIVE_WAIT_S, "--live-wait", min=0, help=LIVE_WAIT_HELP),
             as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Compare sim and real tracking: run a config's plan on both backends N times, or compare two runs."""
     if align not in ("motion", "xcorr"):
@@ -84,7 +85,7 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
                 fail(f"--sim-model: {e}")
             sim_model = str(Path(sim_model).resolve())
         result, out_dir, predicted, stop, live_url = _from_config(first, repeats, emulate, retries, align,
-                                                                   out, sim_model, as_json, live)
+                                                                   out, sim_model, as_json, live, live_wait)
     else:
         if second is None:
             fail(f"{first}: give two runs to compare (RUN_A RUN_B), or a trial config (.yaml)")
@@ -148,10 +149,10 @@ def _deviation_lines(summary: dict) -> list[str]:
 
 
 def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path,
-                 sim_model: Optional[str] = None, as_json: bool = False, live: bool = False):
+                 sim_model: Optional[str] = None, as_json: bool = False, live: bool = False,
+                 live_wait: float = 0.0):
 
     from bench.compare.session import run_comparison  # deferred: --help and completion stay fast
-    from bench.trial.plan import prepare  # deferred: --help and completion stay fast
 
     cfg = load_config(path)
     with Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
@@ -161,7 +162,10 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
         def progress(what: str, fraction: float) -> None:
             bar.update(task, description=what, completed=min(1.0, fraction))
 
-        with SignalGuard() as guard, live_view(live, lambda: prepare(cfg), out, guard) as server:
+        def waiting(what: str) -> None:
+            bar.update(task, description=what)
+
+        with SignalGuard() as guard, live_view(live, path, out, guard, live_wait, waiting) as server:
             try:
                 res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
                                      align=align, progress=progress, interrupts=guard, sim_model=sim_model)

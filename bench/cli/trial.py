@@ -11,7 +11,7 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from bench.cli.common import console, emit_json, err_console, fail, load_config, say, stopped, styled
-from bench.cli.live import LIVE_HELP, live_view
+from bench.cli.live import LIVE_HELP, LIVE_WAIT_HELP, LIVE_WAIT_S, live_view
 from bench.core.interrupts import NO_SIGNALS, SignalGuard, TrialInterrupted
 from drivers.errors import (
     ActuatorError,
@@ -62,6 +62,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
           note: str = typer.Option("", "--note", help="Operator note stored in the trial record."),
           emulate: bool = typer.Option(False, "--emulate", help="Run the real backend against the emulated servo bus and sensor."),
           live: bool = typer.Option(False, "--live", help=LIVE_HELP),
+          live_wait: float = typer.Option(LIVE_WAIT_S, "--live-wait", min=0, help=LIVE_WAIT_HELP),
           as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Run one trial: home -> Target -> insertion -> retract, with its log and report.
 
@@ -75,7 +76,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
              "the pictures) or under xvfb-run")
     with SignalGuard() as guard:  # first, so no signal can land before it
         try:
-            res, name, live_url = _trial(config, out, gui, note, emulate, guard, live)
+            res, name, live_url = _trial(config, out, gui, note, emulate, guard, live, live_wait)
         except TrialInterrupted as e:
             _interrupted(e, as_json)
     if not res.stop_confirmed:
@@ -105,7 +106,8 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
                      else ExitCode.PASSED if res.passed else ExitCode.FAILED)
 
 
-def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, live: bool = False):
+def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, live: bool = False,
+           live_wait: float = 0.0):
     from bench.trial.plan import prepare  # deferred: --help and completion stay fast
 
     cfg = load_config(config)
@@ -127,7 +129,7 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, 
             fail(str(e))
         prep = prep.with_config(rig.retarget(cfg))
     try:  # the backend builder attaches the emulated bus's fault hooks (bench.rig.serving)
-        with live_view(live, lambda: prep, out, guard) as server:
+        with live_view(live, config, out, guard, live_wait) as server:
             try:
                 res = _run_with_progress(prep, out, gui, note, guard)
             except KeyboardInterrupt as e:

@@ -18,6 +18,7 @@ truncated or crafted, is read through :mod:`bench.core.rundir`, which checks it.
 from __future__ import annotations
 
 import json
+import math
 import os
 import time as _time
 from dataclasses import dataclass, field
@@ -174,7 +175,16 @@ class TrialLog:
         self._n = i + k
 
     def event(self, t: float, kind: str, message: str) -> None:
-        self.events.append(Event(float(t), kind, message))
+        """Record an event at ``t`` on the trial's clock. Events are kept in the order they
+        happened, and their times never go back: a time earlier than the last event's (a caller
+        that only knows the last row's time, a clock unreadable after a lost bus: NaN) is taken
+        as the last event's, so the log, the report and the live view list them in time order."""
+        t = float(t)
+        if self.events and not t >= self.events[-1].time:
+            t = self.events[-1].time
+        elif math.isnan(t):
+            t = float(self.time[-1]) if len(self) else 0.0
+        self.events.append(Event(t, kind, message))
         self._meta_dirty = True
 
     # -- journal (what survives a kill) -----------------------------------------

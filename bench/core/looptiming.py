@@ -49,6 +49,8 @@ class LoopTiming:
     first_missed_at_s: Optional[float] = None
     wall_s: Optional[float] = None  #: not paced: the run's wall-clock time
     sim_s: Optional[float] = None  #: not paced: the simulated time it covered
+    #: paced: the priority the loop ran at (``nice -10``, or the one kept and why), as recorded
+    priority: Optional[str] = None
 
     @property
     def late(self) -> bool:
@@ -70,10 +72,13 @@ class LoopTiming:
             return f"loop timing: not paced: {self._speed()}"
         if not self.cycles:
             return "loop timing: no cycle was timed"
-        line = (f"loop timing: period {_ms(self.period_median_s)} median, {_ms(self.period_p99_s)} p99, "
+        line = (f"loop timing{self._at()}: period {_ms(self.period_median_s)} median, {_ms(self.period_p99_s)} p99, "
                 f"{_ms(self.period_max_s)} max (set {_ms(self.period_s)}); bus {_ms(self.bus_median_s)} "
                 f"median, {_ms(self.bus_p99_s)} p99; ")
         return line + self._missed_words()
+
+    def _at(self) -> str:
+        return f" (at {self.priority})" if self.priority else ""
 
     def _missed_words(self) -> str:
         if not self.missed:
@@ -106,6 +111,8 @@ class LoopTiming:
         if self.missed:
             said += f"; the first at {self.first_missed_at_s:.2f} s"
         said += "."
+        if self.priority:
+            said += f" The loop ran at {self.priority}."
         if self.late:
             said += (f" **More than {100 * MISSED_SHARE_LIMIT:g} % missed: the loop did not keep time, "
                      f"and the trial's tracking is not the rig's alone.**")
@@ -134,7 +141,7 @@ def loop_timing(log: TrialLog, period_s: Optional[float] = None) -> LoopTiming:
     timed = np.isfinite(late)
     cycles = int(timed.sum())
     if not cycles:
-        return LoopTiming("paced", period_s)
+        return LoopTiming("paced", period_s, priority=_priority(meta))
     both = np.isfinite(start[1:]) & np.isfinite(start[:-1])
     periods = np.diff(start)[both]
     buses = bus[np.isfinite(bus)]
@@ -152,4 +159,10 @@ def loop_timing(log: TrialLog, period_s: Optional[float] = None) -> LoopTiming:
                       float(np.median(periods)) if periods.size else None, _p(periods, 99),
                       float(periods.max()) if periods.size else None,
                       float(np.median(buses)) if buses.size else None, _p(buses, 99),
-                      n_missed, n_missed / cycles, worst, worst_at, worst_seg, first)
+                      n_missed, n_missed / cycles, worst, worst_at, worst_seg, first,
+                      priority=_priority(meta))
+
+
+def _priority(meta: dict) -> Optional[str]:
+    got = meta.get("loop_priority")
+    return got if isinstance(got, str) else None

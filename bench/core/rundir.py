@@ -111,6 +111,7 @@ class _TrialMetadata(BaseModel):
     q_insert: Optional[list[float]] = None
     control_period: Optional[float] = Field(None, gt=0)
     loop_wall_s: Optional[float] = Field(None, ge=0)  # the run's wall-clock time (a sim's speed)
+    loop_priority: Optional[str] = Field(None, max_length=200)  # a paced loop's priority (nice -10)
 
 
 @dataclass(frozen=True)

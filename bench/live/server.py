@@ -64,6 +64,7 @@ class LiveServer:
         self.stop_requested = False
         self._last_poll = -float("inf")
         self.polls = 0  # data requests answered: what a benchmark counts to know the page kept polling
+        self.page_open = threading.Event()  # set by a page's first data request: it loaded and runs
         self._final_seen = False
         self._page = _page(self.token)
         self._httpd = _QuietServer((host, port), self._handler())
@@ -162,6 +163,7 @@ class LiveServer:
                     body["stop_requested"] = server.stop_requested
                     server._last_poll = time.monotonic()
                     server.polls += 1
+                    server.page_open.set()
                     server._final_seen = snap.result is not None
                     self._send(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
                 elif url.path == "/report":

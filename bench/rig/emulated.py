@@ -37,6 +37,7 @@ from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulato
 from drivers.errors import ExitCode
 from drivers.servo import ServoParams
 from drivers.servo.plant import PyBulletPlant
+from drivers.timing import raise_priority
 
 
 @dataclass
@@ -192,6 +193,9 @@ def serve(config: TrialConfig, announce, report=None) -> None:
     ``report`` gets the bus's counters at the end (physics skipped when the host starved
     the emulator of CPU, packets, errors), so a rehearsal never hides a slow rig."""
     stop = threading.Event()
+    # The rig's physics keeps real time ahead of a browser or a second job, where the OS allows
+    # (its threads, started below, inherit it); a trial's own priority comes with the trial.
+    raise_priority()
     with EmulatedRig(config, rest_after_s=REST_AFTER_S) as rig:
         previous = {}
 

@@ -8,6 +8,7 @@ builds, runs and records; whatever happens during the run, the log so far is sav
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ from bench.trial.plan import aimed_plan
 from bench.trial.record import finish_record, trial_metadata
 from drivers import ActuatorError, Actuators
 from drivers.capabilities import SafeStopReport, ServoInfo, StartWarnings, find_capability
+from drivers.timing import LoopPriority
 
 __all__ = ["TrialHooks", "run_trial"]
 
@@ -69,8 +71,9 @@ def run_trial(prep: PreparedTrial, out: Path, hooks: Optional[TrialHooks] = None
     with interrupts.deferred():  # a run directory is never left without its journal
         run_dir = new_run_dir(out, prep.config.name)
         log.journal_to(run_dir)
-    backend, act = _build(prep, hooks, run_dir, log, Path(out), out_existed)
-    interrupted = _run(prep, hooks, act, backend, log, run_dir)
+    with _loop_priority(prep, log):
+        backend, act = _build(prep, hooks, run_dir, log, Path(out), out_existed)
+        interrupted = _run(prep, hooks, act, backend, log, run_dir)
     with interrupts.deferred():
         _note_safe_stop(log, backend)
         if interrupted is None and interrupts.interrupted:  # noted while stopping safely
@@ -89,6 +92,19 @@ def run_trial(prep: PreparedTrial, out: Path, hooks: Optional[TrialHooks] = None
         e.safe_stop = _safe_stop_report(backend) or "the actuators were never enabled"
         raise
     return res
+
+
+@contextlib.contextmanager
+def _loop_priority(prep: PreparedTrial, log: TrialLog):
+    """A paced trial (a servo bus, real or emulated) runs ahead of the browser and other jobs on the
+    bench computer, where the OS allows; the log says what it got. A simulator's loop has no
+    deadline, so it keeps its priority and never crowds the machine."""
+    if prep.config.backend.kind != "dynamixel":
+        yield
+        return
+    with LoopPriority() as priority:
+        log.metadata["loop_priority"] = priority.got
+        yield
 
 
 def _build(prep: PreparedTrial, hooks: TrialHooks, run_dir: Path, log: TrialLog, out: Path,
@@ -170,8 +186,16 @@ def _abort_once(log: TrialLog, reason: str) -> None:
 def _note_safe_stop(log: TrialLog, backend: Actuators) -> None:
     """Record how the actuators were left (the backend's own read-back where it has one)."""
     report = _safe_stop_report(backend)
-    if report:
-        log.event(log.time[-1] if len(log) else 0.0, "safe-stop", report)
+    if report:  # on the backend's clock when it still reads (the stop came after the last row)
+        log.event(_clock(backend, log), "safe-stop", report)
+
+
+def _clock(backend: Actuators, log: TrialLog) -> float:
+    """Now on the trial's clock: the backend's, or the last row's where it cannot say."""
+    try:
+        return float(backend.now())
+    except Exception:  # a simulator already disconnected: its clock is gone with it
+        return float(log.time[-1]) if len(log) else 0.0
 
 
 def _safe_stop_report(backend: Optional[Actuators]) -> Optional[str]:

@@ -1,0 +1,87 @@
+"""A paced loop runs ahead of a browser and other jobs where the OS allows, says what it got, and
+leaves a longer-lived process as it found it; a simulator's loop never crowds the machine."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from bench.config.models import load_trial_config
+from bench.rig.emulated import EmulatorProcess
+from drivers.timing import LOOP_NICE, LoopPriority, raise_priority
+
+REPO = Path(__file__).resolve().parent.parent
+LAB = REPO / "hil_configs" / "lab_real.yaml"
+root_only = pytest.mark.skipif(os.geteuid() != 0, reason="raising a priority needs root or CAP_SYS_NICE")
+
+
+def _nice(tid: int = 0) -> int:
+    return os.getpriority(os.PRIO_PROCESS, tid)
+
+
+@root_only
+def test_every_thread_is_raised_for_the_block_and_put_back_after():
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    before = _nice()
+    try:
+        with LoopPriority() as got:
+            assert got.got == f"nice {LOOP_NICE}"
+            assert _nice() == LOOP_NICE and _nice(other.native_id) == LOOP_NICE
+            born = []  # a thread started inside inherits it
+            t = threading.Thread(target=lambda: born.append(_nice()))
+            t.start()
+            t.join()
+            assert born == [LOOP_NICE]
+        assert _nice() == before and _nice(other.native_id) == before
+    finally:
+        stop.set()
+        other.join()
+
+
+def test_a_user_not_allowed_to_raise_it_is_told_why_and_keeps_its_priority(monkeypatch):
+    """Without CAP_SYS_NICE or an RLIMIT_NICE allowance Linux answers EPERM; the loop runs on at
+    the priority it had, and the record says why."""
+    def refused(*args):
+        raise PermissionError(1, "Operation not permitted")
+
+    before = _nice()
+    monkeypatch.setattr(os, "setpriority", refused)
+    got = raise_priority()
+    assert got.startswith(f"nice {before} (raising it to {LOOP_NICE} was refused")
+    assert "CAP_SYS_NICE" in got and _nice() == before
+
+
+@root_only
+def test_already_higher_is_kept():
+    with LoopPriority(nice=-12):
+        assert raise_priority(LOOP_NICE) == "nice -12"  # never lowered by asking for less
+
+
+@root_only
+def test_the_emulated_rig_serves_at_the_loops_priority_and_a_trial_records_what_it_got(tmp_path):
+    """`hilbench emulate` (here as a trial's child) raises itself; a paced trial records its priority
+    in the log, its report and --json; a sim trial leaves its own alone."""
+    from bench.trial.plan import prepare
+    from bench.trial.run import run_trial
+
+    with EmulatorProcess(LAB) as rig:
+        deadline = time.monotonic() + 10
+        while _nice(rig.proc.pid) != LOOP_NICE and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _nice(rig.proc.pid) == LOOP_NICE
+        before = _nice()
+        res = run_trial(prepare(rig.retarget(load_trial_config(LAB))), tmp_path / "runs")
+        assert _nice() == before  # the test's process is as it was
+    assert res.timing.priority == f"nice {LOOP_NICE}"
+    assert res.timing.as_dict()["priority"] == f"nice {LOOP_NICE}"
+    assert f"at nice {LOOP_NICE}" in res.timing.summary_line()
+    assert f"The loop ran at nice {LOOP_NICE}." in (res.run_dir / "report.md").read_text()
+
+    sim = run_trial(prepare(load_trial_config(REPO / "hil_configs" / "sim_target1.yaml")), tmp_path / "sim")
+    assert sim.timing.priority is None and _nice() == before
