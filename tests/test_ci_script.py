@@ -1,0 +1,35 @@
+"""`.ci/run` runs the README's test command, lists the slowest tests, prints its own time above
+pytest's closing line, and fails when a test fails."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+CI = (REPO / ".ci" / "run").read_text()
+
+
+def test_ci_runs_the_readmes_test_command_and_lists_the_slowest_tests():
+    readme = (REPO / "README.md").read_text()
+    command = "pytest -q -n 2 --dist loadfile"
+    assert command in readme and command in CI
+    assert "--durations=15" in CI
+    assert 'exit "$rc"' in CI  # pytest's own exit code: a failing test fails CI
+
+
+def test_the_run_prints_its_time_above_pytests_closing_line(tmp_path):
+    (tmp_path / "test_one.py").write_text("def test_ok():\n    pass\n\ndef test_bad():\n    assert False\n")
+    (tmp_path / "conftest.py").write_text((REPO / "tests" / "conftest.py").read_text())
+    now = int(time.time())
+    env = dict(os.environ, CI_STARTED_AT=str(now - 90), CI_INSTALLED_AT=str(now - 60))
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(tmp_path)],
+                         capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert run.returncode == 1
+    lines = [ln for ln in run.stdout.splitlines() if ln.strip()]
+    ci = [i for i, ln in enumerate(lines) if ln.startswith("ci time: ")]
+    assert len(ci) == 1 and "install 30 s" in lines[ci[0]] and ci[0] < len(lines) - 1
+    assert "1 failed, 1 passed" in lines[-1]
