@@ -34,6 +34,7 @@ from bench.config.models import load_trial_config
 from bench.live.follow import RunFollower
 from bench.live.server import LiveServer
 from bench.trial.plan import prepare
+from drivers.errors import ExitCode
 
 __all__ = ["LiveProcess"]
 
@@ -131,8 +132,8 @@ def _die_with_parent(parent: int) -> None:
     """Killed by the kernel the moment ``parent`` dies (Linux), or at once if it already has."""
     if sys.platform.startswith("linux"):
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
-    if os.getppid() != parent:
-        sys.exit(0)
+    if os.getppid() != parent:  # the trial died before prctl took effect: nothing to serve
+        sys.exit(ExitCode.ORPHANED)
 
 
 def main(argv: list[str] | None = None) -> None:
