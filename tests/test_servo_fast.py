@@ -40,35 +40,51 @@ def test_the_fused_position_loop_gives_the_servo_arrays_torque_bit_for_bit(profi
                                                          rng.integers(0, 300, n))]
     params = ServoParams.datasheet([XM430_W350] * n, gains=gains, deadband_ticks=deadband).with_(
         profile_velocity=profile[0], profile_acceleration=profile[1], coulomb=0.02, viscous=0.05)
-    plain, fast, geared = ServoArray(params), ServoArray(params), ServoArray(params)
+    plain, fast, geared, geared_plain = (ServoArray(params) for _ in range(4))
     q, qd = rng.uniform(-0.5, 0.5, n), np.zeros(n)
-    plain.reset(q)
-    fast.reset(q)
-    geared.reset(q)
-    loop = PositionLoop(fast, DT)
     # the same servos behind transmissions, stepped from joint values (joint = offset + ratio · shaft)
     ratio, offset = rng.choice([0.01, 0.05, 1.0, -1.0], n), rng.uniform(-1.0, 1.0, n)
+    for array in (plain, fast, geared, geared_plain):
+        array.reset(q)
+    loop = PositionLoop(fast, DT)
     joint_loop = PositionLoop(geared, DT, ratio, offset)
     assert loop.fused is fused and joint_loop.fused is fused
     start = q.copy()
+    rewound = None
     for k in range(3000):
         if k % 400 == 0:
             goal = q + rng.uniform(-0.4, 0.4, n)
-            plain.set_goal(goal)
-            loop.set_goal(goal)
-            joint_loop.set_goal(goal)
-        if k == 1500:  # the owner lowers a limit, and says so
-            plain.current_limit[2] = fast.current_limit[2] = geared.current_limit[2] = 0.4
-            loop.refresh()
-            joint_loop.refresh()
+            for target in (plain, loop, joint_loop, geared_plain):
+                target.set_goal(goal)
+        if k == 1500:  # the owner lowers a limit through the array's setter: the loops refresh themselves
+            for array in (plain, fast, geared, geared_plain):
+                array.set_current_limit(2, 0.4)
+        if k == 2000:  # a snapshot to rewind to
+            rewound = (fast.snapshot(), geared.snapshot(), q.copy(), qd.copy(), [])
         tau = plain.step(DT, q, qd)
         assert np.array_equal(loop.step(q, qd), tau), f"step {k}"
-        at_joint = joint_loop.step_joint(offset + ratio * q, ratio * qd)
-        np.testing.assert_allclose(at_joint * ratio, tau, rtol=1e-9, atol=1e-12, err_msg=f"step {k}")
+        qj, qdj = offset + ratio * q, ratio * qd
+        at_joint = joint_loop.step_joint(qj, qdj)
+        shaft_tau = geared_plain.step(DT, (qj - offset) / ratio, qdj / ratio)
+        assert np.array_equal(at_joint, shaft_tau / ratio), f"step {k} from the joints"
+        if k >= 2000:
+            rewound[4].append((goal if k % 400 == 0 else None, tau, at_joint))
         qd = qd + DT * (tau - friction_torque(params, qd)) / 0.02
         q = q + DT * qd
     assert np.array_equal(fast.integral, plain.integral) and np.array_equal(fast.current, plain.current)
     assert np.abs(q - start).max() > 0.2  # the comparison covered real moves
+    # rewound through the array's snapshot, the loops give the same torques again, bit for bit
+    fast.restore(rewound[0])
+    geared.restore(rewound[1])
+    q, qd = rewound[2], rewound[3]
+    for new_goal, tau, at_joint in rewound[4]:
+        if new_goal is not None:
+            loop.set_goal(new_goal)
+            joint_loop.set_goal(new_goal)
+        assert np.array_equal(loop.step(q, qd), tau)
+        assert np.array_equal(joint_loop.step_joint(offset + ratio * q, ratio * qd), at_joint)
+        qd = qd + DT * (tau - friction_torque(params, qd)) / 0.02
+        q = q + DT * qd
 
 
 class _Counting:

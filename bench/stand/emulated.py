@@ -1,6 +1,7 @@
 """The test stand on the emulated servo bus: one XL330 (ID 1 unless told, 1 Mbps) driving the stand's URDF
 (a mass on an arm) through the shared servo model and plant, with hidden physics in the keys of
-a servo model file — a stand to rehearse recording, identification and prediction on, whose
+a servo model file (one parameter path: the same parameters build the emulated servo's motor and
+the plant's friction, applied by the stick-slip law the stand's rollout applies) — a stand to rehearse recording, identification and prediction on, whose
 answer is known."""
 
 from __future__ import annotations
@@ -56,9 +57,9 @@ class EmulatedStand:
             self._tmp = tempfile.TemporaryDirectory(prefix="stand-")
             urdf = Path(self._tmp.name) / "stand.urdf"
             urdf.write_text(stand_urdf(mass, length))
-        self.plant = _SaggingPlant(urdf, ["pendulum"], [1.0], [0.0], [0.0], self.params)
+        self.plant = _SaggingPlant(urdf, ["pendulum"], [1.0], [0.0], [0.0], self.params, friction_law="stick")
         servo = ServoModel(number, id=servo_id, registers={"Baud Rate": BAUD_INDEX}, input_voltage=supply_v,
-                           kt_scale=physics.get("kt_scale", 1.0), overload_time_s=60.0)
+                           motor=self.params, overload_time_s=60.0)
         self.plant.servo, self.plant.volts, self.plant.source_ohm = servo, supply_v, source_ohm
         self.plant.kt = float(self.params.kt[0])
         self.bus = DynamixelBusEmulator({servo_id: servo}, self.plant, realtime=realtime)

@@ -7,7 +7,10 @@ run the position PID on the integer encoder, with no profile (Profile Velocity 0
 bench writes it), no deadband and no current-based mode, needs only the PID and the motor:
 :class:`PositionLoop` runs exactly that, with the gains turned into per-sample constants once,
 in the very operations and order of :meth:`ServoArray.step_ticks` (the same numbers, bit for
-bit), on the array's own state, so the general step can take over at any sample.
+bit), on the array's own state, so the general step can take over at any sample. It is the
+core's one fused loop: every simulator that steps a servo array fast steps this, from the shaft
+(:meth:`PositionLoop.step`) or from the joints (:meth:`PositionLoop.step_joint`, the same loop after
+the transmission), and ``tests/test_servo_fast.py`` holds both bit-equal to the array's step.
 """
 
 from __future__ import annotations
@@ -23,8 +26,10 @@ class PositionLoop:
     """The position PID and motor of every slot of ``servos`` at a sample of ``dt`` s.
 
     :attr:`fused` says whether the plain case holds; :meth:`refresh` works the constants out
-    again after the owner changed a register array in place (gains, limits, modes) or reset
-    a servo; a new :attr:`ServoArray.supply` array is taken as it comes. Outside the plain case,
+    again; the array's setters (:meth:`ServoArray.set_current_limit`, the resets, :meth:`ServoArray.restore`)
+    bump its :attr:`ServoArray.version` and the next step refreshes by itself (an owner writing a
+    register array in place calls :meth:`refresh`); a new :attr:`ServoArray.supply` array is taken
+    as it comes. Outside the plain case,
     and on the first sample after a reset (the derivative has no previous error yet),
     :meth:`step` is :meth:`ServoArray.step`.
     """
@@ -41,6 +46,7 @@ class PositionLoop:
     def refresh(self) -> None:
         """Constants from the registers as they are now; whether the plain case holds."""
         s, p = self.servos, self.servos.params
+        self._version = s.version
         self.fused = bool(s.pid.all() and not s.profile_velocity.any() and np.isinf(s.vmax).all()
                           and not (s.deadband > 0).any() and not s.current_based.any())
         self._primed = bool(s.has_prev.all())
@@ -57,17 +63,13 @@ class PositionLoop:
         self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
         self._ke, self._resistance, self._kt = p.ke, p.resistance, p.kt
         self._ilim, self._neg_ilim = s.current_limit.copy(), -s.current_limit
-        # the same through the transmissions: ticks from joint values, torque at the joint
-        r = self._ratio
-        self._joint_tick = self._inv_tick / r
-        self._joint_zero = 0.5 - self._offset * self._inv_tick / r
-        self._joint_ke = self._ke / r
-        self._joint_kt = self._kt / r
 
     def set_goal(self, goal: np.ndarray) -> None:
         """New goal positions (rad), in ticks as the bus writes them: with no profile the
         trajectory is the goal at the next sample."""
         s = self.servos
+        if s.version != self._version:
+            self.refresh()
         if not self.fused:
             s.set_goal(goal)
             return
@@ -78,6 +80,8 @@ class PositionLoop:
     def step(self, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """One firmware sample at the shaft state (rad, rad/s); the motor torque (N·m)."""
         s = self.servos
+        if s.version != self._version:  # a setter of the array changed what the constants hold
+            self.refresh()
         if not (self.fused and self._primed):
             torque = s.step(self.dt, position, velocity)
             self._primed = bool(s.has_prev.all())
@@ -98,23 +102,7 @@ class PositionLoop:
         return self._kt * current
 
     def step_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """:meth:`step` from joint values and speeds, torques at the joints (shaft torque / ratio),
-        the transmissions folded into the constants: the same physics, with the encoder's
-        reading rounded from the joint value directly (it may differ from :meth:`step`'s in the
-        last bit, and a tick's boundary by as much)."""
-        s = self.servos
-        if not (self.fused and self._primed):
-            return self.step((q - self._offset) / self._ratio, qd / self._ratio) / self._ratio
-        present = np.floor(q * self._joint_tick + self._joint_zero)
-        error = s.traj - present
-        integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
-        u = self._kp * error + integral
-        u += self._kd * (error - s.prev_error)
-        pwm = np.minimum(np.maximum(u, self._neg_cap), self._cap)
-        if s.supply is not self._supply:
-            self._supply = s.supply
-            self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
-        current = (pwm * self._volts - self._joint_ke * qd) / self._resistance
-        current = np.minimum(np.maximum(current, self._neg_ilim), self._ilim)
-        s.present, s.integral, s.prev_error, s.pwm, s.current = present, integral, error, pwm, current
-        return self._joint_kt * current
+        """:meth:`step` from joint values and speeds, torques at the joints (shaft torque / ratio):
+        the shaft's state worked out as the plant reports it, then the one loop, so a step from the
+        joints gives :meth:`step`'s very torques (and the servo array's) bit for bit."""
+        return self.step((q - self._offset) / self._ratio, qd / self._ratio) / self._ratio
