@@ -166,3 +166,29 @@ def test_identifications_rollout_on_one_joint_is_the_servo_model_sim() -> None:
     wrong[0, 3] *= 3
     q_wrong = simulate_run(setup, run, SlotPhysics(np.zeros(1, dtype=int), wrong), window_s=10.0)[0][:, 0]
     assert np.abs(q_wrong - run.q[:, 0]).mean() > 100 * max(error, 1e-8)
+
+
+def test_the_emulated_rigs_servos_run_the_motors_of_their_physics(tmp_path) -> None:
+    """The emulated rig's bus steps the motors ``emulator.servo_physics`` describes (Kt, Ke and R
+    each), the very parameters its plant and the sim's servo model are built from, not a datasheet
+    motor scaled by kt_scale alone."""
+    import yaml
+
+    from bench.config.models import load_trial_config
+    from bench.rig.emulated import EmulatedRig
+
+    data = yaml.safe_load((REPO / "hil_configs" / "lab_real.yaml").read_text())
+    data.setdefault("emulator", {})["servo_physics"] = {
+        "all": {"kt_scale": 0.8, "ke_scale": 0.9, "resistance_ohm": 6.5},
+        "theta5": {"resistance_ohm": 9.0}}
+    path = tmp_path / "lab.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with EmulatedRig(load_trial_config(path), realtime=False) as rig:
+        hidden, bank = rig.servo_params, rig.bus._bank.params
+        joints = [joint for _, joint in rig.bus._servos]
+        for name in ("kt", "ke", "resistance"):
+            assert np.array_equal(getattr(bank, name), getattr(hidden, name)[joints]), name
+        theta5 = rig.robot.joint_names.index("theta5")
+        assert hidden.resistance[theta5] == 9.0 and set(hidden.resistance) == {6.5, 9.0}
+        datasheet = ServoParams.datasheet([XM430_W350])
+        assert not np.allclose(bank.ke, 0.8 * datasheet.ke[0])  # Ke scaled on its own, as the file says
