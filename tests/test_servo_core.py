@@ -27,7 +27,7 @@ from drivers.servo.fast import PositionLoop
 from drivers.servo.plant import PyBulletPlant
 
 REPO = Path(__file__).resolve().parents[1]
-#: The physics ``hilbench identify`` fitted on the twelve real XL330 logs (the stand's offset left out).
+#: The physics ``hilbench identify`` fitted on the twelve real XL330 logs (the stand's gravity offset too).
 IDENTIFIED = REPO / "tests" / "data" / "xl330_stand_identified.yaml"
 STAND_URDF = REPO / "urdf" / "test_stand_xl330.urdf"
 RAD_PER_TICK = 2 * np.pi / 4096
@@ -95,9 +95,12 @@ def test_the_emulated_stand_with_the_identified_physics_is_what_predict_says(tmp
     motor from the model file) with the physics identified from the twelve real logs, recorded on
     BAM's four trajectories and predicted by that same model file: within 0.002 rad mean MAE
     (measured 0.0012; 0.029 when the emulated motor took only kt_scale from the file)."""
-    physics = yaml.safe_load(IDENTIFIED.read_text())["joints"]["pendulum"]
+    model = yaml.safe_load(IDENTIFIED.read_text())
+    physics, offset = model["joints"]["pendulum"], model["stand"]["gravity_offset_rad"]
+    assert offset != 0.0
     paths = []
-    with EmulatedStand(physics, mass=0.49, length=0.1, supply_v=7.0, source_ohm=1.0) as stand, \
+    with EmulatedStand(physics, mass=0.49, length=0.1, supply_v=7.0, source_ohm=1.0,
+                       gravity_offset_rad=offset) as stand, \
             ServoBus(stand.port, BAUD, tries=30) as bus:
         clock = [0.0]
 
@@ -109,7 +112,7 @@ def test_the_emulated_stand_with_the_identified_physics_is_what_predict_says(tmp
 
         for name, kp in (("sin_sin", 400), ("lift_and_drop", 200), ("up_and_down", 400), ("sin_time_square", 800)):
             log = record_stand_log(StandServo(bus), name, kp=kp, mass=stand.mass, length=stand.length, vin=7.4,
-                                   wait=wait, duration_s=4.0, settle_s=0.5)
+                                   wait=wait)
             paths.append(write_stand_log(log, tmp_path / f"{name}.json"))
     prediction = predict(IDENTIFIED, paths)
     assert prediction.mean_mae <= 0.002, [s.mae for s in prediction.scores]
@@ -117,7 +120,7 @@ def test_the_emulated_stand_with_the_identified_physics_is_what_predict_says(tmp
     # the check can fail: the datasheet's motor (no identified R or Ke) misses by far more
     physics.pop("resistance_ohm"), physics.pop("ke_scale")
     other = tmp_path / "other.yaml"
-    other.write_text(yaml.safe_dump({"robot": "test-stand", "servo": "XL330-M288", "joints": {"pendulum": physics}}))
+    other.write_text(yaml.safe_dump({**model, "joints": {"pendulum": physics}}))
     assert predict(other, paths).mean_mae > 5 * prediction.mean_mae
 
 

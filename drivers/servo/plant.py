@@ -55,9 +55,10 @@ class PyBulletPlant:
 
     def __init__(self, urdf: Path, joint_names: Sequence[str], ratio: Sequence[float],
                  offset: Sequence[float], initial_position: Sequence[float], servos: ServoParams,
-                 physics_dt: float = 0.001, gravity: float = -9.81,
+                 physics_dt: float = 0.001, gravity: float | Sequence[float] = -9.81,
                  joint_friction: Sequence[float] | None = None, friction_law: FrictionLaw = "smooth") -> None:
-        """``friction_law``: how the gearbox's dry friction is applied (:mod:`drivers.servo.friction`;
+        """``gravity``: along z (m/s²), or the whole vector (a stand tilted from plumb).
+        ``friction_law``: how the gearbox's dry friction is applied (:mod:`drivers.servo.friction`;
         ``"stick"`` needs a diagonal mass matrix: one joint)."""
         pb = quiet_pybullet()
         self._pb = pb
@@ -67,7 +68,7 @@ class PyBulletPlant:
         with muted_output():
             self._c = pb.connect(pb.DIRECT)
         c = self._c
-        pb.setGravity(0, 0, gravity, physicsClientId=c)
+        pb.setGravity(*((0.0, 0.0, gravity) if np.ndim(gravity) == 0 else gravity), physicsClientId=c)
         self.body = pb.loadURDF(str(urdf), useFixedBase=True, flags=pb.URDF_USE_INERTIA_FROM_FILE,
                                 physicsClientId=c)
         infos = [pb.getJointInfo(self.body, j, physicsClientId=c)
