@@ -31,9 +31,10 @@ TOLERANCE = plant_module.MASS_MATRIX_TOLERANCE
 @pytest.mark.parametrize("profile, deadband, fused", [((0, 0), 0, True), ((60, 20), 0, False),
                                                       ((0, 0), 3, False)])
 def test_the_fused_position_loop_gives_the_servo_arrays_torque_bit_for_bit(profile, deadband, fused):
-    """Nine servos with mixed gains through moves, a current limit lowered half-way: the fused
-    loop (or, outside the plain case, the general step it hands over to) gives the very torques,
-    and from joint values through transmissions the same torques at the joints."""
+    """Nine servos with mixed gains through moves, a current limit lowered half-way through the
+    array's setter: the fused loop (or, outside the plain case, the general step it hands over to)
+    gives the array's very torques, from the shafts and from joint values through transmissions
+    (the path the servo sim runs), bit for bit; rewound to a snapshot of the array, it gives them again."""
     rng = np.random.default_rng(3)
     n = 9
     gains = [(int(p), int(i), int(d)) for p, i, d in zip(rng.integers(400, 1500, n), rng.integers(0, 400, n),
@@ -48,6 +49,7 @@ def test_the_fused_position_loop_gives_the_servo_arrays_torque_bit_for_bit(profi
         array.reset(q)
     loop = PositionLoop(fast, DT)
     joint_loop = PositionLoop(geared, DT, ratio, offset)
+    transmission = geared_plain.transmission(ratio, offset)
     assert loop.fused is fused and joint_loop.fused is fused
     start = q.copy()
     rewound = None
@@ -65,8 +67,8 @@ def test_the_fused_position_loop_gives_the_servo_arrays_torque_bit_for_bit(profi
         assert np.array_equal(loop.step(q, qd), tau), f"step {k}"
         qj, qdj = offset + ratio * q, ratio * qd
         at_joint = joint_loop.step_joint(qj, qdj)
-        shaft_tau = geared_plain.step(DT, (qj - offset) / ratio, qdj / ratio)
-        assert np.array_equal(at_joint, shaft_tau / ratio), f"step {k} from the joints"
+        assert np.array_equal(at_joint, geared_plain.step_joint(DT, qj, qdj, transmission)), f"step {k} from the joints"
+        np.testing.assert_allclose(at_joint * ratio, tau, rtol=1e-9, atol=1e-12, err_msg=f"step {k}")
         if k >= 2000:
             rewound[4].append((goal if k % 400 == 0 else None, tau, at_joint))
         qd = qd + DT * (tau - friction_torque(params, qd)) / 0.02

@@ -9,8 +9,9 @@ bench writes it), no deadband and no current-based mode, needs only the PID and 
 in the very operations and order of :meth:`ServoArray.step_ticks` (the same numbers, bit for
 bit), on the array's own state, so the general step can take over at any sample. It is the
 core's one fused loop: every simulator that steps a servo array fast steps this, from the shaft
-(:meth:`PositionLoop.step`) or from the joints (:meth:`PositionLoop.step_joint`, the same loop after
-the transmission), and ``tests/test_servo_fast.py`` holds both bit-equal to the array's step.
+(:meth:`PositionLoop.step`) or from the joints (:meth:`PositionLoop.step_joint`, the encoder read
+through the transmission), and ``tests/test_servo_fast.py`` holds each bit-equal to the array's
+own step (:meth:`ServoArray.step`, :meth:`ServoArray.step_joint`).
 """
 
 from __future__ import annotations
@@ -63,6 +64,10 @@ class PositionLoop:
         self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
         self._ke, self._resistance, self._kt = p.ke, p.resistance, p.kt
         self._ilim, self._neg_ilim = s.current_limit.copy(), -s.current_limit
+        # the same through the transmissions: ticks from joint values, torque at the joint
+        self._transmission = s.transmission(self._ratio, self._offset)
+        self._joint_tick, self._joint_zero = self._transmission.tick, self._transmission.zero
+        self._joint_kt = self._transmission.kt
 
     def set_goal(self, goal: np.ndarray) -> None:
         """New goal positions (rad), in ticks as the bus writes them: with no profile the
@@ -87,6 +92,24 @@ class PositionLoop:
             self._primed = bool(s.has_prev.all())
             return torque
         present = np.floor(position * self._inv_tick + 0.5)
+        return self._kt * self._drive(s, present, velocity)
+
+    def step_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """:meth:`step` from joint values and speeds, torques at the joints (shaft torque / ratio),
+        the transmissions folded into the constants: :meth:`ServoArray.step_joint`'s very numbers."""
+        s = self.servos
+        if s.version != self._version:
+            self.refresh()
+        if not (self.fused and self._primed):
+            torque = s.step_joint(self.dt, q, qd, self._transmission)
+            self._primed = bool(s.has_prev.all())
+            return torque
+        present = np.floor(q * self._joint_tick + self._joint_zero)
+        return self._joint_kt * self._drive(s, present, qd / self._ratio)
+
+    def _drive(self, s: ServoArray, present: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """The PID and the motor for encoder readings ``present`` (ticks) at shaft speeds ``omega``:
+        the motor currents (A), the array's state advanced (the one copy of the fused loop)."""
         error = s.traj - present
         integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
         u = self._kp * error + integral
@@ -95,14 +118,8 @@ class PositionLoop:
         if s.supply is not self._supply:  # the owner handed in a new supply (a log's measured one)
             self._supply = s.supply
             self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
-        current = (pwm * self._volts - self._ke * velocity) / self._resistance
+        current = (pwm * self._volts - self._ke * omega) / self._resistance
         current = np.minimum(np.maximum(current, self._neg_ilim), self._ilim)
-        s.present, s.omega, s.integral, s.prev_error, s.pwm, s.current = (present, velocity, integral, error,
+        s.present, s.omega, s.integral, s.prev_error, s.pwm, s.current = (present, omega, integral, error,
                                                                           pwm, current)
-        return self._kt * current
-
-    def step_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """:meth:`step` from joint values and speeds, torques at the joints (shaft torque / ratio):
-        the shaft's state worked out as the plant reports it, then the one loop, so a step from the
-        joints gives :meth:`step`'s very torques (and the servo array's) bit for bit."""
-        return self.step((q - self._offset) / self._ratio, qd / self._ratio) / self._ratio
+        return current

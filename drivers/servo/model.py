@@ -40,6 +40,7 @@ from drivers.dynamixel.control_table import model_spec, x_series_table
 from drivers.servo.friction import FRICTION_SMOOTHING_RAD_S, friction_level, friction_torque, stopping_friction
 
 __all__ = ["FIRMWARE_PERIOD_S", "FRICTION_SMOOTHING_RAD_S", "LOAD_FRICTION_FIELDS", "ServoArray", "ServoParams",
+           "Transmission",
            "friction_level", "friction_torque", "stopping_friction"]
 
 #: The firmware's control loop period (s): the PID gains are per sample of this length.
@@ -178,6 +179,18 @@ class ServoParams:
     def back_emf_damping(self) -> np.ndarray:
         """Kt·Ke/R (N·m·s/rad): the damping the motor's back-EMF gives at a fixed PWM."""
         return self.kt * self.ke / self.resistance
+
+
+@dataclass(frozen=True)
+class Transmission:
+    """Joints behind the servos' shafts (joint = offset + ratio · shaft), per joint: the encoder's
+    ticks per joint unit and its reading at joint value 0 (+ ½, for the rounding), Kt at the joint."""
+
+    ratio: np.ndarray
+    offset: np.ndarray
+    tick: np.ndarray
+    zero: np.ndarray
+    kt: np.ndarray
 
 
 class ServoArray:
@@ -335,6 +348,20 @@ class ServoArray:
         amax = np.where((pv == 0) | (pa == 0), np.inf, pa * self._accel_unit / self._rad_per_tick)
         idx = np.flatnonzero(changed)
         self.plan_slot(idx, goal_ticks[idx], vmax[idx], amax[idx])
+
+    def transmission(self, ratio: Sequence[float] | np.ndarray, offset: Sequence[float] | np.ndarray) -> "Transmission":
+        """The joints behind the shafts (joint = offset + ratio · shaft), its constants worked out once."""
+        ratio, offset = np.asarray(ratio, dtype=float), np.asarray(offset, dtype=float)
+        tick = (1.0 / self._rad_per_tick) / ratio
+        return Transmission(ratio, offset, tick, 0.5 - offset * tick, self.params.kt / ratio)
+
+    def step_joint(self, dt: float, q: np.ndarray, qd: np.ndarray, transmission: "Transmission") -> np.ndarray:
+        """One firmware sample from the joints' values and speeds behind ``transmission``: the
+        encoder read from the joint value, the torques at the joints (shaft torque / ratio)."""
+        self.present = np.floor(q * transmission.tick + transmission.zero)
+        self.omega = qd / transmission.ratio
+        self.step_ticks(dt)
+        return transmission.kt * self.current
 
     def step(self, dt: float, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """One firmware sample of ``dt`` s at the shaft state (rad, rad/s); the motor torque (N·m)."""
