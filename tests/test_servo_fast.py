@@ -67,7 +67,8 @@ def test_the_fused_position_loop_gives_the_servo_arrays_torque_bit_for_bit(profi
         assert np.array_equal(loop.step(q, qd), tau), f"step {k}"
         qj, qdj = offset + ratio * q, ratio * qd
         at_joint = joint_loop.step_joint(qj, qdj)
-        assert np.array_equal(at_joint, geared_plain.step_joint(DT, qj, qdj, transmission)), f"step {k} from the joints"
+        expected = geared_plain.step_joint(DT, qj, qdj, transmission)
+        assert np.array_equal(at_joint, expected), f"step {k} from the joints"
         np.testing.assert_allclose(at_joint * ratio, tau, rtol=1e-9, atol=1e-12, err_msg=f"step {k}")
         if k >= 2000:
             rewound[4].append((goal if k % 400 == 0 else None, tau, at_joint))

@@ -1,8 +1,8 @@
 """The test stand on the emulated servo bus: one XL330 (ID 1 unless told, 1 Mbps) driving the stand's URDF
 (a mass on an arm) through the shared servo model and plant, with hidden physics in the keys of
-a servo model file (one parameter path: the same parameters build the emulated servo's motor and
-the plant's friction, applied by the stick-slip law the stand's rollout applies) — a stand to rehearse recording, identification and prediction on, whose
-answer is known."""
+a servo model file — a stand to rehearse recording, identification and prediction on, whose
+answer is known. One parameter path: the same parameters build the emulated servo's motor (Kt,
+Ke, R) and the plant's friction, applied by the stick-slip law the stand's rollout applies."""
 
 from __future__ import annotations
 

@@ -11,8 +11,8 @@ measured supply voltage drives the motor; in between, the firmware and motor
 step together through the core's one integrator (:func:`~drivers.servo.joints.step_joints`, the
 pendulum's closed form as its diagonal mass matrix and bias), the friction applied as the
 stick-slip force of :mod:`drivers.servo.friction` (the load-dependent level from the motor's and
-gravity's torques), as the emulated stand's plant applies it. The rollout is open loop, as BAM scores a model: from the log's first
-measured position and velocity, never reset. ``tests/test_stand.py`` checks these dynamics
+gravity's torques), as the emulated stand's plant applies it. The rollout is open loop, as BAM
+scores a model: from the log's first measured position and velocity, never reset. ``tests/test_stand.py`` checks these dynamics
 against the stand's URDF in PyBullet.
 """
 

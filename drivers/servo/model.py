@@ -349,13 +349,15 @@ class ServoArray:
         idx = np.flatnonzero(changed)
         self.plan_slot(idx, goal_ticks[idx], vmax[idx], amax[idx])
 
-    def transmission(self, ratio: Sequence[float] | np.ndarray, offset: Sequence[float] | np.ndarray) -> "Transmission":
+    def transmission(self, ratio: Sequence[float] | np.ndarray,
+                     offset: Sequence[float] | np.ndarray) -> "Transmission":
         """The joints behind the shafts (joint = offset + ratio · shaft), its constants worked out once."""
         ratio, offset = np.asarray(ratio, dtype=float), np.asarray(offset, dtype=float)
         tick = (1.0 / self._rad_per_tick) / ratio
         return Transmission(ratio, offset, tick, 0.5 - offset * tick, self.params.kt / ratio)
 
-    def step_joint(self, dt: float, q: np.ndarray, qd: np.ndarray, transmission: "Transmission") -> np.ndarray:
+    def step_joint(self, dt: float, q: np.ndarray, qd: np.ndarray,
+                   transmission: "Transmission") -> np.ndarray:
         """One firmware sample from the joints' values and speeds behind ``transmission``: the
         encoder read from the joint value, the torques at the joints (shaft torque / ratio)."""
         self.present = np.floor(q * transmission.tick + transmission.zero)
