@@ -58,10 +58,16 @@ def test_no_friction_law_or_joint_integrator_is_written_outside_the_core() -> No
             if FRICTION_LAW.search(code) or INTEGRATOR.search(code):
                 found.append(f"{rel}:{number}: {line.strip()}")
     assert not found, "a second copy of the servo core:\n" + "\n".join(found)
-    # and the scan does see a copy: the identification rollout's old inline friction and step
+    # and the scan does see a copy: the old inline friction and steps of identification's rollout,
+    # the stand's rollout, the bus's InertiaPlant and the robot's plant
     old = ("        friction = level * np.tanh(w_ * smoothing) * inv_r\n"
            "        qd = qd + dt * (tau * inv_r + (b_emf - b) * qd - load[s].take(flat) - friction) / (\n"
-           "        q = q + dt * qd\n")
+           "        q = q + dt * qd\n"
+           "            qd = qd + net / inertia * dt\n"
+           "            q = q + qd * dt\n"
+           "                v_new = (inertia * v + dt * (tau - c * direction)) / (inertia + dt * b)\n"
+           "        qd_new = qd + dt * self._potrs(self._cholesky, rhs)[0]\n"
+           "            rhs -= self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)\n")
     assert all(FRICTION_LAW.search(x) or INTEGRATOR.search(x) for x in old.splitlines())
 
 
