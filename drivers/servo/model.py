@@ -37,11 +37,8 @@ from typing import Sequence
 import numpy as np
 
 from drivers.dynamixel.control_table import model_spec, x_series_table
-from drivers.servo.friction import FRICTION_SMOOTHING_RAD_S, friction_level, friction_torque, stopping_friction
 
-__all__ = ["FIRMWARE_PERIOD_S", "FRICTION_SMOOTHING_RAD_S", "LOAD_FRICTION_FIELDS", "ServoArray", "ServoParams",
-           "Transmission",
-           "friction_level", "friction_torque", "stopping_friction"]
+__all__ = ["FIRMWARE_PERIOD_S", "LOAD_FRICTION_FIELDS", "ServoArray", "ServoParams", "Transmission"]
 
 #: The firmware's control loop period (s): the PID gains are per sample of this length.
 FIRMWARE_PERIOD_S = 0.001
@@ -115,8 +112,8 @@ class ServoParams:
 
     @cached_property
     def _friction_terms(self) -> tuple[bool, bool, bool, bool]:
-        """Which terms of :func:`friction_level` any joint has: Stribeck peak, load, load at rest, quadratic
-        (worked out once: the friction is evaluated every step)."""
+        """Which terms of :func:`~drivers.servo.friction.friction_level` any joint has: Stribeck peak,
+        load, load at rest, quadratic (worked out once: the friction is evaluated every step)."""
         nonzero = lambda *names: any(bool(np.any(getattr(self, f) != 0.0)) for f in names)  # noqa: E731
         return (bool(np.any(self.stribeck > 0.0)), nonzero("load_motor", "load_external"),
                 nonzero("load_stribeck_motor", "load_stribeck_external"),
