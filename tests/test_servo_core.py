@@ -160,9 +160,9 @@ def _sim_log(params: ServoParams, seconds: float = 3.0) -> tuple[LoggedRun, RigS
 
 def test_identifications_rollout_on_one_joint_is_the_servo_model_sim() -> None:
     """Identification's one-joint rollout, given the sim's own log (its inertia and bias along it) and
-    the sim's physics, retraces the servo-model sim — with a Stribeck exponent of 1.5 and load-dependent
-    gear friction, which the rollout's old copy of the friction left out — and a Coulomb level 3 times
-    off does not."""
+    the sim's physics, retraces the servo-model sim to the last bit or two — with a Stribeck exponent
+    of 1.5 and load-dependent gear friction, which the rollout's old copy of the friction left out
+    (that copy lands 2.7 mrad off) — and a Coulomb level 3 times off does not."""
     params = ServoParams.datasheet([XM430_W350], armature=0.01, coulomb=0.03, viscous=0.02, stribeck=0.06,
                                    stribeck_velocity=0.2).with_(stribeck_alpha=1.5, load_motor=0.1,
                                                                 load_external=0.15)
@@ -170,7 +170,14 @@ def test_identifications_rollout_on_one_joint_is_the_servo_model_sim() -> None:
     truth = np.array([[1.0, 0.01, 0.02, 0.03, 0.06, 0.2]])
     q_sim = simulate_run(setup, run, SlotPhysics(np.zeros(1, dtype=int), truth), window_s=10.0)[0][:, 0]
     error = np.abs(q_sim - run.q[:, 0]).mean()
-    assert np.ptp(run.q) > 1.0 and error < 1e-6, error
+    assert np.ptp(run.q) > 1.0 and error < 1e-9, error  # measured 2e-16
+    # the rollout's old copy of the friction (exponent 2, no load-dependent friction): 2.7 mrad off
+    import dataclasses
+
+    old_law = dataclasses.replace(setup, datasheet=params.with_(stribeck_alpha=2.0, load_motor=0.0,
+                                                                load_external=0.0))
+    q_old = simulate_run(old_law, run, SlotPhysics(np.zeros(1, dtype=int), truth), window_s=10.0)[0][:, 0]
+    assert np.abs(q_old - run.q[:, 0]).mean() > 1e-3
     wrong = truth.copy()
     wrong[0, 3] *= 3
     q_wrong = simulate_run(setup, run, SlotPhysics(np.zeros(1, dtype=int), wrong), window_s=10.0)[0][:, 0]
