@@ -31,44 +31,63 @@ TOLERANCE = plant_module.MASS_MATRIX_TOLERANCE
 @pytest.mark.parametrize("profile, deadband, fused", [((0, 0), 0, True), ((60, 20), 0, False),
                                                       ((0, 0), 3, False)])
 def test_the_fused_position_loop_gives_the_servo_arrays_torque_bit_for_bit(profile, deadband, fused):
-    """Nine servos with mixed gains through moves, a current limit lowered half-way: the fused
-    loop (or, outside the plain case, the general step it hands over to) gives the very torques,
-    and from joint values through transmissions the same torques at the joints."""
+    """Nine servos with mixed gains through moves, a current limit lowered half-way through the
+    array's setter: the fused loop (or, outside the plain case, the general step it hands over to)
+    gives the array's very torques, from the shafts and from joint values through transmissions
+    (the path the servo sim runs), bit for bit; rewound to a snapshot of the array, it gives them again."""
     rng = np.random.default_rng(3)
     n = 9
     gains = [(int(p), int(i), int(d)) for p, i, d in zip(rng.integers(400, 1500, n), rng.integers(0, 400, n),
                                                          rng.integers(0, 300, n))]
     params = ServoParams.datasheet([XM430_W350] * n, gains=gains, deadband_ticks=deadband).with_(
         profile_velocity=profile[0], profile_acceleration=profile[1], coulomb=0.02, viscous=0.05)
-    plain, fast, geared = ServoArray(params), ServoArray(params), ServoArray(params)
+    plain, fast, geared, geared_plain = (ServoArray(params) for _ in range(4))
     q, qd = rng.uniform(-0.5, 0.5, n), np.zeros(n)
-    plain.reset(q)
-    fast.reset(q)
-    geared.reset(q)
-    loop = PositionLoop(fast, DT)
     # the same servos behind transmissions, stepped from joint values (joint = offset + ratio · shaft)
     ratio, offset = rng.choice([0.01, 0.05, 1.0, -1.0], n), rng.uniform(-1.0, 1.0, n)
+    for array in (plain, fast, geared, geared_plain):
+        array.reset(q)
+    loop = PositionLoop(fast, DT)
     joint_loop = PositionLoop(geared, DT, ratio, offset)
+    transmission = geared_plain.transmission(ratio, offset)
     assert loop.fused is fused and joint_loop.fused is fused
     start = q.copy()
+    rewound = None
     for k in range(3000):
         if k % 400 == 0:
             goal = q + rng.uniform(-0.4, 0.4, n)
-            plain.set_goal(goal)
-            loop.set_goal(goal)
-            joint_loop.set_goal(goal)
-        if k == 1500:  # the owner lowers a limit, and says so
-            plain.current_limit[2] = fast.current_limit[2] = geared.current_limit[2] = 0.4
-            loop.refresh()
-            joint_loop.refresh()
+            for target in (plain, loop, joint_loop, geared_plain):
+                target.set_goal(goal)
+        if k == 1500:  # the owner lowers a limit through the array's setter: the loops refresh themselves
+            for array in (plain, fast, geared, geared_plain):
+                array.set_current_limit(2, 0.4)
+        if k == 2000:  # a snapshot to rewind to
+            rewound = (fast.snapshot(), geared.snapshot(), q.copy(), qd.copy(), [])
         tau = plain.step(DT, q, qd)
         assert np.array_equal(loop.step(q, qd), tau), f"step {k}"
-        at_joint = joint_loop.step_joint(offset + ratio * q, ratio * qd)
+        qj, qdj = offset + ratio * q, ratio * qd
+        at_joint = joint_loop.step_joint(qj, qdj)
+        expected = geared_plain.step_joint(DT, qj, qdj, transmission)
+        assert np.array_equal(at_joint, expected), f"step {k} from the joints"
         np.testing.assert_allclose(at_joint * ratio, tau, rtol=1e-9, atol=1e-12, err_msg=f"step {k}")
+        if k >= 2000:
+            rewound[4].append((goal if k % 400 == 0 else None, tau, at_joint))
         qd = qd + DT * (tau - friction_torque(params, qd)) / 0.02
         q = q + DT * qd
     assert np.array_equal(fast.integral, plain.integral) and np.array_equal(fast.current, plain.current)
     assert np.abs(q - start).max() > 0.2  # the comparison covered real moves
+    # rewound through the array's snapshot, the loops give the same torques again, bit for bit
+    fast.restore(rewound[0])
+    geared.restore(rewound[1])
+    q, qd = rewound[2], rewound[3]
+    for new_goal, tau, at_joint in rewound[4]:
+        if new_goal is not None:
+            loop.set_goal(new_goal)
+            joint_loop.set_goal(new_goal)
+        assert np.array_equal(loop.step(q, qd), tau)
+        assert np.array_equal(joint_loop.step_joint(offset + ratio * q, ratio * qd), at_joint)
+        qd = qd + DT * (tau - friction_torque(params, qd)) / 0.02
+        q = q + DT * qd
 
 
 class _Counting:

@@ -16,7 +16,7 @@ from bench.stand.errors import StandError
 from bench.stand.logs import read_stand_log, read_stand_logs
 from bench.stand.predict import predict
 from drivers.servo import ServoParams
-from drivers.servo.model import friction_level, stopping_friction
+from drivers.servo.friction import friction_level, stopping_friction
 
 DATA = Path(__file__).parent / "data" / "bam-xl330"
 LOGS = DATA / "logs"

@@ -45,7 +45,7 @@ def recorded(tmp_path_factory) -> list[Path]:
 
 def test_the_hidden_physics_predicts_the_emulated_stand(recorded, tmp_path) -> None:
     """The stand's analytic simulator with the emulator's hidden physics replays the emulated logs
-    (the emulator's PyBullet plant, smoothed friction, 1 kHz bus, a supply sagging under load) to
+    (the emulator's PyBullet plant, the same stick-slip friction, 1 kHz bus, a supply sagging under load) to
     a few mrad, driven by the logged supply; told the nominal supply it misses by far more, and the
     datasheet by a tenth of a radian or more."""
     text = ("robot: test-stand\njoints:\n  pendulum: {coulomb_nm: 0.01, viscous_nms: 0.005, "

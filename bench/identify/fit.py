@@ -35,6 +35,7 @@ from bench.identify.observability import (cluster_robust_stderr, not_observable,
 from bench.identify.search import cma_search
 from bench.identify.simulate import PHYSICS, SlotPhysics, file_values, merge_runs, simulate_run
 from drivers.dynamixel.control_table import x_series_table
+from drivers.servo.friction import regressors
 
 __all__ = ["FitResult", "JointFit", "fit_servos", "initial_physics"]
 
@@ -306,10 +307,10 @@ def regression_guess(setup: RigSetup, runs: Sequence[LoggedRun], joints: np.ndar
         tq, a_, v_, y_ = (np.concatenate(c) for c in (torque, qdd, qd, y))
         if len(tq) < 20:
             continue
-        sign, w = np.sign(v_), np.abs(v_ / r)
         best = None
         for ws in STRIBECK_GRID:
-            A = np.stack([tq, -a_ / r ** 2, -v_ / r ** 2, -sign / r, -sign * np.exp(-(w / ws) ** 2) / r], axis=1)
+            coulomb, peak = regressors(v_ / abs(r), ws)  # the shaft's speed, signed as the joint's
+            A = np.stack([tq, -a_ / r ** 2, -v_ / r ** 2, -coulomb / r, -peak / r], axis=1)
             norm = np.maximum(np.abs(A).max(axis=0), 1e-12)
             sol = lsq_linear(A / norm, y_, bounds=(lower * norm, upper * norm))
             if best is None or sol.cost < best[0]:

@@ -5,8 +5,11 @@ A *slot* is one joint under one set of physics; all slots step together through 
 
     (M_jj + J_a/r² + dt·B/r²) Δq̇ = dt · (τ/r + B_emf q̇ − B q̇ − load − τ_f(q̇/r)/r)
 
-integrated as :class:`~drivers.servo.plant.PyBulletPlant` integrates the whole robot, with
-``M_jj`` and ``load`` (gravity, Coriolis, the other joints' accelerations) taken from the log.
+integrated by the core's one integrator (:func:`~drivers.servo.joints.step_joints`, as
+:class:`~drivers.servo.plant.PyBulletPlant` integrates the whole robot), with ``M_jj`` and ``load``
+(gravity, Coriolis, the other joints' accelerations) taken from the log as its diagonal mass
+matrix and bias, and every friction law of :mod:`drivers.servo.friction` (the Stribeck exponent and
+the load-dependent gear friction included).
 The goals arrive at the logged cycle times; position and current are sampled where the driver
 read them, just before each goal.
 """
@@ -21,7 +24,9 @@ import numpy as np
 from bench.identify.logs import LoggedRun, RigSetup
 from drivers.servo import ServoArray, ServoParams
 from drivers.servo.fast import PositionLoop
-from drivers.servo.model import FIRMWARE_PERIOD_S, FRICTION_SMOOTHING_RAD_S
+from drivers.servo.friction import friction_level
+from drivers.servo.joints import step_joints
+from drivers.servo.model import FIRMWARE_PERIOD_S
 
 __all__ = ["FILE_KEYS", "PHYSICS", "SlotPhysics", "file_values", "merge_runs", "WINDOW_S", "simulate_run", "windows_of"]
 
@@ -125,11 +130,10 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     inv_r = 1.0 / r
     off = setup.offset[j]
     lower, upper = setup.lower[j], setup.upper[j]
-    b_emf = p.back_emf_damping * inv_r ** 2
-    b = b_emf + p.viscous * inv_r ** 2
+    abs_inv_r = np.abs(inv_r)
+    viscous = p.viscous * inv_r ** 2
+    b = p.back_emf_damping * inv_r ** 2 + viscous
     ja = p.armature * inv_r ** 2
-    coulomb, peak = p.coulomb, np.where(p.stribeck > 0, p.stribeck, p.coulomb)
-    ws = np.maximum(p.stribeck_velocity, 1e-9)
 
     # each window's rows on its own step grid, and the robot around the joint along it
     t = run.time
@@ -175,7 +179,6 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     q_out = np.empty((len(t), S))
     i_out = np.empty((len(t), S))
     qd_out = np.empty((len(t), S))
-    smoothing = 1.0 / FRICTION_SMOOTHING_RAD_S
     for s in range(n_steps):
         ev = reads.get(s)
         if ev is not None:  # the driver reads ...
@@ -190,15 +193,10 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
             idx = (np.array([e[1] for e in ev])[:, None] * S + columns[None, :])
             goal[idx] = (run.goal[rows[:, None], slots.joint[None, :]] - off[idx]) * inv_r[idx]
             loop.set_goal(goal)
-        w_ = qd * inv_r
-        tau = loop.step((q - off) * inv_r, w_)
-        level = coulomb + (peak - coulomb) * np.exp(-(w_ / ws) ** 2)
-        friction = level * np.tanh(w_ * smoothing) * inv_r
-        qd = qd + dt * (tau * inv_r + (b_emf - b) * qd - load[s].take(flat) - friction) / (
-            inertia[s].take(flat) + extra)
-        q = q + dt * qd
-        if (q < lower).any() or (q > upper).any():  # hard stops
-            stop = (q < lower) | (q > upper)
-            q = np.clip(q, lower, upper)
-            qd = np.where(stop, 0.0, qd)
+        tau = loop.step((q - off) * inv_r, qd * inv_r)
+        joint_load = load[s].take(flat)
+        speed = qd * abs_inv_r  # the shaft's speed, signed as the joint's
+        dry = friction_level(p, speed, tau, -joint_load * r) * abs_inv_r
+        q, qd = step_joints(q, qd, dt, tau * inv_r - viscous * qd - joint_load, inertia[s].take(flat) + extra,
+                            dry, "smooth", speed, lower, upper)
     return q_out, i_out, qd_out

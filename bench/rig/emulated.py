@@ -116,7 +116,7 @@ class EmulatedRig:
                 registers.update({k: v for k, v in gains if v is not None})
             registers.update(planted.servo_registers.get(n, {}))
             servos[sc.id] = ServoModel(models[n], id=sc.id, registers=registers, deadband_ticks=deadband,
-                                       kt_scale=e.physics_of(n).get("kt_scale", 1.0))
+                                       motor=self.servo_params.take(j))
             joints[sc.id] = j
         self.bus = DynamixelBusEmulator(servos, self.plant, joints=joints,
                                         physics_dt=1.0 / e.physics_hz,

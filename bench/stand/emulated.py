@@ -1,10 +1,12 @@
 """The test stand on the emulated servo bus: one XL330 (ID 1 unless told, 1 Mbps) driving the stand's URDF
 (a mass on an arm) through the shared servo model and plant, with hidden physics in the keys of
 a servo model file — a stand to rehearse recording, identification and prediction on, whose
-answer is known."""
+answer is known. One parameter path: the same parameters build the emulated servo's motor (Kt,
+Ke, R) and the plant's friction, applied by the stick-slip law the stand's rollout applies."""
 
 from __future__ import annotations
 
+import math
 import tempfile
 from pathlib import Path
 from typing import Mapping
@@ -13,6 +15,7 @@ from bench.config.servo_model import apply_physics
 from bench.paths import URDF_DIR
 from bench.scene.urdf_writer import STAND_LENGTH_M, STAND_MASS_KG, stand_urdf
 from bench.stand.logs import MOTORS
+from bench.stand.simulate import GRAVITY
 from drivers.emulator import DynamixelBusEmulator, ServoModel
 from drivers.servo import ServoParams
 from drivers.servo.plant import PyBulletPlant
@@ -42,11 +45,14 @@ class _SaggingPlant(PyBulletPlant):
 class EmulatedStand:
     """A context manager serving the stand's bus on a pseudo-terminal (:attr:`port`). With
     ``realtime`` False the physics moves only through :meth:`advance`. ``source_ohm``: the
-    supply's source resistance (0: a stiff supply at ``supply_v``)."""
+    supply's source resistance (0: a stiff supply at ``supply_v``). ``gravity_offset_rad``: the
+    stand's zero from hanging plumb, as a stand model file's ``stand:`` gives it (gravity tilted
+    about the shaft, so its torque is −m g L sin(q + offset), the rollout's)."""
 
     def __init__(self, physics: Mapping[str, float] | None = None, *, mass: float = STAND_MASS_KG,
                  length: float = STAND_LENGTH_M, supply_v: float = 7.0, motor: str = "xl330",
-                 servo_id: int = 1, source_ohm: float = 0.0, realtime: bool = False) -> None:
+                 servo_id: int = 1, source_ohm: float = 0.0, realtime: bool = False,
+                 gravity_offset_rad: float = 0.0) -> None:
         number = MOTORS[motor]
         physics = dict(physics or {})
         self.params = apply_physics(ServoParams.datasheet([number]), [physics])
@@ -56,9 +62,11 @@ class EmulatedStand:
             self._tmp = tempfile.TemporaryDirectory(prefix="stand-")
             urdf = Path(self._tmp.name) / "stand.urdf"
             urdf.write_text(stand_urdf(mass, length))
-        self.plant = _SaggingPlant(urdf, ["pendulum"], [1.0], [0.0], [0.0], self.params)
+        tilt = (0.0, -GRAVITY * math.sin(gravity_offset_rad), -GRAVITY * math.cos(gravity_offset_rad))
+        self.plant = _SaggingPlant(urdf, ["pendulum"], [1.0], [0.0], [0.0], self.params, gravity=tilt,
+                                   friction_law="stick")
         servo = ServoModel(number, id=servo_id, registers={"Baud Rate": BAUD_INDEX}, input_voltage=supply_v,
-                           kt_scale=physics.get("kt_scale", 1.0), overload_time_s=60.0)
+                           motor=self.params, overload_time_s=60.0)
         self.plant.servo, self.plant.volts, self.plant.source_ohm = servo, supply_v, source_ohm
         self.plant.kt = float(self.params.kt[0])
         self.bus = DynamixelBusEmulator({servo_id: servo}, self.plant, realtime=realtime)

@@ -8,10 +8,11 @@ measured supply voltage drives the motor; in between, the firmware and motor
 
     (m L² + m_arm L²/3 + J_a) q̈ = τ_motor − (m + m_arm/2) g L sin(q + q_off) + τ_friction
 
-step together, the friction applied as the stick-slip force of
-:func:`~drivers.servo.model.stopping_friction` (the load-dependent level from the motor's and
-gravity's torques). The rollout is open loop, as BAM scores a model: from the log's first
-measured position and velocity, never reset. ``tests/test_stand.py`` checks these dynamics
+step together through the core's one integrator (:func:`~drivers.servo.joints.step_joints`, the
+pendulum's closed form as its diagonal mass matrix and bias), the friction applied as the
+stick-slip force of :mod:`drivers.servo.friction` (the load-dependent level from the motor's and
+gravity's torques), as the emulated stand's plant applies it. The rollout is open loop, as BAM
+scores a model: from the log's first measured position and velocity, never reset. ``tests/test_stand.py`` checks these dynamics
 against the stand's URDF in PyBullet.
 """
 
@@ -25,7 +26,8 @@ import numpy as np
 from bench.stand.logs import SAMPLE_S, StandLog
 from drivers.servo import FIRMWARE_PERIOD_S, ServoArray, ServoParams
 from drivers.servo.fast import PositionLoop
-from drivers.servo.model import friction_level, stopping_friction
+from drivers.servo.friction import friction_level
+from drivers.servo.joints import step_joints
 
 __all__ = ["GRAVITY", "Slots", "rollout", "stand_inertia"]
 
@@ -73,6 +75,8 @@ def rollout(logs: Sequence[StandLog], slots: Slots, substeps: int = int(round(SA
     loop = PositionLoop(servo, SAMPLE_S / substeps)
     dt = SAMPLE_S / substeps
     offset, viscous = slots.gravity_offset, p.viscous
+    # A, diagonal: the pendulum, the armature and the back-EMF's and viscous damping (implicit)
+    matrix = inertia + dt * (p.back_emf_damping + viscous)
     out = np.empty((K, S))
     on_before = torque[0] > 0.5
     for k in range(K):
@@ -81,7 +85,6 @@ def rollout(logs: Sequence[StandLog], slots: Slots, substeps: int = int(round(SA
         started = on & ~on_before
         if started.any():  # torque on again: the firmware starts from where the shaft is
             servo.reset_slot(np.flatnonzero(started), servo.ticks(q[started]))
-            loop.refresh()
         on_before = on
         loop.set_goal(goal[k])
         servo.supply = supply[k]
@@ -89,9 +92,6 @@ def rollout(logs: Sequence[StandLog], slots: Slots, substeps: int = int(round(SA
         for _ in range(substeps):
             tau_m = loop.step(q, qd) * enable
             tau_g = -weight * np.sin(q + offset)
-            net = tau_m + tau_g
-            level = friction_level(p, qd, tau_m, tau_g)
-            net = net + stopping_friction(level, viscous, qd, inertia / dt * qd + net)
-            qd = qd + net / inertia * dt
-            q = q + qd * dt
+            dry = friction_level(p, qd, tau_m, tau_g)
+            q, qd = step_joints(q, qd, dt, tau_m + tau_g - viscous * qd, matrix, dry, "stick")
     return out

@@ -32,6 +32,7 @@ class ServoFirmware:
 
     _bank: ServoArray
     _slot: int
+    _motor: ServoParams
     # The registers whose units the loop converts with (set by the servo from its table).
     _position_reg: Register
     _velocity_reg: Register
@@ -42,9 +43,9 @@ class ServoFirmware:
 
     # -- the slot -------------------------------------------------------------------------
     def _motor_params(self) -> ServoParams:
-        """This servo's motor as the servo model's parameters (one slot)."""
-        p = ServoParams.datasheet([self.spec.number])
-        return p.with_(kt=self._kt, ke=self._ke, resistance=self._resistance, amps_per_unit=self._amps_per_unit)
+        """This servo's motor as the servo model's parameters (one slot): the model file's, or the
+        datasheet's (what the servo was built with)."""
+        return self._motor.with_(amps_per_unit=self._amps_per_unit)
 
     def _own_bank(self) -> None:
         """A one-slot array: the servo runs on its own until a bus gathers it."""

@@ -14,10 +14,11 @@ for a lead-screw or rack stage converts between shaft angle and travel itself.
 
 from __future__ import annotations
 
-import math
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+
+from drivers.servo.joints import step_joints
 
 __all__ = ["InertiaPlant", "Plant"]
 
@@ -48,7 +49,9 @@ def _per_joint(name: str, value: float | np.ndarray, n: int) -> np.ndarray:
 
 
 class InertiaPlant:
-    """Independent joints: inertia, viscous and Coulomb friction, constant load torque.
+    """Independent joints: inertia, viscous and Coulomb friction, constant load torque, stepped by
+    the servo core's one integrator (:func:`~drivers.servo.joints.step_joints`) with a diagonal
+    mass matrix and the stick-slip law of :mod:`drivers.servo.friction`.
 
     Per joint: ``J·a = tau + gravity - b·v - c·sign(v)``, with static friction
     holding the joint while ``|tau + gravity| <= c``. ``gravity`` is a constant
@@ -59,7 +62,8 @@ class InertiaPlant:
     ``inertia`` should include the gearbox-reflected rotor inertia (for
     X-series servos of order 0.005-0.05 kg·m²); much smaller values make the
     servo's explicit 1 ms control loop unstable, as on real hardware with an
-    unloaded horn and high gains. Viscous friction is integrated implicitly.
+    unloaded horn and high gains. Viscous friction is integrated implicitly. A joint at a hard
+    stop stops dead.
     """
 
     def __init__(
@@ -124,34 +128,6 @@ class InertiaPlant:
         torque = np.asarray(torque, dtype=float)
         if torque.shape != (self._n,):
             raise ValueError(f"torque has shape {torque.shape}, expected ({self._n},)")
-        # A plain loop: for a handful of joints it is several times faster than
-        # numpy on tiny arrays, and the bus calls this every millisecond.
-        q_out, v_out = [], []
-        for tau, g, v, q, inertia, b, c, low, high in zip(
-            torque.tolist(),
-            self.gravity.tolist(),
-            self._v.tolist(),
-            self._q.tolist(),
-            self.inertia.tolist(),
-            self.viscous.tolist(),
-            self.coulomb.tolist(),
-            self.lower.tolist(),
-            self.upper.tolist(),
-        ):
-            tau += g
-            if v == 0.0 and abs(tau) <= c:
-                v_new = 0.0  # static friction holds it
-            else:
-                direction = math.copysign(1.0, v if v != 0.0 else tau)
-                v_new = (inertia * v + dt * (tau - c * direction)) / (inertia + dt * b)
-                if c > 0.0 and v != 0.0 and (v_new > 0.0) != (v > 0.0):
-                    v_new = 0.0  # Coulomb friction stops the joint instead of reversing it
-            q_new = q + v_new * dt
-            if q_new < low:
-                q_new, v_new = low, max(v_new, 0.0)
-            elif q_new > high:
-                q_new, v_new = high, min(v_new, 0.0)
-            q_out.append(q_new)
-            v_out.append(v_new)
-        self._q = np.array(q_out)
-        self._v = np.array(v_out)
+        self._q, self._v = step_joints(self._q, self._v, dt, torque + self.gravity - self.viscous * self._v,
+                                       self.inertia + dt * self.viscous, self.coulomb, "stick",
+                                       lower=self.lower, upper=self.upper)

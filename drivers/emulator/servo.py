@@ -61,6 +61,7 @@ from drivers.dynamixel.control_table import XM430_W350, Access, Area, ModelSpec,
 from drivers.dynamixel.protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
 from drivers.dynamixel.units import BAUD_RATES, OperatingMode
 from drivers.emulator.firmware import CONTROL_PERIOD_S, ServoFirmware
+from drivers.servo.model import ServoParams
 
 __all__ = ["CONTROL_PERIOD_S", "ServoModel"]
 
@@ -96,15 +97,25 @@ class ServoModel(ServoFirmware):
         input_voltage: float = 12.0,
         temperature_c: float = 30.0,
         kt_scale: float = 1.0,
+        motor: ServoParams | None = None,
     ) -> None:
         self.spec = model if isinstance(model, ModelSpec) else model_spec(model)
         self.table = self.spec.table
-        # Motor constants the 1 ms loop uses every step (the spec is frozen).
-        motor = self.spec.motor
         if not kt_scale > 0:
             raise ValueError(f"kt_scale must be > 0, got {kt_scale}")
-        # kt_scale: a motor stronger or weaker than its datasheet (Kt and Ke are one constant in SI)
-        self._kt, self._ke, self._resistance = motor.kt * kt_scale, motor.ke * kt_scale, motor.resistance
+        # The motor the firmware drives: the servo parameters of a model file (``motor``, one slot:
+        # Kt, Ke, R as identified), or the datasheet's, kt_scale making it stronger or weaker (Kt and
+        # Ke are one constant in SI).
+        if motor is not None:
+            if motor.n != 1:
+                raise ValueError(f"an emulated servo runs one motor, got parameters of {motor.n}")
+            self._motor = motor
+        else:
+            spec = self.spec.motor
+            self._motor = ServoParams.datasheet([self.spec.number]).with_(
+                kt=spec.kt * kt_scale, ke=spec.ke * kt_scale, resistance=spec.resistance)
+        self._kt, self._ke, self._resistance = (float(self._motor.kt[0]), float(self._motor.ke[0]),
+                                                float(self._motor.resistance[0]))
         self._amps_per_unit = self.spec.amps_per_unit
         # The registers whose units the 1 ms loop converts with (the control table's).
         self._position_reg, self._velocity_reg, self._accel_reg, self._voltage_reg, \

@@ -223,9 +223,8 @@ class ServoSimActuators(SteppedActuators):
         if self._torque_on:
             self._loop.set_goal(self.plant.position())
         else:
-            self.servos.reset(self.plant.position())
+            self.servos.reset(self.plant.position())  # a reset: the fused loop refreshes at its next step
             self._torque_on = True
-            self._loop.refresh()
 
     def _command(self, position: np.ndarray, velocity: np.ndarray | None) -> None:
         lim = self._limits
@@ -311,19 +310,18 @@ class ServoSimActuators(SteppedActuators):
         return states
 
     def _snapshot(self) -> tuple:
-        """Everything a cycle's outcome depends on, copied."""
-        arrays = lambda obj: {k: v.copy() if isinstance(v, np.ndarray) else v  # noqa: E731
-                              for k, v in vars(obj).items()}
-        return (arrays(self.plant), arrays(self.servos), vars(self._loop).copy(), list(self._pending),
+        """Everything a cycle's outcome depends on, copied: the core's state through its own
+        snapshots (the plant's joints and matrix, the servo array's registers and firmware; the
+        fused loop works its constants out again from the array)."""
+        return (self.plant.snapshot(), self.servos.snapshot(), list(self._pending),
                 self._step_count, self._last, self._lost, self._reading,
                 copy.deepcopy(self._sensed), copy.copy(self._train_loop))
 
     def _restore(self, snapshot: tuple) -> None:
-        plant, servos, loop, pending, self._step_count, self._last, self._lost, self._reading, \
+        plant, servos, pending, self._step_count, self._last, self._lost, self._reading, \
             self._sensed, self._train_loop = snapshot
-        vars(self.plant).update(plant)
-        vars(self.servos).update(servos)
-        vars(self._loop).update(loop)
+        self.plant.restore(plant)
+        self.servos.restore(servos)
         self._pending = deque(pending)
 
     def _disable(self) -> None:
@@ -341,8 +339,7 @@ class ServoSimActuators(SteppedActuators):
     # -- extras ----------------------------------------------------------------
     def set_effort_limit(self, joint: int, effort: float) -> None:
         """Lower a joint's available torque/force: its servo's current limit, through the transmission."""
-        self.servos.current_limit[joint] = effort * abs(self._ratio[joint]) / self._reported_kt[joint]
-        self._loop.refresh()
+        self.servos.set_current_limit(joint, effort * abs(self._ratio[joint]) / self._reported_kt[joint])
         eff = self._limits.effort.copy()
         eff[joint] = effort
         self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)

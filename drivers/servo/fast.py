@@ -7,7 +7,11 @@ run the position PID on the integer encoder, with no profile (Profile Velocity 0
 bench writes it), no deadband and no current-based mode, needs only the PID and the motor:
 :class:`PositionLoop` runs exactly that, with the gains turned into per-sample constants once,
 in the very operations and order of :meth:`ServoArray.step_ticks` (the same numbers, bit for
-bit), on the array's own state, so the general step can take over at any sample.
+bit), on the array's own state, so the general step can take over at any sample. It is the
+core's one fused loop: every simulator that steps a servo array fast steps this, from the shaft
+(:meth:`PositionLoop.step`) or from the joints (:meth:`PositionLoop.step_joint`, the encoder read
+through the transmission), and ``tests/test_servo_fast.py`` holds each bit-equal to the array's
+own step (:meth:`ServoArray.step`, :meth:`ServoArray.step_joint`).
 """
 
 from __future__ import annotations
@@ -23,8 +27,10 @@ class PositionLoop:
     """The position PID and motor of every slot of ``servos`` at a sample of ``dt`` s.
 
     :attr:`fused` says whether the plain case holds; :meth:`refresh` works the constants out
-    again after the owner changed a register array in place (gains, limits, modes) or reset
-    a servo; a new :attr:`ServoArray.supply` array is taken as it comes. Outside the plain case,
+    again; the array's setters (:meth:`ServoArray.set_current_limit`, the resets, :meth:`ServoArray.restore`)
+    bump its :attr:`ServoArray.version` and the next step refreshes by itself (an owner writing a
+    register array in place calls :meth:`refresh`); a new :attr:`ServoArray.supply` array is taken
+    as it comes. Outside the plain case,
     and on the first sample after a reset (the derivative has no previous error yet),
     :meth:`step` is :meth:`ServoArray.step`.
     """
@@ -41,6 +47,7 @@ class PositionLoop:
     def refresh(self) -> None:
         """Constants from the registers as they are now; whether the plain case holds."""
         s, p = self.servos, self.servos.params
+        self._version = s.version
         self.fused = bool(s.pid.all() and not s.profile_velocity.any() and np.isinf(s.vmax).all()
                           and not (s.deadband > 0).any() and not s.current_based.any())
         self._primed = bool(s.has_prev.all())
@@ -58,16 +65,16 @@ class PositionLoop:
         self._ke, self._resistance, self._kt = p.ke, p.resistance, p.kt
         self._ilim, self._neg_ilim = s.current_limit.copy(), -s.current_limit
         # the same through the transmissions: ticks from joint values, torque at the joint
-        r = self._ratio
-        self._joint_tick = self._inv_tick / r
-        self._joint_zero = 0.5 - self._offset * self._inv_tick / r
-        self._joint_ke = self._ke / r
-        self._joint_kt = self._kt / r
+        self._transmission = s.transmission(self._ratio, self._offset)
+        self._joint_tick, self._joint_zero = self._transmission.tick, self._transmission.zero
+        self._joint_kt = self._transmission.kt
 
     def set_goal(self, goal: np.ndarray) -> None:
         """New goal positions (rad), in ticks as the bus writes them: with no profile the
         trajectory is the goal at the next sample."""
         s = self.servos
+        if s.version != self._version:
+            self.refresh()
         if not self.fused:
             s.set_goal(goal)
             return
@@ -78,11 +85,31 @@ class PositionLoop:
     def step(self, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """One firmware sample at the shaft state (rad, rad/s); the motor torque (N·m)."""
         s = self.servos
+        if s.version != self._version:  # a setter of the array changed what the constants hold
+            self.refresh()
         if not (self.fused and self._primed):
             torque = s.step(self.dt, position, velocity)
             self._primed = bool(s.has_prev.all())
             return torque
         present = np.floor(position * self._inv_tick + 0.5)
+        return self._kt * self._drive(s, present, velocity)
+
+    def step_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """:meth:`step` from joint values and speeds, torques at the joints (shaft torque / ratio),
+        the transmissions folded into the constants: :meth:`ServoArray.step_joint`'s very numbers."""
+        s = self.servos
+        if s.version != self._version:
+            self.refresh()
+        if not (self.fused and self._primed):
+            torque = s.step_joint(self.dt, q, qd, self._transmission)
+            self._primed = bool(s.has_prev.all())
+            return torque
+        present = np.floor(q * self._joint_tick + self._joint_zero)
+        return self._joint_kt * self._drive(s, present, qd / self._ratio)
+
+    def _drive(self, s: ServoArray, present: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """The PID and the motor for encoder readings ``present`` (ticks) at shaft speeds ``omega``:
+        the motor currents (A), the array's state advanced (the one copy of the fused loop)."""
         error = s.traj - present
         integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
         u = self._kp * error + integral
@@ -91,30 +118,8 @@ class PositionLoop:
         if s.supply is not self._supply:  # the owner handed in a new supply (a log's measured one)
             self._supply = s.supply
             self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
-        current = (pwm * self._volts - self._ke * velocity) / self._resistance
+        current = (pwm * self._volts - self._ke * omega) / self._resistance
         current = np.minimum(np.maximum(current, self._neg_ilim), self._ilim)
-        s.present, s.omega, s.integral, s.prev_error, s.pwm, s.current = (present, velocity, integral, error,
+        s.present, s.omega, s.integral, s.prev_error, s.pwm, s.current = (present, omega, integral, error,
                                                                           pwm, current)
-        return self._kt * current
-
-    def step_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """:meth:`step` from joint values and speeds, torques at the joints (shaft torque / ratio),
-        the transmissions folded into the constants: the same physics, with the encoder's
-        reading rounded from the joint value directly (it may differ from :meth:`step`'s in the
-        last bit, and a tick's boundary by as much)."""
-        s = self.servos
-        if not (self.fused and self._primed):
-            return self.step((q - self._offset) / self._ratio, qd / self._ratio) / self._ratio
-        present = np.floor(q * self._joint_tick + self._joint_zero)
-        error = s.traj - present
-        integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
-        u = self._kp * error + integral
-        u += self._kd * (error - s.prev_error)
-        pwm = np.minimum(np.maximum(u, self._neg_cap), self._cap)
-        if s.supply is not self._supply:
-            self._supply = s.supply
-            self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
-        current = (pwm * self._volts - self._joint_ke * qd) / self._resistance
-        current = np.minimum(np.maximum(current, self._neg_ilim), self._ilim)
-        s.present, s.integral, s.prev_error, s.pwm, s.current = present, integral, error, pwm, current
-        return self._joint_kt * current
+        return current

@@ -14,9 +14,8 @@ joints at once (numpy, no loop per joint),
    gravity), a part of it fading with the Stribeck curve, and BAM's quadratic terms (the
    load-dependent laws m3–m6 of Rhoban's "Better Actuator Models", measured on real
    Dynamixels); then viscous b·ω, and the armature (reflected rotor inertia) for the
-   integrator that moves the joints. :func:`friction_level` gives the level,
-   :func:`friction_torque` the smoothed torque a stiff integrator applies and
-   :func:`stopping_friction` the exact stick-slip force a pendulum's integrator applies.
+   integrator that moves the joints (the laws: :mod:`drivers.servo.friction`, the integrator:
+   :mod:`drivers.servo.joints`).
 
 The supply (:attr:`ServoArray.supply`) is a register-like array the owner may set every step:
 a log's measured input voltage drives the motor where it has one (a sagging supply weakens
@@ -39,13 +38,10 @@ import numpy as np
 
 from drivers.dynamixel.control_table import model_spec, x_series_table
 
-__all__ = ["FIRMWARE_PERIOD_S", "FRICTION_SMOOTHING_RAD_S", "LOAD_FRICTION_FIELDS", "ServoArray", "ServoParams",
-           "friction_level", "friction_torque", "stopping_friction"]
+__all__ = ["FIRMWARE_PERIOD_S", "LOAD_FRICTION_FIELDS", "ServoArray", "ServoParams", "Transmission"]
 
 #: The firmware's control loop period (s): the PID gains are per sample of this length.
 FIRMWARE_PERIOD_S = 0.001
-#: Velocity below which Coulomb friction is smoothed (rad/s): tanh(ω/ω_ε), as the plant integrates it.
-FRICTION_SMOOTHING_RAD_S = 1e-3
 
 
 #: The load-dependent friction coefficients (dimensionless, 0: none): Coulomb-like, at rest
@@ -116,8 +112,8 @@ class ServoParams:
 
     @cached_property
     def _friction_terms(self) -> tuple[bool, bool, bool, bool]:
-        """Which terms of :func:`friction_level` any joint has: Stribeck peak, load, load at rest, quadratic
-        (worked out once: the friction is evaluated every step)."""
+        """Which terms of :func:`~drivers.servo.friction.friction_level` any joint has: Stribeck peak,
+        load, load at rest, quadratic (worked out once: the friction is evaluated every step)."""
         nonzero = lambda *names: any(bool(np.any(getattr(self, f) != 0.0)) for f in names)  # noqa: E731
         return (bool(np.any(self.stribeck > 0.0)), nonzero("load_motor", "load_external"),
                 nonzero("load_stribeck_motor", "load_stribeck_external"),
@@ -161,6 +157,12 @@ class ServoParams:
             deadband_ticks=_arr(deadband_ticks, n), amps_per_unit=unit,
             p_gain_divisor=np.array([float(s.extra.get("p_gain_divisor", 128.0)) for s in specs]))
 
+    def take(self, joints) -> "ServoParams":
+        """The parameters of some joints (an index or index array; an int gives one slot): one
+        servo's for an emulated servo, a joint's repeated for identification's slots."""
+        index = np.atleast_1d(np.asarray(joints))
+        return ServoParams(**{f: getattr(self, f)[index] for f in ServoParams.__dataclass_fields__})
+
     def with_(self, **changes) -> "ServoParams":
         """A copy with some fields replaced (scalars broadcast to every joint)."""
         return replace(self, **{k: _arr(v, self.n) for k, v in changes.items()})
@@ -176,51 +178,16 @@ class ServoParams:
         return self.kt * self.ke / self.resistance
 
 
-def friction_level(params: ServoParams, omega: np.ndarray, motor_torque=0.0,
-                   external_torque=0.0) -> np.ndarray:
-    """The gearbox's dry friction (N·m, ≥ 0, viscous apart) at output speed ``omega`` (rad/s) while
-    the motor gives ``motor_torque`` and the load ``external_torque`` (N·m at the shaft): Coulomb
-    with a Stribeck peak, plus the load-dependent terms (BAM's m3–m6 laws)."""
-    peak, load, load_rest, quadratic = params._friction_terms
-    level = params.coulomb
-    fade = None
-    if peak or load_rest or quadratic:
-        ratio = omega / np.maximum(params.stribeck_velocity, 1e-9)
-        alpha = params.stribeck_alpha
-        fade = np.exp(-(ratio * ratio)) if np.all(alpha == 2.0) else np.exp(-np.abs(ratio) ** alpha)
-    if peak:
-        level = np.where(params.stribeck > 0.0, params.coulomb + (params.stribeck - params.coulomb) * fade,
-                         params.coulomb)
-    tm, te = motor_torque, external_torque
-    if load:
-        level = level + np.abs(params.load_external * te - params.load_motor * tm)
-    if load_rest:
-        level = level + fade * np.abs(params.load_stribeck_external * te - params.load_stribeck_motor * tm)
-    if quadratic:  # BAM m6: the driven side's torque squared, at rest, when motor and load oppose each other
-        opposed = np.sign(te) != np.sign(tm)
-        quad = (np.where(np.abs(te) < np.abs(tm), params.load_quad_external * te ** 2, 0.0)
-                + np.where(np.abs(te) > np.abs(tm), params.load_quad_motor * tm ** 2, 0.0))
-        level = level + fade * quad * opposed
-    if level is params.coulomb:  # never hand out the parameters' own array
-        level = level.copy()
-    return level * np.ones_like(omega) if np.ndim(level) < np.ndim(omega) else level
+@dataclass(frozen=True)
+class Transmission:
+    """Joints behind the servos' shafts (joint = offset + ratio · shaft), per joint: the encoder's
+    ticks per joint unit and its reading at joint value 0 (+ ½, for the rounding), Kt at the joint."""
 
-
-def friction_torque(params: ServoParams, omega: np.ndarray, motor_torque=0.0,
-                    external_torque=0.0) -> np.ndarray:
-    """Gearbox friction at output speed ``omega`` (rad/s), smoothed through zero speed, plus viscous
-    (the loads as :func:`friction_level`): what a stiff integrator applies."""
-    level = friction_level(params, omega, motor_torque, external_torque)
-    return level * np.tanh(omega / FRICTION_SMOOTHING_RAD_S) + params.viscous * omega
-
-
-def stopping_friction(level: np.ndarray, viscous: np.ndarray, omega: np.ndarray,
-                      tau_stop: np.ndarray) -> np.ndarray:
-    """The friction torque (N·m) a step applies: it opposes ``tau_stop``, the torque that would stop the
-    shaft within the step, and never exceeds it nor the friction budget ``level + viscous·|ω|``.
-    A shaft held by friction stays put (stick) instead of chattering through zero speed."""
-    budget = level + viscous * np.abs(omega)
-    return -np.sign(tau_stop) * np.minimum(np.abs(tau_stop), budget)
+    ratio: np.ndarray
+    offset: np.ndarray
+    tick: np.ndarray
+    zero: np.ndarray
+    kt: np.ndarray
 
 
 class ServoArray:
@@ -278,6 +245,23 @@ class ServoArray:
         # what comes out
         self.current = np.zeros(n)
         self.pwm = np.zeros(n)
+        #: Bumped by every setter that changes what a fused loop works out once (drivers.servo.fast).
+        self.version = 0
+
+    def set_current_limit(self, slot, amps: float) -> None:
+        """A servo's Current Limit (A), as a register write sets it."""
+        self.current_limit[slot] = amps
+        self.version += 1
+
+    def snapshot(self) -> dict[str, object]:
+        """The array's whole state (registers and firmware), copied: :meth:`restore` puts it back."""
+        return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in vars(self).items()}
+
+    def restore(self, snapshot: dict[str, object]) -> None:
+        """Back to a :meth:`snapshot` (copied again: one snapshot may be restored many times)."""
+        version = self.version
+        vars(self).update({k: v.copy() if isinstance(v, np.ndarray) else v for k, v in snapshot.items()})
+        self.version = version + 1
 
     @classmethod
     def gather(cls, servos) -> "ServoArray":
@@ -293,6 +277,7 @@ class ServoArray:
     # -- per slot: what a servo does on a register write ---------------------------------
     def reset_slot(self, i, present) -> None:
         """Torque on (or a reboot): trajectory at ``present`` ticks, PID state cleared, no profile."""
+        self.version += 1
         self.traj[i] = present
         self.traj_vel[i] = 0.0
         self.integral[i] = 0.0
@@ -360,6 +345,22 @@ class ServoArray:
         amax = np.where((pv == 0) | (pa == 0), np.inf, pa * self._accel_unit / self._rad_per_tick)
         idx = np.flatnonzero(changed)
         self.plan_slot(idx, goal_ticks[idx], vmax[idx], amax[idx])
+
+    def transmission(self, ratio: Sequence[float] | np.ndarray,
+                     offset: Sequence[float] | np.ndarray) -> "Transmission":
+        """The joints behind the shafts (joint = offset + ratio · shaft), its constants worked out once."""
+        ratio, offset = np.asarray(ratio, dtype=float), np.asarray(offset, dtype=float)
+        tick = (1.0 / self._rad_per_tick) / ratio
+        return Transmission(ratio, offset, tick, 0.5 - offset * tick, self.params.kt / ratio)
+
+    def step_joint(self, dt: float, q: np.ndarray, qd: np.ndarray,
+                   transmission: "Transmission") -> np.ndarray:
+        """One firmware sample from the joints' values and speeds behind ``transmission``: the
+        encoder read from the joint value, the torques at the joints (shaft torque / ratio)."""
+        self.present = np.floor(q * transmission.tick + transmission.zero)
+        self.omega = qd / transmission.ratio
+        self.step_ticks(dt)
+        return transmission.kt * self.current
 
     def step(self, dt: float, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """One firmware sample of ``dt`` s at the shaft state (rad, rad/s); the motor torque (N·m)."""

@@ -15,10 +15,9 @@ goes unstable at 1 kHz. Here the joint-space equation
     (M(q) + J_a + dt·B) Δq̇ = dt · (τ_drive − B q̇ − h(q, q̇) − friction)
 
 with B the back-EMF damping plus the gearbox's viscous friction and ``friction`` its
-Coulomb, Stribeck and load-dependent parts (:func:`~drivers.servo.model.friction_torque`), all from
-the joints' :class:`~drivers.servo.model.ServoParams`.
-
-is integrated semi-implicitly, with M and h = C q̇ + g from PyBullet's
+Coulomb, Stribeck and load-dependent parts (:mod:`drivers.servo.friction`), all from
+the joints' :class:`~drivers.servo.model.ServoParams`, is integrated semi-implicitly by the core's
+one integrator (:func:`~drivers.servo.joints.step_joints`), with M and h = C q̇ + g from PyBullet's
 ``calculateMassMatrix`` and ``calculateInverseDynamics``. Stable for any
 damping; joint limits act as hard stops.
 
@@ -41,7 +40,9 @@ import numpy as np
 
 from drivers import BackendSetupError
 from drivers.quiet import muted_output, quiet_pybullet
-from drivers.servo.model import FRICTION_SMOOTHING_RAD_S, ServoParams, friction_torque
+from drivers.servo.friction import FrictionLaw, friction_level, smooth_friction
+from drivers.servo.joints import JointMatrix, step_joints
+from drivers.servo.model import ServoParams
 
 #: How far (rad and m, Euclidean over the joints) the pose may move from where the mass matrix was
 #: computed before it is computed again: M(q) moves by about this fraction of the links' inertia
@@ -54,9 +55,11 @@ class PyBulletPlant:
 
     def __init__(self, urdf: Path, joint_names: Sequence[str], ratio: Sequence[float],
                  offset: Sequence[float], initial_position: Sequence[float], servos: ServoParams,
-                 physics_dt: float = 0.001, gravity: float = -9.81,
-                 joint_friction: Sequence[float] | None = None) -> None:
-
+                 physics_dt: float = 0.001, gravity: float | Sequence[float] = -9.81,
+                 joint_friction: Sequence[float] | None = None, friction_law: FrictionLaw = "smooth") -> None:
+        """``gravity``: along z (m/s²), or the whole vector (a stand tilted from plumb).
+        ``friction_law``: how the gearbox's dry friction is applied (:mod:`drivers.servo.friction`;
+        ``"stick"`` needs a diagonal mass matrix: one joint)."""
         pb = quiet_pybullet()
         self._pb = pb
         urdf = Path(urdf)
@@ -65,7 +68,7 @@ class PyBulletPlant:
         with muted_output():
             self._c = pb.connect(pb.DIRECT)
         c = self._c
-        pb.setGravity(0, 0, gravity, physicsClientId=c)
+        pb.setGravity(*((0.0, 0.0, gravity) if np.ndim(gravity) == 0 else gravity), physicsClientId=c)
         self.body = pb.loadURDF(str(urdf), useFixedBase=True, flags=pb.URDF_USE_INERTIA_FROM_FILE,
                                 physicsClientId=c)
         infos = [pb.getJointInfo(self.body, j, physicsClientId=c)
@@ -76,6 +79,9 @@ class PyBulletPlant:
             raise BackendSetupError(
                 f"plant joints must be the URDF's movable joints in order {names}, got {list(joint_names)}")
         n = len(names)
+        if friction_law == "stick" and n != 1:
+            raise BackendSetupError(f"stick-slip friction needs a diagonal mass matrix: one joint, not {n}")
+        self.friction_law: FrictionLaw = friction_law
         self.joint_names = names
         self._lower = np.array([i[8] for i in movable])
         self._upper = np.array([i[9] for i in movable])
@@ -87,7 +93,6 @@ class PyBulletPlant:
         self._B_emf = servos.back_emf_damping / r2
         self._B = self._B_emf + servos.viscous / r2
         self._Ja = servos.armature / r2
-        self._coulomb_only = servos.with_(viscous=0.0)
         self._has_friction = bool((servos.coulomb > 0).any() or (servos.stribeck > 0).any()
                                   or servos.has_load_friction)
         self._joint_friction = np.zeros(n) if joint_friction is None else np.asarray(joint_friction, dtype=float)
@@ -97,17 +102,18 @@ class PyBulletPlant:
         self._zeros = [0.0] * n
         # worked out once: the step's constants (the back-EMF's damping is implicit, in the matrix)
         self._inv_ratio = 1.0 / self._ratio
+        self._abs_inv_ratio = np.abs(self._inv_ratio)  # a level at the shaft, at the joint
         self._viscous = servos.viscous / r2
         self._implicit = self._Ja + physics_dt * self._B
         self._diagonal = np.diag_indices(n)
         self._has_joint_friction = bool(self._joint_friction.any())
         self._has_viscous = bool(self._viscous.any())
-        self._past_stop = np.maximum.reduce
         # the matrix's Cholesky factor and the pose it is of (LAPACK's own calls: numpy's solve
         # costs five times the arithmetic of a 9×9 in its checks)
         from scipy.linalg import lapack  # heavy: loaded with the first plant
         self._potrf, self._potrs = lapack.dpotrf, lapack.dpotrs
         self._cholesky = np.eye(n)
+        self._matrix: JointMatrix = self._solve  # A for the integrator: its solve, or its diagonal (one joint)
         self._factored_q = self._q
         self._reach = MASS_MATRIX_TOLERANCE ** 2
         self._stale = True  # factor the matrix at the next step
@@ -164,11 +170,28 @@ class PyBulletPlant:
             self._pb.calculateMassMatrix(self.body, q.tolist(), physicsClientId=self._c)), float, n * n)
         A = A.reshape(n, n)
         A[self._diagonal] += self._implicit
+        if self.friction_law == "stick":  # one joint: A is its own diagonal
+            self._matrix = A[self._diagonal].copy()
         self._cholesky, info = self._potrf(A)
         if info != 0:
             raise ValueError(f"the plant's matrix is not positive definite at {q.tolist()} (LAPACK info {info})")
         self._factored_q = q
         self._reach = MASS_MATRIX_TOLERANCE ** 2
+
+    def snapshot(self) -> tuple:
+        """The plant's state (the joints and the kept matrix), for :meth:`restore`."""
+        matrix = self._matrix.copy() if isinstance(self._matrix, np.ndarray) else self._matrix
+        return self._q, self._qd, self._cholesky.copy(), matrix, self._factored_q, self._reach, self._stale
+
+    def restore(self, snapshot: tuple) -> None:
+        """Back to a :meth:`snapshot`: the same steps from there give the same states."""
+        self._q, self._qd, cholesky, matrix, self._factored_q, self._reach, self._stale = snapshot
+        self._cholesky = cholesky.copy()
+        self._matrix = matrix.copy() if isinstance(matrix, np.ndarray) else matrix
+
+    def _solve(self, b: np.ndarray) -> np.ndarray:
+        """A⁻¹ b through the kept Cholesky factor."""
+        return self._potrs(self._cholesky, b)[0]
 
     def step(self, dt: float, torque: np.ndarray) -> None:
         """One physics step of ``dt`` (the plant's own) under the servos' shaft torques (N·m)."""
@@ -190,24 +213,19 @@ class PyBulletPlant:
         if self._has_viscous:
             rhs -= self._viscous * qd
         if self._has_joint_friction:
-            rhs -= self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)
+            rhs -= smooth_friction(self._joint_friction, qd)
+        dry = speed = None
         if self._has_friction:
             # the gearbox carries the motor's torque and the load's (gravity and the links' bias)
             shaft = joint_torque * self._ratio if torque is None else torque
-            rhs -= friction_torque(self._coulomb_only, qd * self._inv_ratio, shaft,
-                                   -h * self._ratio) * self._inv_ratio
+            speed = qd * self._abs_inv_ratio  # the shaft's speed, signed as the joint's
+            dry = friction_level(self.servos, speed, shaft, -h * self._ratio) * self._abs_inv_ratio
         if self._stale:
             self._factor(q)
-        dt = self._dt
-        qd_new = qd + dt * self._potrs(self._cholesky, rhs)[0]
-        q_new = q + dt * qd_new
+        q_new, qd_new = step_joints(q, qd, self._dt, rhs, self._matrix, dry, self.friction_law, speed,
+                                    self._lower, self._upper)
         moved = q_new - self._factored_q
         self._stale = moved.dot(moved) > self._reach
-        # Hard stops at the URDF limits (one reduction says whether any joint is past one).
-        if self._past_stop(np.maximum(self._lower - q_new, q_new - self._upper)) > 0.0:
-            low, high = q_new < self._lower, q_new > self._upper
-            q_new = np.minimum(np.maximum(q_new, self._lower), self._upper)
-            qd_new[low | high] = 0.0
         self._q, self._qd = q_new, qd_new
 
     def close(self) -> None:

@@ -1,0 +1,110 @@
+"""Every friction law of the servo core, written once: the gearbox's dry friction level (Coulomb,
+the Stribeck curve with its exponent, the load-dependent gear friction of BAM's m3–m6) and the
+two ways an integrator applies a dry level, by name:
+
+- ``"smooth"``: ``level·tanh(ω/ω_ε)``, what a stiff integrator over a full mass matrix applies
+  (the robot's plant, identification's rollout);
+- ``"stick"``: the exact stick-slip force that stops the joint within a step and never exceeds the
+  level, for a diagonal mass matrix (the stand's pendulum, BAM's simulator, the bus's inertias).
+
+Viscous friction is linear and sits in the integrator's implicit damping, not here. Nothing
+outside this module evaluates a friction law (``tests/test_servo_core.py`` scans for one).
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Protocol
+
+import numpy as np
+
+__all__ = ["FRICTION_SMOOTHING_RAD_S", "FrictionParams", "FrictionLaw", "friction_level", "friction_torque",
+           "regressors", "smooth_friction", "stopping_friction", "stribeck_fade"]
+
+#: Velocity below which Coulomb friction is smoothed (rad/s): tanh(ω/ω_ε), as the plant integrates it.
+FRICTION_SMOOTHING_RAD_S = 1e-3
+
+#: How an integrator applies a dry friction level (see the module's docstring).
+FrictionLaw = Literal["smooth", "stick"]
+
+
+class FrictionParams(Protocol):
+    """What the laws read of the servo parameters (:class:`~drivers.servo.model.ServoParams`), per joint."""
+
+    coulomb: np.ndarray
+    viscous: np.ndarray
+    stribeck: np.ndarray
+    stribeck_velocity: np.ndarray
+    stribeck_alpha: np.ndarray
+    load_motor: np.ndarray
+    load_external: np.ndarray
+    load_stribeck_motor: np.ndarray
+    load_stribeck_external: np.ndarray
+    load_quad_motor: np.ndarray
+    load_quad_external: np.ndarray
+    #: which terms any joint has: Stribeck peak, load, load at rest, quadratic (worked out once)
+    _friction_terms: tuple[bool, bool, bool, bool]
+
+
+def friction_level(params: FrictionParams, omega: np.ndarray, motor_torque=0.0,
+                   external_torque=0.0) -> np.ndarray:
+    """The gearbox's dry friction (N·m, ≥ 0, viscous apart) at output speed ``omega`` (rad/s) while
+    the motor gives ``motor_torque`` and the load ``external_torque`` (N·m at the shaft): Coulomb
+    with a Stribeck peak, plus the load-dependent terms (BAM's m3–m6 laws)."""
+    peak, load, load_rest, quadratic = params._friction_terms
+    level = params.coulomb
+    fade = None
+    if peak or load_rest or quadratic:
+        fade = stribeck_fade(omega, params.stribeck_velocity, params.stribeck_alpha)
+    if peak:
+        level = np.where(params.stribeck > 0.0, params.coulomb + (params.stribeck - params.coulomb) * fade,
+                         params.coulomb)
+    tm, te = motor_torque, external_torque
+    if load:
+        level = level + np.abs(params.load_external * te - params.load_motor * tm)
+    if load_rest:
+        level = level + fade * np.abs(params.load_stribeck_external * te - params.load_stribeck_motor * tm)
+    if quadratic:  # BAM m6: the driven side's torque squared, at rest, when motor and load oppose each other
+        opposed = np.sign(te) != np.sign(tm)
+        quad = (np.where(np.abs(te) < np.abs(tm), params.load_quad_external * te ** 2, 0.0)
+                + np.where(np.abs(te) > np.abs(tm), params.load_quad_motor * tm ** 2, 0.0))
+        level = level + fade * quad * opposed
+    if level is params.coulomb:  # never hand out the parameters' own array
+        level = level.copy()
+    return level * np.ones_like(omega) if np.ndim(level) < np.ndim(omega) else level
+
+
+def stribeck_fade(omega, stribeck_velocity, alpha=2.0) -> np.ndarray:
+    """The Stribeck curve e^{-|ω/ω_s|^α}: 1 at rest, fading to 0 past ω_s (α = 2 unless set)."""
+    ratio = omega / np.maximum(stribeck_velocity, 1e-9)
+    return np.exp(-(ratio * ratio)) if np.all(np.asarray(alpha) == 2.0) else np.exp(-np.abs(ratio) ** alpha)
+
+
+def regressors(omega: np.ndarray, stribeck_velocity: float) -> tuple[np.ndarray, np.ndarray]:
+    """The dry laws as a linear regression's columns at shaft speeds ``omega`` (moving rows only):
+    Coulomb's (the direction of motion, per N·m of level) and the Stribeck peak's over it (that
+    direction times the fade, per N·m of peak above Coulomb)."""
+    direction = np.sign(omega)
+    return direction, direction * stribeck_fade(np.abs(omega), stribeck_velocity)
+
+
+def friction_torque(params: FrictionParams, omega: np.ndarray, motor_torque=0.0,
+                    external_torque=0.0) -> np.ndarray:
+    """Gearbox friction at output speed ``omega`` (rad/s), smoothed through zero speed, plus viscous
+    (the loads as :func:`friction_level`): what a stiff integrator applies."""
+    level = friction_level(params, omega, motor_torque, external_torque)
+    return smooth_friction(level, omega) + params.viscous * omega
+
+
+def smooth_friction(level, omega: np.ndarray) -> np.ndarray:
+    """A dry friction ``level`` (N·m) smoothed through zero shaft speed ``omega`` (rad/s): the
+    ``"smooth"`` law."""
+    return level * np.tanh(omega / FRICTION_SMOOTHING_RAD_S)
+
+
+def stopping_friction(level: np.ndarray, viscous: np.ndarray, omega: np.ndarray,
+                      tau_stop: np.ndarray) -> np.ndarray:
+    """The friction torque (N·m) a step applies: it opposes ``tau_stop``, the torque that would stop the
+    shaft within the step, and never exceeds it nor the friction budget ``level + viscous·|ω|``.
+    A shaft held by friction stays put (stick) instead of chattering through zero speed."""
+    budget = level + viscous * np.abs(omega)
+    return -np.sign(tau_stop) * np.minimum(np.abs(tau_stop), budget)

@@ -1,0 +1,60 @@
+"""The one joint integrator of the servo core: every simulator of a servo moves its joints here.
+
+A geared servo's reflected rotor inertia (the armature) and its back-EMF damping dwarf a small
+link, and an explicit step of that damping goes unstable at 1 kHz, so every caller steps
+
+    A Δq̇ = dt · (rhs − f),   A = M(q) + J_a + dt·B,   q' = q + dt·q̇'
+
+semi-implicitly: B (the back-EMF's damping Kt·Ke/R and the viscous friction, through the
+transmission) sits in the matrix, ``rhs`` holds everything else but dry friction (the motors'
+torques, back-EMF included, −h(q, q̇), −viscous·q̇), and ``f`` is the gearbox's dry friction,
+applied by one of :mod:`drivers.servo.friction`'s laws. Only the mass matrix and the bias torques
+differ between simulators, and they come from the caller: PyBullet's dynamics (the robot's plant,
+A as a Cholesky solve), the pendulum's closed form (the stand), a log's inertia and load (one-joint
+identification) or a constant inertia (the bus emulator's default plant), A as its diagonal.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Union
+
+import numpy as np
+
+from drivers.servo.friction import FrictionLaw, smooth_friction, stopping_friction
+
+__all__ = ["JointMatrix", "step_joints"]
+
+_largest = np.maximum.reduce  # one reduction says whether any joint is past a stop
+
+#: A: its diagonal (an array, the matrix being diagonal) or a function solving A x = b.
+JointMatrix = Union[np.ndarray, Callable[[np.ndarray], np.ndarray]]
+
+
+def step_joints(q: np.ndarray, qd: np.ndarray, dt: float, rhs: np.ndarray, matrix: JointMatrix,
+                dry: np.ndarray | None = None, law: FrictionLaw = "smooth", speed: np.ndarray | None = None,
+                lower: np.ndarray | None = None, upper: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The joints' positions and velocities one step of ``dt`` on (new arrays; the inputs are left
+    as they were).
+
+    ``dry``: the dry friction level at each joint (≥ 0; None: none), applied by ``law``:
+    ``"smooth"`` over ``speed`` (the shaft's speed the level is smoothed over; q̇ when None), or
+    ``"stick"``, the force that stops the joint within the step (A diagonal only). ``lower`` and
+    ``upper``: hard stops, where a joint stops dead."""
+    diagonal = isinstance(matrix, np.ndarray)
+    if dry is not None:
+        if law == "smooth":
+            rhs = rhs - smooth_friction(dry, qd if speed is None else speed)
+        elif law == "stick":
+            if not diagonal:
+                raise ValueError("stick-slip friction needs a diagonal mass matrix")
+            rhs = rhs + stopping_friction(dry, 0.0, qd, matrix / dt * qd + rhs)
+        else:
+            raise ValueError(f"unknown friction law {law!r}")
+    qd_new = qd + dt * (rhs / matrix if diagonal else matrix(rhs))
+    q_new = q + dt * qd_new
+    if lower is not None and _largest(np.maximum(lower - q_new, q_new - upper)) > 0.0:
+        stop = (q_new < lower) | (q_new > upper)
+        q_new = np.minimum(np.maximum(q_new, lower), upper)
+        qd_new = np.where(stop, 0.0, qd_new)
+    return q_new, qd_new
