@@ -26,7 +26,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from bench.identify.stand_fit import _init_worker, fit_stand, stand_maes  # noqa: E402
+from bench.stand.fit import fit_stand, init_worker, stand_maes  # noqa: E402
 from bench.stand.logs import read_stand_logs  # noqa: E402
 from bench.stand.predict import predict  # noqa: E402
 from drivers.servo import ServoParams  # noqa: E402
@@ -51,7 +51,7 @@ def main() -> None:
         train = [g for g in logs if g.trajectory != kind]
         test = [i for i, g in enumerate(logs) if g.trajectory == kind]
         started = time.monotonic()
-        with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(train, datasheet)) as pool:
+        with ProcessPoolExecutor(workers, initializer=init_worker, initargs=(train, datasheet)) as pool:
             fit = fit_stand(train, datasheet, generations=args.generations, pool=pool, workers=workers)
         seconds = time.monotonic() - started
         maes = stand_maes([logs[i] for i in test], datasheet, fit.values)[0]

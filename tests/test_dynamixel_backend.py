@@ -18,7 +18,7 @@ from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_dynamixel_backend
 from bench.rig.emulated import EmulatedRig
 from bench.trial.plan import prepare
-from bench.trial.run import run_trial
+from bench.trial.run import TrialHooks, run_trial
 from drivers import CommunicationError, BackendSetupError, HardwareFault, NotEnabledError
 
 REPO = Path(__file__).resolve().parent.parent
@@ -148,13 +148,16 @@ def test_unplug_mid_trial_aborts_within_a_second_and_keeps_the_log(tmp_path):
     cfg = cfg.model_copy(update={"backend": cfg.backend.model_copy(
         update={"fast_sync_read": False, "timeout_ms": 200.0})})
     with EmulatedRig(cfg) as r:
-        res_box = {}
-        t = threading.Thread(target=lambda: res_box.update(res=run_trial(prepare(r.retarget(cfg)), tmp_path)))
+        res_box, moving = {}, threading.Event()
+        hooks = TrialHooks(phase=lambda what: moving.set() if what == "approach" else None)
+        t = threading.Thread(target=lambda: res_box.update(res=run_trial(prepare(r.retarget(cfg)), tmp_path,
+                                                                         hooks)))
         t.start()
+        assert moving.wait(30.0)  # past the start-up, however long its servos took to settle
         start = r.bus.stats.packets
         deadline = time.monotonic() + 30.0
         while r.bus.stats.packets - start < 400 and time.monotonic() < deadline:
-            time.sleep(0.05)  # until the trial has run ~200 cycles, however slow its start-up
+            time.sleep(0.05)  # until the trial has run ~200 cycles
         # silence two servos first: the others must still get torque off
         r.bus.faults.silent_ids = {4, 5}
         t_cut = time.monotonic()

@@ -380,6 +380,11 @@ def jog_rig(tmp_path):
         yield rig, rig_config(tmp_path / "lab.yaml", rig, lab_data())
 
 
+#: How long jog may take to show its screen: the start-up, and up to 10 s for the servos the rig
+#: powered up holding at the factory gains to come back to their goals once the config's are written.
+START_S = 60.0
+
+
 def spawn_jog(path: Path, *extra: str):
     import pexpect
 
@@ -401,7 +406,7 @@ def test_jog_moves_one_joint_and_leaves_torque_off(jog_rig):
     rig, path = jog_rig
     child, screen = spawn_jog(path)
     try:
-        screen.wait_for(r"torque ON")
+        screen.wait_for(r"torque ON", timeout=START_S)
         assert all(s.torque_enabled for s in rig.bus.servos.values())
         child.send("7")  # theta8
         screen.wait_for(r"theta8 selected")
@@ -429,7 +434,7 @@ def test_jog_on_its_own_emulated_rig(tmp_path):
     config.write_text(LAB.read_text())
     child, screen = spawn_jog(config, "--emulate")
     try:
-        screen.wait_for(r"torque ON")
+        screen.wait_for(r"torque ON", timeout=START_S)
         child.send("7")
         screen.wait_for(r"theta8 selected")
         child.send("+")
@@ -446,7 +451,7 @@ def test_jog_ctrl_c_leaves_torque_off(jog_rig):
     rig, path = jog_rig
     child, screen = spawn_jog(path)
     try:
-        screen.wait_for(r"torque ON")
+        screen.wait_for(r"torque ON", timeout=START_S)
         child.send("1")
         child.send("+")
         screen.wait_for(r"train → \+\d+\.\d\d°")  # one step up from where the sensor puts it
@@ -466,7 +471,7 @@ def test_jog_whose_bus_dies_says_torque_off_not_confirmed(jog_rig):
     rig, path = jog_rig
     child, screen = spawn_jog(path)
     try:
-        screen.wait_for(r"torque ON")
+        screen.wait_for(r"torque ON", timeout=START_S)
         rig.bus.unplug()
         child.expect(pexpect.EOF, timeout=60)
     finally:

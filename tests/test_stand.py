@@ -185,7 +185,7 @@ def test_a_fit_on_three_logs_predicts_two_it_never_saw() -> None:
     """Fitted on lift_and_drop (kp 100), sin_time_square (kp 200) and sin_sin (kp 400), the model
     predicts up_and_down (kp 100) and sin_time_square (kp 400) open loop at a mean MAE of 0.020 rad
     (measured; BAM's m3, fitted on all twelve, 0.038; the datasheet 0.245)."""
-    from bench.identify.stand_fit import fit_stand, stand_maes
+    from bench.stand.fit import fit_stand, stand_maes
 
     train = [read_stand_log(LOGS / f"2026-01-15_{n}.json") for n in ("10h28m17", "10h29m04", "10h29m14")]
     test = [read_stand_log(LOGS / f"2026-01-15_{n}.json") for n in ("10h28m24", "10h29m37")]

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.identify.stand_fit import PARAMS, fit_stand, stand_maes
+from bench.stand.fit import PARAMS, fit_stand, stand_maes
 from bench.stand.emulated import BAUD, EmulatedStand
 from bench.stand.logs import read_stand_logs
 from bench.stand.predict import predict

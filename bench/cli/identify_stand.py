@@ -17,7 +17,7 @@ __all__ = ["identify_stand_logs", "split_inputs"]
 def split_inputs(paths: Sequence[Path]) -> bool:
     """True when every path is a test-stand log (or a directory of them), False when none is;
     mixing the two kinds is refused in one line."""
-    from bench.identify.stand_run import is_stand_input  # deferred: --help and completion stay fast
+    from bench.stand.identify import is_stand_input  # deferred: --help and completion stay fast
 
     kinds = [is_stand_input(p) for p in paths]
     if any(kinds) and not all(kinds):
@@ -31,7 +31,7 @@ def identify_stand_logs(paths: Sequence[Path], out: Path, workers: int, generati
                         as_json: bool) -> None:
     """Fit, write, and print the result (one JSON line with ``as_json``)."""
     from bench.identify.errors import IdentifyError  # deferred: --help and completion stay fast
-    from bench.identify.stand_run import identify_stand  # deferred: --help and completion stay fast
+    from bench.stand.identify import identify_stand  # deferred: --help and completion stay fast
 
     refused: IdentifyError | None = None
     with Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(),

@@ -55,7 +55,7 @@ def plot_scores(scores: Sequence[LogScore], title: str, label: str = "predicted"
     return buf.getvalue()
 
 
-def _page(title: str, body: str) -> str:
+def page(title: str, body: str) -> str:
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
             "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
             "td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}</style></head>"
@@ -85,5 +85,5 @@ def write_prediction_report(pred: Prediction, path: Path) -> Path:
             f"Mean MAE over {len(pred.scores)} log(s): <b>{pred.mean_mae:.4f} rad</b>.</p>"
             + score_table(pred.scores) + png_tag(plot_scores(pred.scores, title)))
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(_page(title, body), encoding="utf-8")
+    path.write_text(page(title, body), encoding="utf-8")
     return path

@@ -154,6 +154,8 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
             warned = find_capability(act, StartWarnings)
             if warned is not None and warned.start_warnings:
                 log.metadata["warnings"] = list(warned.start_warnings)
+            if not act.enabled:  # torque on first: a joint taking up its load moves while its
+                act.enable()     # servo settles, and the plan starts from where it then holds
             hooks.tell("planning")
             segments = aimed_plan(prep, act.read().position)
             interrupts.check()  # a signal swallowed during the set-up still stops here

@@ -45,6 +45,7 @@ from drivers.dynamixel.goals import GoalBounds, GoalOutOfRange, outside_limits
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler, port_hint
 from drivers.dynamixel.protocol import decode_hardware_error
 from drivers.dynamixel.settings import DynamixelSettings
+from drivers.dynamixel.settle import settle
 from drivers.dynamixel.units import OPERATING_MODES
 from drivers.train_loop import TrainLoop
 from drivers.ultrasonic import UltrasonicSensor
@@ -356,12 +357,31 @@ class DynamixelActuators(ActuatorsBase):
         if outside:
             raise BackendSetupError(f"{outside}; torque not enabled (check its offset and calibration, "
                                      f"or move it by hand with torque off)")
-        raw = self._goal_ticks(st.position if self._sensor is None else self._encoder_positions(st),
-                               hold=True)
-        self._send_goals(raw)
-        for sid in self._ids:
-            self._write(sid, "Torque Enable", 1)
+        goals = self._goal_ticks(st.position if self._sensor is None else self._encoder_positions(st),
+                                 hold=True)
+        holding = [k for k, sid in enumerate(self._ids) if self._read(sid, "Torque Enable")]
+        for k in holding:  # already holding: keep the goal it holds its load against
+            held = self._read(self._ids[k], "Goal Position")
+            if self._bounds.lo[k] <= held <= self._bounds.hi[k]:
+                goals[k] = held
+        self._send_goals(goals)
+        for k, sid in enumerate(self._ids):
+            if k not in holding:
+                self._write(sid, "Torque Enable", 1)
         self._train_loop.reset()
+        self._settle(goals)
+
+    def _settle(self, goals: np.ndarray) -> None:
+        """Wait until every servo holds still at its goal (:func:`~drivers.dynamixel.settle.settle`)."""
+        s = self.settings
+        if s.settle_timeout_s <= 0:
+            return
+        integrating = [(sv.gains[1] if sv.gains[1] is not None else self._read(sv.id, "Position I Gain")) > 0
+                       for sv in s.servos]
+        why = settle(self._cycle.read_state, goals, np.array(integrating), [sv.joint for sv in s.servos],
+                     ticks=s.settle_ticks, still_s=s.settle_still_s, timeout_s=s.settle_timeout_s)
+        if why:
+            self._warn(why)
 
     def _encoder_positions(self, st: JointState) -> np.ndarray:
         q = st.position.copy()

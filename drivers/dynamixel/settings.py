@@ -61,3 +61,8 @@ class DynamixelSettings:
     ultrasonic: Optional[UltrasonicSettings] = None
     warnings: list[str] = field(default_factory=list)
     limit_tolerance: float = 0.01  # a joint read further beyond a limit at enable: torque refused
+    # enable waits until every servo with an integrator is within settle_ticks of its goal and
+    # none moved over a tick for settle_still_s (at most settle_timeout_s; 0: no wait)
+    settle_ticks: int = 2
+    settle_still_s: float = 0.1
+    settle_timeout_s: float = 10.0

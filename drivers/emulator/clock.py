@@ -7,6 +7,8 @@ import time
 
 import numpy as np
 
+from drivers.dynamixel.units import POSITION_MODES
+
 __all__ = ["PhysicsClock"]
 
 #: Due physics steps a state read waits for; a longer backlog means the physics is not
@@ -93,7 +95,22 @@ class PhysicsClock:
         if float(np.max(self._still_hi - self._still_lo)) > _STILL_TICKS:
             self._still_lo, self._still_hi, self._still_since = ticks, ticks.copy(), self._sim_wall
         elif self._sim_wall - self._still_since >= self.rest_after_s:
-            self._resting, self._rest_since = True, time.perf_counter()
+            if self._integrating():  # creeping to its goal slower than a tick a window: not at rest
+                self._still_since = self._sim_wall
+            else:
+                self._resting, self._rest_since = True, time.perf_counter()
+
+    def _integrating(self) -> bool:
+        """Whether a servo's integrator is still charging: torque on in a position mode with an I
+        gain, over a tick (or its deadband) from its goal. Its load's sag is still being taken up,
+        a few ticks a second, and a rest would freeze it part way."""
+        for servo, _ in self._servos:
+            get = servo.get
+            if (get("Torque Enable") == 1 and get("Operating Mode") in POSITION_MODES
+                    and get("Position I Gain") > 0
+                    and abs(get("Goal Position") - get("Present Position")) > max(1, servo.deadband_ticks)):
+                return True
+        return False
 
     def _wake(self) -> None:
         """A write instruction arrived: the physics resumes from now (the rest skipped no motion)."""

@@ -23,15 +23,15 @@ import yaml
 from bench.config.servo_model import (STAND_JOINT, STAND_ROBOT, LogSource, ServoModelFile, ServoPhysics,
                                       StandSetup)
 from bench.core.rundir import has_run_files
-from bench.identify.errors import IdentifyError
-from bench.identify.stand_errors import stand_errors
-from bench.identify.stand_fit import LOWER, PARAMS, UPPER, StandFit, _init_worker, batch_cost, fit_stand
-from bench.identify.stand_report import write_stand_report
 from bench.stand.errors import StandError
+from bench.stand.fit import LOWER, PARAMS, UPPER, StandFit, batch_cost, fit_stand, init_worker
+from bench.stand.fit_errors import stand_errors
+from bench.stand.identify_report import write_stand_report
 from bench.stand.logs import StandLog, read_stand_logs
 from bench.stand.model import load_stand_model
 from bench.stand.predict import Prediction, predict_logs
 from drivers.dynamixel.control_table import model_spec
+from drivers.errors import IdentifyError
 from drivers.servo import ServoParams
 
 __all__ = ["StandIdentifyResult", "identify_stand", "is_stand_input", "stand_model_file"]
@@ -117,7 +117,7 @@ def identify_stand(paths: Sequence[Path], out: Path, *, workers: int = 0, genera
         raise IdentifyError(f"logs of different servos ({', '.join(motors)}): identify one servo at a time")
     datasheet = ServoParams.datasheet([logs[0].model_number])
     workers = workers or min(os.cpu_count() or 1, 2)
-    pool = (ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(logs, datasheet))
+    pool = (ProcessPoolExecutor(workers, initializer=init_worker, initargs=(logs, datasheet))
             if workers > 1 else None)
     try:
         fit = fit_stand(logs, datasheet, generations=generations, seed=seed, pool=pool, workers=workers,

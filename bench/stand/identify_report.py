@@ -9,7 +9,7 @@ from pathlib import Path
 
 from bench.config.servo_model import STAND_JOINT, ServoModelFile
 from bench.stand.predict import Prediction
-from bench.stand.report import _page, plot_scores, png_tag
+from bench.stand.report import page, plot_scores, png_tag
 
 __all__ = ["write_stand_report"]
 
@@ -57,5 +57,5 @@ def write_stand_report(before: Prediction, after: Prediction, model: ServoModelF
             + "<h2>Datasheet model</h2>"
             + png_tag(plot_scores(before.scores, "datasheet model", "datasheet")))
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(_page("Test-stand identification", body), encoding="utf-8")
+    path.write_text(page("Test-stand identification", body), encoding="utf-8")
     return path

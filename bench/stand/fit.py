@@ -10,7 +10,8 @@ carries) and the stand's gravity offset. The firmware (P gain of each log, the X
 the current limit and the PWM limit stay the datasheet's; the measured supply drives the motor.
 The error of an open-loop rollout is a staircase with long valleys (Kt against R, the friction
 terms against each other), where a gradient method stalls: an evolution strategy reads it at
-the population's scale.
+the population's scale: the bench's one fitting loop (:func:`bench.core.search.evolve`), in
+coordinates running 0..1 across each value's range.
 """
 
 from __future__ import annotations
@@ -21,11 +22,13 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from bench.core.search import evolve
 from bench.stand.logs import StandLog
 from bench.stand.simulate import Slots, rollout
 from drivers.servo import ServoParams
 
-__all__ = ["PARAMS", "StandFit", "batch_cost", "batch_maes", "fit_stand", "stand_maes", "stand_params"]
+__all__ = ["PARAMS", "StandFit", "batch_cost", "batch_maes", "fit_stand", "init_worker", "stand_maes",
+           "stand_params"]
 
 #: The fitted values, in this order, with their search ranges.
 PARAMS = ("kt_nma", "resistance_ohm", "armature_kgm2", "coulomb_nm", "viscous_nms", "load_friction",
@@ -71,7 +74,7 @@ def stand_maes(logs: Sequence[StandLog], datasheet: ServoParams, values: np.ndar
 _WORKER: dict = {}
 
 
-def _init_worker(logs: Sequence[StandLog], datasheet: ServoParams) -> None:
+def init_worker(logs: Sequence[StandLog], datasheet: ServoParams) -> None:
     _WORKER["logs"], _WORKER["datasheet"] = logs, datasheet
 
 
@@ -82,7 +85,7 @@ def _worker_maes(values: np.ndarray) -> np.ndarray:
 def batch_maes(logs: Sequence[StandLog], datasheet: ServoParams, values: np.ndarray,
                pool: Optional[Executor] = None, workers: int = 1) -> np.ndarray:
     """:func:`stand_maes`, the candidates shared among the pool's ``workers`` processes (set up with
-    :func:`_init_worker` on the same logs)."""
+    :func:`init_worker` on the same logs)."""
     if pool is None or workers < 2 or len(values) < 2:
         return stand_maes(logs, datasheet, values)
     parts = np.array_split(values, min(workers, len(values)))
@@ -112,32 +115,16 @@ def fit_stand(logs: Sequence[StandLog], datasheet: ServoParams, *, generations: 
               pool: Optional[Executor] = None, workers: int = 1,
               progress: Callable[[int, int], None] | None = None) -> StandFit:
     """CMA-ES on the mean MAE over ``logs`` from :func:`start_values`; ``pool`` (set up with
-    :func:`_init_worker`) shares each generation's candidates among ``workers`` processes."""
-    import cma  # deferred: only fitting needs it
-
-    def cost(values: np.ndarray) -> np.ndarray:
-        return batch_maes(logs, datasheet, values, pool, workers)
+    :func:`init_worker`) shares each generation's candidates among ``workers`` processes."""
+    def cost(values: np.ndarray, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: ARG001
+        """Each candidate's mean MAE over the logs, and its MAE of each (one servo: ``which`` is all 0)."""
+        maes = batch_maes(logs, datasheet, values, pool, workers)
+        return maes.mean(axis=1), maes
 
     scale = UPPER - LOWER
     x0 = start_values(datasheet)
-    es = cma.CMAEvolutionStrategy(((x0 - LOWER) / scale).tolist(), 0.2,
-                                  {"bounds": [0.0, 1.0], "popsize": POPULATION, "seed": seed + 1,
-                                   "verbose": -9, "tolfun": 1e-7, "tolx": 1e-5})
-    before = cost(x0[None, :])[0]
-    best, best_cost, best_maes = x0, float(before.mean()), before
-    done = 0
-    for g in range(generations):
-        if es.stop():
-            break
-        asked = es.ask()
-        values = LOWER + np.clip(np.array(asked), 0.0, 1.0) * scale
-        maes = cost(values)
-        means = maes.mean(axis=1)
-        es.tell(asked, means.tolist())
-        k = int(np.argmin(means))
-        if means[k] < best_cost:
-            best, best_cost, best_maes = values[k], float(means[k]), maes[k]
-        done = g + 1
-        if progress:
-            progress(done, generations)
-    return StandFit(values=best, mae_after=best_maes, mae_before=before, generations=done)
+    found = evolve(cost, x0[None, :], ((x0 - LOWER) / scale)[None, :], 0.0, 1.0,
+                   lambda x: LOWER + np.clip(x, 0.0, 1.0) * scale, generations=generations,
+                   population=POPULATION, sigma=0.2, seed=seed, tolfun=1e-7, tolx=1e-5, progress=progress)
+    return StandFit(values=found.values[0], mae_after=found.details[0], mae_before=found.start_details[0],
+                    generations=found.generations)
