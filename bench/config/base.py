@@ -13,12 +13,12 @@ import typing
 from pathlib import Path
 from typing import Any, Iterator, Optional
 
-from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, ValidationError, ValidationInfo, field_validator
 
 from bench.config.safe_yaml import YamlRefused, quote, read_mapping
 from drivers.errors import ConfigError
 
-__all__ = ["ConfigError", "Strict", "describe_validation_error", "read_yaml_mapping"]
+__all__ = ["ConfigError", "Strict", "beside_of", "describe_validation_error", "from_record", "read_yaml_mapping"]
 
 
 class Strict(BaseModel):
@@ -32,6 +32,18 @@ class Strict(BaseModel):
         if isinstance(value, (str, Path)) and any(ord(c) < 32 or ord(c) == 127 for c in str(value)):
             raise ValueError("control characters are not allowed")
         return value
+
+
+def from_record(info: ValidationInfo) -> bool:
+    """Whether the config is read back from a run directory's record: then no path it names is
+    followed (the record holds what its trial read; a copied or crafted one names anything)."""
+    return bool(info.context and info.context.get("record"))
+
+
+def beside_of(info: ValidationInfo) -> Optional[Path]:
+    """The folder of the config file being read, where its relative paths are looked for first."""
+    beside = info.context.get("beside") if info.context else None
+    return Path(beside) if beside is not None else None
 
 
 def _models_in(annotation: Any) -> Iterator[type[BaseModel]]:
