@@ -75,8 +75,11 @@ def test_runs_lists_passed_stopped_and_killed_trials_with_their_verdicts(tmp_pat
     assert len(table) >= 7 and all(len(line) <= 80 for line in table)
     assert passed.run_dir.name in text.stdout  # a run's name is never broken mid-value
     assert f"{stopped.run_dir.name}: {stopped.reason}" in text.stdout
-    empty = _cli("runs", "--out", str(tmp_path / "none"))
-    assert empty.returncode == 0 and "no trial runs" in empty.stdout
+    missing = _cli("runs", "--out", str(tmp_path / "none"))
+    assert missing.returncode == 2 and missing.stderr.strip() == f"error: --out {tmp_path / 'none'}: no such directory"
+    (tmp_path / "empty").mkdir()
+    empty = _cli("runs", "--out", str(tmp_path / "empty"))
+    assert empty.returncode == 0 and "no trials, comparisons or campaigns" in empty.stdout
 
 
 def passed_segments(run_dir: Path) -> list[str]:

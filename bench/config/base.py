@@ -9,6 +9,7 @@ is built or moves.
 from __future__ import annotations
 
 import difflib
+import re
 import typing
 from pathlib import Path
 from typing import Any, Iterator, Optional
@@ -88,16 +89,27 @@ def _misspelt(errors: list[dict]) -> tuple[dict, list[str]]:
     return first, []
 
 
+#: A key printed in a refusal: a field name's shape. Any other key (a line of some file that is
+#: no config, ``root:*:20228:…``) is the file's content, and no message prints that.
+_KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$")
+
+
+def _shown_key(part: object) -> str:
+    return str(part) if isinstance(part, int) or _KEY.match(str(part)) else "(a key that is no field name)"
+
+
 def describe_validation_error(err: ValidationError, model: type[BaseModel],
                               source: Optional[object] = None) -> str:
     """One line: ``source: field.path: what is wrong`` (a misspelt field gets what was meant,
     a required field first: ``y_nm`` for the missing ``y_mm``)."""
     errors = err.errors()
     first, missing = _misspelt(errors)
-    where = ".".join(str(p) for p in first["loc"])
+    where = ".".join(_shown_key(p) for p in first["loc"])
     msg = first["msg"]
     explained = 0
-    if first["type"] == "extra_forbidden":
+    if first["type"] == "extra_forbidden" and not _KEY.match(str(first["loc"][-1])):
+        msg = "not a field; is this the right file?"
+    elif first["type"] == "extra_forbidden":
         name = str(first["loc"][-1])
         meant = did_you_mean(name, set(missing))
         if meant:
