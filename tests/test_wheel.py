@@ -4,6 +4,7 @@ folder written by ``hilbench init``, and a trial run from outside the checkout."
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -67,6 +68,15 @@ def test_installed_wheel_inits_a_lab_folder_and_runs_a_trial_outside_the_checkou
     assert "PASSED" in ran.stdout
     (run,) = (tmp_path / "runs").iterdir()
     assert (run / "report.html").is_file() and (run / "robot.png").is_file()
+
+    travelled = tmp_path / "another-machine" / run.name  # the run alone, its config folder left behind
+    shutil.copytree(run, travelled)
+    for name in ("report.html", "report.md", "robot.png", "joints.png"):
+        (travelled / name).unlink()
+    shutil.rmtree(tmp_path / "lab")
+    rebuilt = _hilbench(installed, travelled.parent, "report", run.name)
+    assert rebuilt.returncode == 0, rebuilt.stdout + rebuilt.stderr
+    assert (travelled / "report.html").is_file() and (travelled / "robot.png").is_file()
 
 
 def test_init_writes_the_shipped_configs_and_refuses_a_folder_in_use(tmp_path, monkeypatch):

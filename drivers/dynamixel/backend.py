@@ -105,6 +105,7 @@ class DynamixelActuators(ActuatorsBase):
         self._lost = False  # the bench lost the train's last reading (HostLoop)
         self._fails = 0
         self.firmware: dict[int, int] = {}
+        self.emulated: dict[int, bool] = {}  # what each servo said it is (drivers.dynamixel.identity)
         self.safe_stop_report: Optional[str] = None
         self.models: dict[int, int] = {}
         self.port = BlockingPortHandler(s.port)
@@ -189,6 +190,7 @@ class DynamixelActuators(ActuatorsBase):
                     f"config says {sv.model} ({_model_name(sv.model)}); torque not enabled")
             self.models[sv.id] = model
             self.firmware[sv.id] = self._read(sv.id, "Firmware Version")
+            self.emulated[sv.id] = self._regs.says_emulated(sv.id)
         if missing:
             raise BackendSetupError(
                 f"servo ID(s) {', '.join(missing)} did not answer a ping on {s.port} at {s.baud} "
@@ -461,7 +463,8 @@ class DynamixelActuators(ActuatorsBase):
         """Model and firmware read from the bus, for the trial record."""
         return [{"joint": sv.joint, "id": sv.id, "model": self.models.get(sv.id),
                  "model_name": _model_name(self.models.get(sv.id, 0)),
-                 "firmware": self.firmware.get(sv.id)} for sv in self.settings.servos]
+                 "firmware": self.firmware.get(sv.id), "emulated": self.emulated.get(sv.id, False)}
+                for sv in self.settings.servos]
 
 
 def _model_name(number: int) -> str:
