@@ -43,6 +43,7 @@ from bench.live.follow import RunFollower
 from bench.live.server import LiveServer
 from bench.rig.backends import make_backend
 from bench.trial.plan import interlocks_for, plan, prepare
+from figures import record
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "hil_configs" / "sim_target1.yaml"
@@ -156,6 +157,7 @@ def main() -> None:
     ap.add_argument("--velocity-scale", type=float, default=0.01,
                     help="the plan's speed: at 0.01 the loop lasts seconds, so the page polls during it "
                          "(at the configured 0.5 it ends before the page's first poll)")
+    ap.add_argument("--write-table", action="store_true", help="record the figures in docs/figures.json (docs/figures.md)")
     args = ap.parse_args()
     cores = _cores() if args.pin else None
     if cores:
@@ -180,6 +182,14 @@ def main() -> None:
           f"the page polled {statistics.median(r['polls'] for r in live):.0f} times")
     print(f"load average over the run: {os.getloadavg()[1]:.1f} on {os.cpu_count()} cores"
           + (f"; the trial pinned to core {min(cores[0])}, the browser to core {min(cores[1])}" if cores else ""))
+    if args.write_table:
+        record("benchmarks/live_overhead.py", {
+            "live.overhead": ("servo-model trial loop with the live view / without, best, median, median of "
+                              "pairs (target ≤ 1.05)", f"{best:.3f}, {median:.3f}, {paired:.3f}"),
+            "live.cpu": ("the live view's CPU: loop live/plain; server threads; browser",
+                         f"{cpu:.3f}; {statistics.median(r['server'] for r in live):.2f} s per loop; "
+                         f"{statistics.median(r['browser'] for r in live):.2f} s")},
+            f"{args.repeats} interleaved pairs")
 
 if __name__ == "__main__":
     main()
