@@ -9,7 +9,6 @@ is built or moves.
 from __future__ import annotations
 
 import difflib
-import re
 import typing
 from pathlib import Path
 from typing import Any, Iterator, Optional
@@ -89,13 +88,14 @@ def _misspelt(errors: list[dict]) -> tuple[dict, list[str]]:
     return first, []
 
 
-#: A key printed in a refusal: a field name's shape. Any other key (a line of some file that is
-#: no config, ``root:*:20228:…``) is the file's content, and no message prints that.
-_KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$")
-
-
-def _shown_key(part: object) -> str:
-    return str(part) if isinstance(part, int) or _KEY.match(str(part)) else "(a key that is no field name)"
+def _foreign(errors: list[dict], model: type[BaseModel]) -> bool:
+    """Whether the input is no file of this kind at all: a mapping none of whose keys is one of the
+    model's fields (some other file named by mistake, or on purpose: ``/etc/shadow``). Its keys are
+    its content, and no refusal prints that."""
+    for e in errors:
+        if e["type"] == "missing" and len(e["loc"]) == 1 and isinstance(e.get("input"), dict):
+            return not {str(k) for k in e["input"]} & set(model.model_fields)
+    return False
 
 
 def describe_validation_error(err: ValidationError, model: type[BaseModel],
@@ -103,13 +103,16 @@ def describe_validation_error(err: ValidationError, model: type[BaseModel],
     """One line: ``source: field.path: what is wrong`` (a misspelt field gets what was meant,
     a required field first: ``y_nm`` for the missing ``y_mm``)."""
     errors = err.errors()
+    head = f"{source}: " if source is not None else ""
+    if _foreign(errors, model):
+        required = [n for n, f in model.model_fields.items() if f.is_required()]
+        return (f"{head}not a file of this kind: none of its keys is one of its fields "
+                f"(it needs {', '.join(required)})").replace("\n", " ")
     first, missing = _misspelt(errors)
-    where = ".".join(_shown_key(p) for p in first["loc"])
+    where = ".".join(str(p) for p in first["loc"])
     msg = first["msg"]
     explained = 0
-    if first["type"] == "extra_forbidden" and not _KEY.match(str(first["loc"][-1])):
-        msg = "not a field; is this the right file?"
-    elif first["type"] == "extra_forbidden":
+    if first["type"] == "extra_forbidden":
         name = str(first["loc"][-1])
         meant = did_you_mean(name, set(missing))
         if meant:
@@ -126,7 +129,6 @@ def describe_validation_error(err: ValidationError, model: type[BaseModel],
         where = "" if first["type"] == "value_error" else "(top level)"
     more = err.error_count() - 1 - explained
     extra = f" (and {more} more)" if more > 0 else ""
-    head = f"{source}: " if source is not None else ""
     return f"{head}{where + ': ' if where else ''}{msg}{extra}".replace("\n", " ")
 
 
