@@ -48,6 +48,6 @@ def resolve_named(path: Path | str, beside: Optional[Path | str] = None) -> Path
 
 
 def robot_urdf(robot: str, urdf_dir: Optional[Path | str] = None) -> Path:
-    """The URDF of ``robot`` ("arc-train" → urdf/arc_train.urdf); a relative folder is the shipped data's."""
+    """The URDF of ``robot`` ("arc-train" → urdf/arc_train.urdf); a relative folder, the shipped data's."""
     d = resolve_named(urdf_dir) if urdf_dir is not None else URDF_DIR
     return d / f"{robot.replace('-', '_')}.urdf"

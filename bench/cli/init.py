@@ -13,7 +13,9 @@ __all__ = ["init"]
 
 
 def init(folder: Path = typer.Argument(..., help="The lab folder to create (new or empty).")) -> None:
-    """Write the shipped configs (sim, lab rig, identify, stand, campaigns, servo models) into a folder to edit."""
+    """Write the shipped configs into a new lab folder to edit.
+
+    Sim, lab rig, identification, test stand, campaigns and servo models, their layout kept."""
     from bench.config.shipped import write_lab_folder  # deferred: --help and completion stay fast
 
     try:

@@ -82,7 +82,8 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
     kinds = {k: sum(r.kind == k for r in found) for k in ("trial", "compare", "campaign")}
     console.print(f"{_count(len(found), 'run')} ({', '.join(f'{n} {k}' for k, n in kinds.items() if n)}); "
                   f"tip dist.: how far the needle tip ended from its target; "
-                  f"reports: {out}/RUN/report.html (the run's name links to it)", highlight=False, soft_wrap=True)
+                  f"reports: {out}/RUN/report.html (the run's name links to it)",
+                  highlight=False, soft_wrap=True)
 
 
 #: The verdict, tip and angle columns with the separators between the four columns.

@@ -18,7 +18,8 @@ from pydantic import BaseModel, ConfigDict, ValidationError, ValidationInfo, fie
 from bench.config.safe_yaml import YamlRefused, quote, read_mapping
 from drivers.errors import ConfigError
 
-__all__ = ["ConfigError", "Strict", "beside_of", "describe_validation_error", "from_record", "read_yaml_mapping"]
+__all__ = ["ConfigError", "Strict", "beside_of", "describe_validation_error", "from_record",
+           "read_yaml_mapping"]
 
 
 class Strict(BaseModel):

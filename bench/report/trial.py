@@ -48,7 +48,8 @@ def largest_excursion(log: TrialLog, robot) -> float:
 #: The two profiles of every joint panel: measured underneath, solid; commanded over it, dashed in
 #: a contrasting colour, so it stays visible wherever the two agree (colour-blind safe pair).
 MEASURED_STYLE = {"color": "#1f5fa8", "ls": "-", "lw": 1.6, "zorder": 2, "label": "measured"}
-COMMANDED_STYLE = {"color": "#f28e1c", "ls": (0, (4, 2.5)), "lw": 1.8, "zorder": 3, "label": "commanded (theoretical)"}
+COMMANDED_STYLE = {"color": "#f28e1c", "ls": (0, (4, 2.5)), "lw": 1.8, "zorder": 3,
+                   "label": "commanded (theoretical)"}
 LEGEND_FONTSIZE = 11
 
 

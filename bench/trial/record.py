@@ -84,7 +84,8 @@ def load_checked(run_dir: Path) -> tuple[SavedRun, PreparedTrial]:
     saved = load_run(run_dir)
     log = saved.log
     try:
-        config = TrialConfig.model_validate(_stored_config(log.metadata.get("config")), context={"record": True})
+        config = TrialConfig.model_validate(_stored_config(log.metadata.get("config")),
+                                            context={"record": True})
     except ValidationError as e:  # a record written by an incompatible version, or edited
         raise RunDirError(f"{run_dir}: the config stored in the log is not readable: "
                           f"{describe_validation_error(e, TrialConfig)}") from None
