@@ -50,6 +50,9 @@ def test_wheel_carries_every_urdf_and_shipped_config(wheel):
     assert SHIPPED and "urdf/arc_train.urdf" in SHIPPED and "hil_configs/stand/test_stand_xl330.yaml" in SHIPPED
     missing = [rel for rel in SHIPPED if f"bench/data/{rel}" not in names]
     assert not missing, f"not in the wheel: {missing}"
+    code = [p.relative_to(REPO_ROOT).as_posix() for top in ("bench", "drivers", "trajectories")
+            for p in (REPO_ROOT / top).rglob("*") if p.is_file() and "__pycache__" not in p.parts]
+    assert not [rel for rel in code if rel not in names]  # every module and asset, the live view's too
 
 
 def test_installed_wheel_inits_a_lab_folder_and_runs_a_trial_outside_the_checkout(installed, tmp_path):
