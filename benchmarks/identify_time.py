@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import yaml
+from figures import record
 
 REPO = Path(__file__).resolve().parent.parent
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
@@ -63,6 +64,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="identify runs to time")
     ap.add_argument("--workers", type=int, default=0, help="identify --workers (0: one per core)")
     ap.add_argument("--keep", type=Path, default=None, help="record the logs here and keep them")
+    ap.add_argument("--write-table", action="store_true", help="record the figures in docs/figures.json (docs/figures.md)")
     args = ap.parse_args()
     tmp = args.keep or Path(tempfile.mkdtemp(prefix="identify-bench-"))
     tmp.mkdir(parents=True, exist_ok=True)
@@ -84,6 +86,10 @@ def main() -> None:
         print(f"run {i + 1}: {walls[-1]:.1f} s wall ({last['seconds']:.1f} s inside identify)")
     print(f"identify, {len(last['joints'])} joints from {len(runs)} logs: median {statistics.median(walls):.1f} s, "
           f"best {min(walls):.1f} s (budget 120 s)")
+    if args.write_table:
+        record("benchmarks/identify_time.py", {"identify.time": (
+            "identify's wall time on the excitation logs (budget 120 s)",
+            f"median {statistics.median(walls):.1f} s over {sum(lengths):.0f} s of logs")}, f"{args.runs} runs")
     for name, j in last["joints"].items():
         print(f"  {name:7s} position MAE {j['mae_before']:.2e} -> {j['mae_after']:.2e}; not observable: "
               f"{', '.join(j['unobservable']) or '-'}")

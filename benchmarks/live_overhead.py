@@ -11,7 +11,7 @@ time's p99, and the trials that lost their bus; then the loop's priority and the
 Everything shares the machine's cores, as on a two-core bench computer: the trial, the emulated
 rig, the live view's server and the browser.
 
-    python benchmarks/live_overhead.py [--repeats 3]
+    python benchmarks/live_overhead.py [--repeats 3] [--write-table]
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from figures import record
 
 ROOT = Path(__file__).resolve().parent.parent
 LAB = ROOT / "hil_configs" / "lab_real.yaml"
@@ -79,16 +81,23 @@ def _summary(name: str, runs: list[dict]) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--write-table", action="store_true", help="record the figures in docs/figures.json (docs/figures.md)")
     args = ap.parse_args()
     plain, live = [], []
     for i in range(args.repeats):
         plain.append(_trial(False))
         live.append(_trial(True))
         print(f"repeat {i + 1}/{args.repeats} done", file=sys.stderr, flush=True)
-    print(_summary("plain", plain))
-    print(_summary("live + Chromium", live))
+    rows = {"live.plain": ("an emulated-rig trial (lab_real.yaml --emulate), plain", _summary("plain", plain)),
+            "live.chromium": ("the same trial with its live view open in headless Chromium, drawing",
+                              _summary("live + Chromium", live))}
+    for _, line in rows.values():
+        print(line)
     print(f"the loop's priority: {(plain[0].get('loop_timing') or {}).get('priority')}; "
           f"load average over the run: {os.getloadavg()[1]:.1f} on {os.cpu_count()} cores")
+    if args.write_table:
+        record("benchmarks/live_overhead.py", {k: (what, line.split(": ", 1)[1]) for k, (what, line) in rows.items()},
+               f"{args.repeats} interleaved repeats")
 
 
 if __name__ == "__main__":

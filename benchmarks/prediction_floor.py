@@ -40,6 +40,7 @@ from bench.core.log import TrialLog  # noqa: E402
 from bench.trial.plan import prepare  # noqa: E402
 from bench.trial.run import TrialHooks, run_trial  # noqa: E402
 from drivers.dynamixel.units import RAD_PER_TICK  # noqa: E402
+from figures import record
 
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 
@@ -83,6 +84,7 @@ def main() -> None:
     ap.add_argument("--model", default="datasheet", help="datasheet or a servo model file")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--write-table", action="store_true", help="record the figures in docs/figures.json (docs/figures.md)")
     args = ap.parse_args()
     model = args.model if args.model == "datasheet" else str(Path(args.model).resolve())
     ratios, floors = [], []
@@ -94,6 +96,10 @@ def main() -> None:
             print(f"run {k + 1}: model {ratio:.3f}   floor {floor:.3f}", flush=True)
     print(f"median of {args.runs}: model {statistics.median(ratios):.3f} (best {min(ratios):.3f})   "
           f"floor {statistics.median(floors):.3f} (lowest {min(floors):.3f})")
+    if args.write_table:
+        record("benchmarks/prediction_floor.py", {"prediction.floor": (
+            f"tracking-gap ratio of the {args.model} model beside the measure's floor (default emulated rig)",
+            f"{statistics.median(ratios):.3f} beside {min(floors):.3f}–{max(floors):.3f}")}, f"{args.runs} runs")
 
 
 if __name__ == "__main__":

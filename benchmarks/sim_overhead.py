@@ -30,6 +30,7 @@ from bench.core.log import TrialLog
 from bench.core.runner import Runner
 from bench.rig.backends import make_backend
 from bench.trial.plan import interlocks_for, plan, prepare
+from figures import record
 
 CONFIG = Path(__file__).resolve().parent.parent / "hil_configs" / "sim_target1.yaml"
 LAB = CONFIG.with_name("lab_real.yaml")
@@ -122,11 +123,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=7, help="runs of each loop, interleaved")
     ap.add_argument("--trials", type=int, default=8, help="trials for the trials-per-minute rows")
+    ap.add_argument("--write-table", action="store_true", help="record the figures in docs/figures.json (docs/figures.md)")
     args = ap.parse_args()
     loops = (("bench", bench_loop), ("+safety", lambda h: bench_loop(h, True)), ("bare", bare_loop),
              ("+servo", lambda h: bench_loop(h, True, servo=True)))
     print(f"{'control':>8} {'loop':>8} {'cycles':>7} {'best us':>8} {'median us':>10} "
           f"{'RTF best':>9} {'RTF med':>8}")
+    table: dict[str, tuple[str, str]] = {}
     for hz in (1000.0, 500.0):
         runs: dict[str, list] = {name: [] for name, _ in loops}
         for _ in range(args.repeats):  # interleaved, so a noisy minute hits every loop alike
@@ -143,12 +146,27 @@ def main() -> None:
         for name, target in (("bench", 1.1), ("+safety", 1.3), ("+servo", 1.3)):
             print(f"{'':>8} {name}/bare at {hz:.0f} Hz: best {best[name] / best['bare']:.3f}, "
                   f"median {med[name] / med['bare']:.3f} (target <= {target})")
+            key = {"bench": "sim.bench_bare", "+safety": "sim.safety_bare", "+servo": "sim.servo_bare"}[name]
+            what = {"bench": "bench loop / bare PyBullet loop", "+safety": "with the interlocks / bare",
+                    "+servo": "servo-model trial (interlocks on) / bare"}[name]
+            before = table.get(key, ("", ""))[1]
+            value = f"{best[name] / best['bare']:.2f} / {med[name] / med['bare']:.2f} at {hz / 1000:g} kHz"
+            table[key] = (f"{what}, best / median (target ≤ {target})", f"{before}; {value}" if before else value)
+        if hz == 1000.0:
+            sim_t, cycles = runs["bench"][0][1], runs["bench"][0][2]
+            table["sim.rtf"] = ("real-time factor of the bench loop at 1 kHz (target ≥ 20)",
+                                f"about {sim_t / (med['bench'] * cycles):.0f}")
     print("real-time factor target: >= 20 on one core (bench loop, 1 kHz physics); "
           ">= 15 with the servo model (+servo)")
+    rates = []
     for workers in (1, 2):
         rate = trials_per_minute(workers, args.trials)
+        rates.append(rate)
         print(f"Target 1 sim trials (interlocks on, no figures), {workers} worker"
               f"{'s' if workers > 1 else ''}: {rate:.1f} trials/min")
+    table["sim.trials_per_min"] = ("Target 1 sim trials per minute, one / two workers", f"{rates[0]:.0f} / {rates[1]:.0f}")
+    if args.write_table:
+        record("benchmarks/sim_overhead.py", table, f"{args.repeats} interleaved repeats")
 
 
 if __name__ == "__main__":

@@ -29,8 +29,9 @@ def pytest_terminal_summary(terminalreporter) -> None:
     if not (started and installed and started.isdigit() and installed.isdigit()):
         return
     now = time.time()
+    checks = int(installed) - int(started)
     terminalreporter.write_line(
-        f"ci time: {now - int(started):.0f} s in all (install {int(installed) - int(started)} s, "
+        f"ci time: {now - int(started):.0f} s in all (install and packaging checks {checks} s, "
         f"tests {now - int(installed):.0f} s) on {os.cpu_count()} cores")
 
 

@@ -75,8 +75,11 @@ def test_runs_lists_passed_stopped_and_killed_trials_with_their_verdicts(tmp_pat
     assert len(table) >= 7 and all(len(line) <= 80 for line in table)
     assert passed.run_dir.name in text.stdout  # a run's name is never broken mid-value
     assert f"{stopped.run_dir.name}: {stopped.reason}" in text.stdout
-    empty = _cli("runs", "--out", str(tmp_path / "none"))
-    assert empty.returncode == 0 and "no trial runs" in empty.stdout
+    missing = _cli("runs", "--out", str(tmp_path / "none"))
+    assert missing.returncode == 2 and missing.stderr.strip() == f"error: --out {tmp_path / 'none'}: no such directory"
+    (tmp_path / "empty").mkdir()
+    empty = _cli("runs", "--out", str(tmp_path / "empty"))
+    assert empty.returncode == 0 and "no trials, comparisons or campaigns" in empty.stdout
 
 
 def passed_segments(run_dir: Path) -> list[str]:
@@ -129,3 +132,29 @@ def test_summaries_fit_80_columns_and_never_split_a_value(args):
     too_long = [ln for ln in narrow.stdout.splitlines() if len(ln) > 80]
     assert not too_long, too_long
     assert _numbers(narrow.stdout) == _numbers(wide.stdout)
+
+
+def test_help_lists_every_command_with_a_whole_sentence():
+    """`hilbench --help` shows each command's first line: a sentence that ends, never cut."""
+    from bench.cli.app import app
+    from typer.main import get_command
+
+    group = get_command(app)
+    for name, command in group.commands.items():
+        first = (command.help or "").strip().split("\n\n")[0]
+        assert "\n" not in first, (name, first)  # one line: the list shows no more of it
+        assert first.endswith("."), (name, first)
+    shown = _cli("--help", env={**os.environ, "COLUMNS": "200"}).stdout
+    for name, command in group.commands.items():
+        first = (command.help or "").strip().split("\n\n")[0]
+        assert " ".join(first.split()) in " ".join(shown.replace("│", " ").split()), name
+
+
+def test_check_ends_with_a_count_line_also_with_emulate():
+    lab = Path(__file__).resolve().parent.parent / "hil_configs" / "lab_real.yaml"
+    emulated = _cli("check", str(lab), "--emulate")
+    assert emulated.returncode == 0, emulated.stderr
+    assert " ".join(emulated.stdout.split()).endswith(
+        "2 of 2 checks passed; the serial ports not checked (--emulate brings its own)"), emulated.stdout
+    real = _cli("check", str(lab))  # no adapter here: the ports fail, and the count says so
+    assert real.returncode == 2 and real.stdout.splitlines()[-1] == "2 of 3 checks passed"

@@ -87,7 +87,7 @@ def test_a_path_comes_back_whole(tmp_path, text):
     out = tmp_path / f"runs{text}"
     out.mkdir(parents=True)
     listed = hilbench("runs", "--out", str(out))
-    assert listed.returncode == 0 and squashed(listed.stdout) == squashed(f"no trial runs in {out}")
+    assert listed.returncode == 0 and squashed(listed.stdout) == squashed(f"no trials, comparisons or campaigns in {out}")
     compared = hilbench("compare", str(missing.with_suffix(".npz")), str(missing))
     assert compared.returncode == 2 and str(missing.with_suffix(".npz")) in one_error_line(compared)
 

@@ -193,3 +193,44 @@ def test_an_emulate_rehearsal_says_emulated_in_runs_report_and_log(tmp_path):
     table = subprocess.run([hilbench, "runs", "--out", str(out)], capture_output=True, text=True,
                            timeout=60, env={**os.environ, "COLUMNS": "200"})
     assert "dynamixel (emulated)" in table.stdout
+
+
+def test_a_trial_against_hilbench_emulate_in_another_terminal_is_recorded_emulated(tmp_path):
+    """The emulator serving from another process: this one does not know its port, the bus says."""
+    import subprocess
+    import sys
+
+    hilbench = str(Path(sys.executable).with_name("hilbench"))
+    proc = subprocess.Popen([hilbench, "emulate", str(LAB), "--json"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        ports = json.loads(proc.stdout.readline())
+        data = short_lab(tmp_path)
+        data["backend"].update(port=ports["dynamixel_port"])
+        data["backend"]["ultrasonic"].update(port=ports["ultrasonic_port"])
+        data.pop("emulator", None)
+        path = write(tmp_path, "lab-there", data)
+        out = tmp_path / "runs"
+        done = subprocess.run([hilbench, "trial", str(path), "--json", "--out", str(out)],
+                              capture_output=True, text=True, timeout=300)
+        assert done.returncode in (0, 1), done.stderr
+        run = Path(json.loads(done.stdout)["run_dir"])
+        rec = json.loads((run / "record.json").read_text())
+        assert rec["rig"] == "emulated" and all(s["emulated"] for s in rec["servos"])
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_a_real_servos_refusal_of_the_identity_read_says_real():
+    """A real servo answers a READ past its table with an error and no data: never emulated."""
+    from bench.rig.serving import bus_rig_kind
+    from drivers.dynamixel.identity import EMULATED_REPLY, is_emulated_reply
+
+    assert is_emulated_reply(0, EMULATED_REPLY)
+    assert not is_emulated_reply(0x07, b"")  # Access Error, as X firmware answers
+    assert not is_emulated_reply(0x04, EMULATED_REPLY)  # any error bit: not the emulator's answer
+    assert not is_emulated_reply(0, b"\x00\x00\x00\x00")
+    assert bus_rig_kind("real", [{"emulated": False}] * 9) == "real"
+    assert bus_rig_kind("real", [{"emulated": True}] * 8 + [{"emulated": False}]) == "real"
+    assert bus_rig_kind("real", [{"emulated": True}] * 9) == "emulated"

@@ -71,8 +71,8 @@ def test_trials_compares_and_campaigns_are_listed_together_oldest_first(outputs)
 def test_the_table_has_a_kind_column_and_links_each_report(outputs, monkeypatch):
     res = CliRunner().invoke(app, ["runs", "--out", str(outputs)], env={"COLUMNS": "160"})
     assert res.exit_code == 0, res.stderr
-    kinds = [line.split("│")[0].strip() for line in res.stdout.splitlines() if "│" in line]
-    assert sorted(k for k in kinds if k) == ["campaign", "compare", "trial", "trial"]
+    kinds = [line.split("│")[0].strip().split(",")[0] for line in res.stdout.splitlines() if "│" in line]
+    assert sorted(k for k in kinds if k in ("campaign", "compare", "trial")) == ["campaign", "compare", "trial", "trial"]
     assert "4 runs (2 trial, 1 compare, 1 campaign)" in res.stdout
     assert "campaigns/20990101-000000-listed: 1 of 2 trials passed" in res.stdout
     terminal = Console(file=io.StringIO(), force_terminal=True, width=160)  # one that shows hyperlinks
@@ -156,3 +156,27 @@ def test_a_damaged_or_unfinished_campaign_is_listed_as_such(outputs, tmp_path):
     assert "not a campaign database" in runs["garbage"]["reason"]
     assert runs["unfinished"]["status"] == "incomplete"
     assert f"campaign resume {unfinished}" in runs["unfinished"]["reason"]
+
+
+def test_at_80_columns_every_run_name_is_whole_and_the_tip_is_labelled_a_distance(outputs):
+    res = CliRunner().invoke(app, ["runs", "--out", str(outputs)], env={"COLUMNS": "80"})
+    assert res.exit_code == 0, res.stderr
+    lines = res.stdout.splitlines()
+    for r in _listed(outputs):
+        name = str(Path(r["run_dir"]).relative_to(outputs))
+        assert any(name in line for line in lines), (name, res.stdout)  # on one line: copyable
+    assert "tip dist. mm" in res.stdout and "tip dist.: how far the needle tip ended from its target" in res.stdout
+
+
+def test_one_run_is_counted_as_one_run(outputs, tmp_path):
+    one = next(d for d in outputs.iterdir() if (d / "record.json").is_file())
+    shutil.copytree(one, tmp_path / one.name)
+    res = CliRunner().invoke(app, ["runs", "--out", str(tmp_path)], env={"COLUMNS": "120"})
+    assert res.exit_code == 0 and "1 run (1 trial)" in res.stdout and "1 runs" not in res.stdout, res.stdout
+
+
+def test_runs_refuses_an_out_that_is_not_a_directory_in_one_line(tmp_path):
+    (tmp_path / "file").write_text("x")
+    for out, why in ((tmp_path / "missing", "no such directory"), (tmp_path / "file", "not a directory")):
+        res = CliRunner().invoke(app, ["runs", "--out", str(out)])
+        assert res.exit_code == 2 and res.stderr.strip() == f"error: --out {out}: {why}", res.stderr

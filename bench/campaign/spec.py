@@ -31,9 +31,10 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from bench.config.base import describe_validation_error
-from bench.config.models import REPO_ROOT, AcceptanceConfig, ConfigError, TrialConfig, read_yaml_mapping
+from bench.config.models import AcceptanceConfig, ConfigError, TrialConfig, read_yaml_mapping
 from bench.faults import parse_fault
 from bench.kinematics.registry import get_robot
+from bench.paths import resolve_named
 from drivers.errors import CampaignSpecError
 
 __all__ = ["Axis", "CampaignSpec", "CampaignSpecError", "PlannedTrial", "load_campaign_spec",
@@ -97,13 +98,8 @@ class PlannedTrial:
 
 
 def resolve_base(spec: CampaignSpec) -> Path:
-    """The base config: beside the spec file if it exists there, else under the repository."""
-    base = Path(spec.base)
-    if base.is_absolute():
-        return base
-    if spec.source is not None and (Path(spec.source).parent / base).is_file():
-        return (Path(spec.source).parent / base).resolve()
-    return (REPO_ROOT / base).resolve()
+    """The base config: beside the spec file if it exists there, else in the shipped data."""
+    return resolve_named(spec.base, Path(spec.source).parent if spec.source is not None else None).resolve()
 
 
 def load_campaign_spec(path: Path | str) -> CampaignSpec:
@@ -270,7 +266,8 @@ def plan_trials(spec: CampaignSpec, limit: int | None = None) -> list[PlannedTri
                 name = f"{spec.name}-{tid:05d}"
                 data = {**base, "name": name, "seed": seed, "faults": base_faults + faults}
                 try:
-                    cfg = TrialConfig.model_validate({**data, "source": base_path})
+                    cfg = TrialConfig.model_validate({**data, "source": base_path},
+                                                     context={"beside": Path(base_path).parent})
                 except ValidationError as e:
                     raise CampaignSpecError(describe_validation_error(
                         e, TrialConfig, f"base {base_path.name}")) from None
@@ -286,4 +283,7 @@ def json_config(cfg: TrialConfig) -> dict:
 
     data = json.loads(cfg.model_dump_json())
     data["urdf_dir"] = str(cfg.resolve(cfg.urdf_dir))
+    model = data["backend"].get("servo_model")
+    if model not in (None, "ideal", "datasheet"):  # a file, found where the base config is
+        data["backend"]["servo_model"] = str(cfg.resolve(Path(model)))
     return data

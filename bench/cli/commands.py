@@ -29,6 +29,7 @@ from bench.cli.contact import contact_protocol
 from bench.cli.export import export
 from bench.cli.files import schema, urdf_build
 from bench.cli.identify import identify
+from bench.cli.init import init
 from bench.cli.lab import calibrate, doctor, jog, scan
 from bench.cli.predict import predict
 from bench.cli.registers import registers
@@ -196,7 +197,7 @@ def ik(name: str = typer.Argument(..., metavar="ROBOT", help=ROBOT_HELP),
 
 
 # Registered in the order `hilbench --help` lists them.
-for command in (check, trial, emulate, report, runs, export, schema):
+for command in (init, check, trial, emulate, report, runs, export, schema):
     app.command()(command)
 urdf_app.command("build")(urdf_build)
 for command in (accuracy, workspace):

@@ -16,12 +16,15 @@ __all__ = ["export"]
 
 
 def _result_of(run_dir: Path) -> dict | None:
-    """result.json's fields when it is a JSON object (the MCAP file carries them as metadata)."""
+    """result.json's fields when it passes its checks (the MCAP file carries them as metadata);
+    read as every reader reads it, so a link out of the run directory is never followed."""
+    from bench.core.rundir import RunDirError, read_result  # deferred: --help and completion stay fast
+
     try:
-        res = json.loads((run_dir / "result.json").read_text())
-    except (OSError, ValueError):
+        res = read_result(run_dir)
+    except RunDirError:
         return None
-    return res if isinstance(res, dict) else None
+    return json.loads(res.model_dump_json()) if res is not None else None
 
 
 def export(run_dir: Path = typer.Argument(..., help="A trial's run directory."),

@@ -31,8 +31,9 @@ def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR",
              iterations: int = typer.Option(8, "--iterations", min=1, max=50,
                                             help="Most Levenberg-Marquardt steps that polish the search's best."),
              as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
-    """Fit each joint's servo physics (motor constant, armature, friction) to the rig's logs, or one
-    servo's to test-stand logs (BAM's pendulum format)."""
+    """Fit the servos' physics (motor constant, armature, friction) to the rig's or a test stand's logs.
+
+    Trial run directories give each joint's; test-stand logs (BAM's pendulum format), one servo's."""
     from bench.cli.identify_stand import identify_stand_logs, split_inputs  # deferred: --help stays fast
 
     if split_inputs(run_dirs):

@@ -16,7 +16,7 @@ from rich.style import Style
 from rich.table import Table
 from rich.text import Text
 
-from bench.cli.common import console, emit_json
+from bench.cli.common import console, emit_json, fail
 
 __all__ = ["list_outputs", "runs"]
 
@@ -51,35 +51,47 @@ def list_outputs(out: Path) -> list:
 
 def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory trials, compares and campaigns wrote into."),
          as_json: bool = typer.Option(False, "--json", help="Print the runs as one JSON line.")) -> None:
-    """List past trials, comparisons and campaigns: kind, date, config, verdict, deviations and
-    report, oldest first."""
+    """List past trials, comparisons and campaigns, oldest first, with verdicts and reports."""
+    if not out.is_dir():
+        fail(f"--out {out}: no such directory" if not out.exists() else f"--out {out}: not a directory")
     found = list_outputs(out)
     if as_json:
         emit_json({"out": str(out), "runs": [r.as_dict() for r in found]})
         return
     if not found:
-        console.print(f"no trial runs in {out}", highlight=False)  # nor compares, nor campaigns
+        console.print(f"no trials, comparisons or campaigns in {out}", highlight=False)
         return
-    t = Table(title=f"runs in {out}", title_justify="left", show_edge=False, pad_edge=False)  # fits 80 columns
-    t.add_column("kind", no_wrap=True)
-    t.add_column("run (started, config)", overflow="fold")  # a narrow terminal folds names, never a verdict
-    t.add_column("backend", overflow="fold", min_width=8)
+    names = [_shown(Path(r.run_dir), out) for r in found]
+    t = Table(title=f"runs in {out}", title_justify="left", show_edge=False, pad_edge=False)
+    # the run's name is never wrapped (it is copied into the next command); what ran it goes under it
+    t.add_column("run (what ran it)", no_wrap=True, min_width=max(map(len, names)))
     t.add_column("verdict", no_wrap=True)
-    t.add_column("tip mm", justify="right", no_wrap=True)
+    t.add_column("tip dist. mm", justify="right", no_wrap=True)
     t.add_column("angle °", justify="right", no_wrap=True)
-    for r in found:
+    for r, name in zip(found, names):
         tip = "" if r.tip_deviation_mm is None else f"{r.tip_deviation_mm:.2f}"
         angle = "" if r.angle_deviation_deg is None else f"{r.angle_deviation_deg:+.3f}"
         backend = f"{r.backend or '?'} ({r.rig})" if r.rig and r.rig != "sim" else (r.backend or "?")
-        t.add_row(r.kind, _linked(_shown(Path(r.run_dir), out), r.report), backend,
-                  Text(r.status, style=_COLOUR.get(r.status)), tip, angle)
-    console.print(t)
-    for r in found:
+        cell = _linked(name, r.report).append(f"\n{r.kind}, {backend}", style="dim")
+        t.add_row(cell, Text(r.status, style=_COLOUR.get(r.status)), tip, angle)
+    # as wide as the longest name needs: a narrow terminal wraps the line, never a name
+    console.print(t, width=max(console.width, max(map(len, names)) + _OTHER_COLUMNS))
+    for r, name in zip(found, names):
         if r.reason:
-            console.print(f"{_shown(Path(r.run_dir), out)}: {r.reason}", highlight=False, soft_wrap=True)
+            console.print(f"{name}: {r.reason}", highlight=False, soft_wrap=True)
     kinds = {k: sum(r.kind == k for r in found) for k in ("trial", "compare", "campaign")}
-    console.print(f"{len(found)} runs ({', '.join(f'{n} {k}' for k, n in kinds.items() if n)}); "
-                  f"reports: {out}/RUN/report.html (the run's name links to it)", highlight=False)
+    console.print(f"{_count(len(found), 'run')} ({', '.join(f'{n} {k}' for k, n in kinds.items() if n)}); "
+                  f"tip dist.: how far the needle tip ended from its target; "
+                  f"reports: {out}/RUN/report.html (the run's name links to it)",
+                  highlight=False, soft_wrap=True)
+
+
+#: The verdict, tip and angle columns with the separators between the four columns.
+_OTHER_COLUMNS = len("incomplete") + len("tip dist. mm") + len("angle °") + 3 * 3
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def _subdirs(parent: Path) -> list[Path]:

@@ -22,8 +22,9 @@ def stand(config: Path = typer.Argument(..., metavar="CONFIG", help="A test-stan
           serve: bool = typer.Option(False, "--serve", help="Only serve the emulated stand on a pseudo-terminal "
                                                              "(real time) until Ctrl-C, for another recorder."),
           as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
-    """Run the stand's excitation (BAM's trajectories at the config's P gains) and write each run's
-    log in BAM's format, for `hilbench identify` and `hilbench predict`."""
+    """Run a test stand's excitation (BAM's trajectories) and write its logs in BAM's format.
+
+    At the config's P gains, one log per run, for `hilbench identify` and `hilbench predict`."""
     from bench.config.base import ConfigError  # deferred: --help and completion stay fast
     from bench.stand.config import load_stand_config  # deferred: --help and completion stay fast
     from bench.stand.session import record_session, serve_stand  # deferred: --help and completion stay fast

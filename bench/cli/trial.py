@@ -52,6 +52,9 @@ def check(config: Path = typer.Argument(..., help="A trial config to check."),
         for r in results:
             mark = "[green]ok[/]  " if r.ok else "[red]FAIL[/]"
             console.print(styled(mark + " {}: {}", r.name, r.detail), highlight=False)
+        passed = sum(r.ok for r in results)
+        ports = "; the serial ports not checked (--emulate brings its own)" if emulate else ""
+        console.print(f"{passed} of {len(results)} checks passed{ports}", highlight=False)
     if failed is not None:
         fail(failed.detail if as_json else f"a trial would be refused ({failed.name}, above)")
 

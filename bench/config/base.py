@@ -13,12 +13,13 @@ import typing
 from pathlib import Path
 from typing import Any, Iterator, Optional
 
-from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, ValidationError, ValidationInfo, field_validator
 
 from bench.config.safe_yaml import YamlRefused, quote, read_mapping
 from drivers.errors import ConfigError
 
-__all__ = ["ConfigError", "Strict", "describe_validation_error", "read_yaml_mapping"]
+__all__ = ["ConfigError", "Strict", "beside_of", "describe_validation_error", "from_record",
+           "read_yaml_mapping"]
 
 
 class Strict(BaseModel):
@@ -32,6 +33,18 @@ class Strict(BaseModel):
         if isinstance(value, (str, Path)) and any(ord(c) < 32 or ord(c) == 127 for c in str(value)):
             raise ValueError("control characters are not allowed")
         return value
+
+
+def from_record(info: ValidationInfo) -> bool:
+    """Whether the config is read back from a run directory's record: then no path it names is
+    followed (the record holds what its trial read; a copied or crafted one names anything)."""
+    return bool(info.context and info.context.get("record"))
+
+
+def beside_of(info: ValidationInfo) -> Optional[Path]:
+    """The folder of the config file being read, where its relative paths are looked for first."""
+    beside = info.context.get("beside") if info.context else None
+    return Path(beside) if beside is not None else None
 
 
 def _models_in(annotation: Any) -> Iterator[type[BaseModel]]:
@@ -76,11 +89,26 @@ def _misspelt(errors: list[dict]) -> tuple[dict, list[str]]:
     return first, []
 
 
+def _foreign(errors: list[dict], model: type[BaseModel]) -> bool:
+    """Whether the input is no file of this kind at all: a mapping none of whose keys is one of the
+    model's fields (some other file named by mistake, or on purpose: ``/etc/shadow``). Its keys are
+    its content, and no refusal prints that."""
+    for e in errors:
+        if e["type"] == "missing" and len(e["loc"]) == 1 and isinstance(e.get("input"), dict):
+            return not {str(k) for k in e["input"]} & set(model.model_fields)
+    return False
+
+
 def describe_validation_error(err: ValidationError, model: type[BaseModel],
                               source: Optional[object] = None) -> str:
     """One line: ``source: field.path: what is wrong`` (a misspelt field gets what was meant,
     a required field first: ``y_nm`` for the missing ``y_mm``)."""
     errors = err.errors()
+    head = f"{source}: " if source is not None else ""
+    if _foreign(errors, model):
+        required = [n for n, f in model.model_fields.items() if f.is_required()]
+        return (f"{head}not a file of this kind: none of its keys is one of its fields "
+                f"(it needs {', '.join(required)})").replace("\n", " ")
     first, missing = _misspelt(errors)
     where = ".".join(str(p) for p in first["loc"])
     msg = first["msg"]
@@ -102,7 +130,6 @@ def describe_validation_error(err: ValidationError, model: type[BaseModel],
         where = "" if first["type"] == "value_error" else "(top level)"
     more = err.error_count() - 1 - explained
     extra = f" (and {more} more)" if more > 0 else ""
-    head = f"{source}: " if source is not None else ""
     return f"{head}{where + ': ' if where else ''}{msg}{extra}".replace("\n", " ")
 
 

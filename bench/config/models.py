@@ -11,15 +11,16 @@ import json
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
-from pydantic import Field, PrivateAttr, ValidationError, field_validator, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, field_validator, model_validator
 
-from bench.config.base import ConfigError, Strict, describe_validation_error, read_yaml_mapping
+from bench.config.base import (ConfigError, Strict, beside_of, describe_validation_error, from_record,
+                               read_yaml_mapping)
 from bench.config.calibration import check_calibration
 from bench.config.crossref import check_cross_references
 from bench.config.servo_model import ServoPhysics, load_servo_model_file, physics_for
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot, trial_refusal
-from bench.paths import REPO_ROOT, robot_urdf
+from bench.paths import REPO_ROOT, resolve_named, robot_urdf
 from drivers.dynamixel.control_table import supported_models
 from drivers.dynamixel.units import BAUD_RATES
 
@@ -128,14 +129,15 @@ class PyBulletBackendConfig(Strict):
         default="ideal", description="ideal: PyBullet's position motors; datasheet: the joints driven "
                                      "through the servo model (firmware PID, motor, gearbox) with the "
                                      "servo table's models and gains; or a servo model file (YAML: "
-                                     "per-joint physics over the datasheet, relative: to the project)")
+                                     "per-joint physics over the datasheet; relative: beside the config, "
+                                     "else the shipped data's)")
 
     @field_validator("servo_model")
     @classmethod
-    def _known_servo_model(cls, v: str) -> str:
-        if v in ("ideal", "datasheet"):
-            return v
-        path = Path(v) if Path(v).is_absolute() else REPO_ROOT / v
+    def _known_servo_model(cls, v: str, info: ValidationInfo) -> str:
+        if v in ("ideal", "datasheet") or from_record(info):
+            return v  # a record's config names the file its trial read; it is not read again
+        path = resolve_named(v, beside_of(info))
         if not path.is_file():
             raise ValueError(f"servo_model {v!r} is neither ideal, datasheet nor a servo model file "
                              f"(not found: {path})")
@@ -152,8 +154,8 @@ class PyBulletBackendConfig(Strict):
                                   "and steered by the host loop, as on the rig (the port is not opened)")
     rig: Optional[Path] = Field(
         default=None, description="with a servo model: a dynamixel trial config whose servo table and "
-                                  "ultrasonic sensor the sim runs (relative: to the project), instead "
-                                  "of writing them again here")
+                                  "ultrasonic sensor the sim runs (relative: beside the config, else "
+                                  "the shipped data's), instead of writing them again here")
 
     @field_validator("safe_stop", mode="before")
     @classmethod
@@ -371,8 +373,8 @@ class TrialConfig(Strict):
     name: str = Field(pattern=NAME_PATTERN, description="letters, digits, . _ - (the run's folder)")
     robot: Literal["arc-train"] = Field(default="arc-train", description="the robot driven (trials run "
                                         "arc-train; `hilbench robot` lists what zerobot and para-brachy lack)")
-    urdf_dir: Path = Field(default=Path("urdf"), description="the scene's URDFs (relative: to the "
-                                                             "config's folder, then the project)")
+    urdf_dir: Path = Field(default=Path("urdf"), description="the scene's URDFs (relative: beside the "
+                                                             "config, else the shipped data's)")
     control_hz: float = Field(default=500.0, ge=1, le=2000, description="control cycles per second")
     seed: int = Field(default=0, ge=0, le=SEED_MAX, description="seed of every random fault")
     target: TargetConfig = Field(description="where the needle goes")
@@ -414,7 +416,7 @@ class TrialConfig(Strict):
 
     @model_validator(mode="before")
     @classmethod
-    def _rig_servos(cls, data: Any) -> Any:
+    def _rig_servos(cls, data: Any, info: ValidationInfo) -> Any:
         """A sim naming its rig (``backend.rig``) takes the rig's servo table and sensor, once."""
         b = data.get("backend") if isinstance(data, dict) else None
         if not isinstance(b, dict) or b.get("kind") != "pybullet" or not b.get("rig"):
@@ -424,7 +426,10 @@ class TrialConfig(Strict):
                              "backend.servo_model: datasheet, or drop backend.rig")
         if b.get("servos"):  # taken already (a config read back from a record)
             return data
-        path = Path(b["rig"]) if Path(b["rig"]).is_absolute() else REPO_ROOT / b["rig"]
+        if from_record(info):
+            raise ValueError("backend.rig: the record holds no servo table from its rig (a record's "
+                             "config names no file to read)")
+        path = resolve_named(b["rig"], beside_of(info))
         try:
             raw = read_yaml_mapping(path, "rig config", ConfigError)
             kind = (raw.get("backend") or {}).get("kind") if isinstance(raw.get("backend"), dict) else None
@@ -464,11 +469,8 @@ class TrialConfig(Strict):
         return parse_faults(self.faults, get_robot(self.robot).joint_names) if self.faults else []
 
     def resolve(self, path: Path) -> Path:
-        """A path from the config, relative to the repository root if not absolute."""
-        path = Path(path)
-        if path.is_absolute():
-            return path
-        return REPO_ROOT / path
+        """A path from the config: relative, beside the config's file if there, else the shipped data's."""
+        return resolve_named(path, Path(self.source).parent if self.source else None)
 
     @property
     def robot_urdf(self) -> Path:
@@ -481,7 +483,7 @@ def load_trial_config(path: Path | str, overrides: dict | None = None) -> TrialC
     data = read_yaml_mapping(path, "config file", ConfigError)
     data.update(overrides or {})
     try:
-        config = TrialConfig.model_validate({**data, "source": path})
+        config = TrialConfig.model_validate({**data, "source": path}, context={"beside": path.parent})
     except ValidationError as e:
         raise ConfigError(describe_validation_error(e, TrialConfig, path)) from None
     if config.calibration is not None:  # read once: a trial applies and records this content

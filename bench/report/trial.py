@@ -12,7 +12,7 @@ import numpy as np
 from bench.core.log import TrialLog
 from bench.core.result import PreparedTrial, TrialResult, write_result_json
 from bench.kinematics.arc_train import train_pose
-from bench.scene.render import render_robot
+from bench.scene.render import SIDE_VIEW, render_robot
 
 
 def joint_display(robot, name: str, values: np.ndarray) -> tuple[np.ndarray, str, str]:
@@ -45,8 +45,16 @@ def largest_excursion(log: TrialLog, robot) -> float:
     return worst
 
 
-def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Path:
-    """Commanded (theoretical) vs measured profile of every joint, one panel each."""
+#: The two profiles of every joint panel: measured underneath, solid; commanded over it, dashed in
+#: a contrasting colour, so it stays visible wherever the two agree (colour-blind safe pair).
+MEASURED_STYLE = {"color": "#1f5fa8", "ls": "-", "lw": 1.6, "zorder": 2, "label": "measured"}
+COMMANDED_STYLE = {"color": "#f28e1c", "ls": (0, (4, 2.5)), "lw": 1.8, "zorder": 3,
+                   "label": "commanded (theoretical)"}
+LEGEND_FONTSIZE = 11
+
+
+def joint_figure(log: TrialLog, robot, title: str = ""):
+    """The figure of :func:`plot_joint_profiles` (matplotlib), one panel a joint, one legend above."""
     import matplotlib  # heavy: loaded only when a figure is drawn
 
     matplotlib.use("Agg")
@@ -55,14 +63,14 @@ def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Pa
     names = log.joint_names
     cols = 3
     rows = int(np.ceil(len(names) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(12, 3.0 * rows), sharex=True)
+    fig, axes = plt.subplots(rows, cols, figsize=(12, 3.0 * rows + 0.6), sharex=True, squeeze=False)
     t = log.time - (log.time[0] if len(log) else 0.0)
     for ax, name in zip(axes.flat, names):
         j = log.joint(name)
         cmd, unit, label = joint_display(robot, name, log.q_cmd[:, j])
         meas, _, _ = joint_display(robot, name, log.q[:, j])
-        ax.plot(t, cmd, "r:", lw=1.8, label="theoretical (commanded)")
-        ax.plot(t, meas, "b-", lw=1.0, label="measured")
+        ax.plot(t, meas, **MEASURED_STYLE)
+        ax.plot(t, cmd, **COMMANDED_STYLE)
         ax.set_title(label)
         ax.set_ylabel(unit)
         ax.ticklabel_format(axis="y", useOffset=False)  # values as read, not as offsets
@@ -79,12 +87,24 @@ def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Pa
     stops = [ev for ev in log.events if ev.kind in ("interlock", "abort")]
     for ev in stops[:1]:
         for ax in axes.flat[: len(names)]:
-            ax.axvline(ev.time - (log.time[0] if len(log) else 0), color="k", ls="--", lw=0.8,
+            ax.axvline(ev.time - (log.time[0] if len(log) else 0), color="k", ls=":", lw=1.0, zorder=4,
                        label=f"{ev.kind}: stopped here")
-    axes.flat[0].legend(loc="best", fontsize=8)
+    height = fig.get_figheight()
+    title_in = 0.4 if title else 0.0  # inches above the legend for the title
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=LEGEND_FONTSIZE,
+               frameon=False, bbox_to_anchor=(0.5, 1.0 - title_in / height))
     if title:
-        fig.suptitle(title)
-    fig.tight_layout()
+        fig.suptitle(title, fontsize=13, y=1.0 - 0.08 / height, va="top")
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - (title_in + 0.15) / height))
+    return fig
+
+
+def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Path:
+    """Commanded (theoretical) over measured profile of every joint, one panel each, as a PNG."""
+    import matplotlib.pyplot as plt  # heavy: loaded only when a figure is drawn
+
+    fig = joint_figure(log, robot, title)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
@@ -206,10 +226,11 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
                  "at the end of the run" if result.excitation else "at the end of the insertion")
         lines += [f"![robot {where}]({figures['robot']})", ""]
         if not result.excitation:
-            lines += [f"*The robot {where}, seen from the side, the phantom left out. Red: the "
-                      f"planned needle path, to the target's tip (from 30 mm above its entry point); "
-                      f"green: the entry point and tip where the robot placed the needle (measured "
-                      f"joints).*", ""]
+            lines += [f"*The robot {where}, seen {SIDE_VIEW} (the phantom and the gantry left "
+                      f"out; the bed in grey). Red: the planned insertion, from the target's entry "
+                      f"point (red ball) to its tip; orange: the planned approach, the 30 mm the "
+                      f"needle travels above the entry point; green: the entry point and tip where "
+                      f"the robot placed the needle (measured joints).*", ""]
         else:
             lines += [f"*The robot {where}, in the CT room.*", ""]
     lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Loop timing", "",

@@ -13,7 +13,7 @@ from __future__ import annotations
 import threading
 from typing import Any, Literal, Optional
 
-__all__ = ["RigKind", "attach", "detach", "hooks_for", "rig_kind"]
+__all__ = ["RigKind", "attach", "detach", "bus_rig_kind", "hooks_for", "rig_kind"]
 
 RigKind = Literal["sim", "emulated", "real"]
 
@@ -45,3 +45,11 @@ def rig_kind(config) -> RigKind:
     if b.kind != "dynamixel":
         return "sim"
     return "emulated" if hooks_for(b.port) is not None else "real"
+
+
+def bus_rig_kind(kind: Optional[str], servos: list[dict]) -> Optional[str]:
+    """What the record calls a rig once its servos answered: ``emulated`` when every servo said
+    so (an emulator served from another terminal too: drivers.dynamixel.identity), else ``kind``."""
+    if servos and all(s.get("emulated") for s in servos):
+        return "emulated"
+    return kind

@@ -84,13 +84,17 @@ def load_checked(run_dir: Path) -> tuple[SavedRun, PreparedTrial]:
     saved = load_run(run_dir)
     log = saved.log
     try:
-        config = TrialConfig.model_validate(log.metadata.get("config"))
+        config = TrialConfig.model_validate(_stored_config(log.metadata.get("config")),
+                                            context={"record": True})
     except ValidationError as e:  # a record written by an incompatible version, or edited
         raise RunDirError(f"{run_dir}: the config stored in the log is not readable: "
                           f"{describe_validation_error(e, TrialConfig)}") from None
     except (BenchError, ValueError, TypeError) as e:
         raise RunDirError(f"{run_dir}: the config stored in the log is not readable: {e}") from None
     cal = log.metadata.get("calibration")
+    if config.calibration is not None and config.backend.kind == "dynamixel" and not cal:
+        raise RunDirError(f"{run_dir}: the config stored in the log names a calibration the record "
+                          f"does not hold; nothing outside the run directory is read")
     if cal:  # the calibration as the trial applied it, not the file as it is now
         try:
             config._calibration_read = (calibration_path(config), CalibrationFile.model_validate(cal["content"]))
@@ -104,6 +108,15 @@ def load_checked(run_dir: Path) -> tuple[SavedRun, PreparedTrial]:
         raise RunDirError(f"{run_dir}: the log's joints {log.joint_names} are not the joints of its "
                           f"robot {config.robot} ({list(prep.robot.joint_names)})")
     return saved, prep
+
+
+def _stored_config(stored: object) -> object:
+    """The config a record holds, to validate without following a path it names: the scene is
+    the installed package's URDFs for its robot (a record travels; the folder it ran from does
+    not, and a crafted one may name any file)."""
+    if not isinstance(stored, dict):
+        return stored
+    return {**stored, "urdf_dir": "urdf"}
 
 
 def recover_run(run_dir: Path) -> Path:

@@ -25,6 +25,7 @@ from bench.core.runner import Interruptible, Runner, abort_reason
 from bench.faults import apply_faults
 from bench.report.trial import write_trial_report
 from bench.rig.backends import make_backend
+from bench.rig.serving import bus_rig_kind
 from bench.trial.plan import aimed_plan
 from bench.trial.record import finish_record, trial_metadata
 from drivers import ActuatorError, Actuators
@@ -151,6 +152,7 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
             servos = find_capability(act, ServoInfo)
             if servos is not None:
                 log.metadata["servos"] = servos.servo_info()
+                log.metadata["rig"] = bus_rig_kind(log.metadata.get("rig"), log.metadata["servos"])
             warned = find_capability(act, StartWarnings)
             if warned is not None and warned.start_warnings:
                 log.metadata["warnings"] = list(warned.start_warnings)

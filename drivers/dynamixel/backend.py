@@ -45,7 +45,7 @@ from drivers.dynamixel.goals import GoalBounds, GoalOutOfRange, outside_limits
 from drivers.dynamixel.io import BlockingPortHandler, RegisterAccess, StuffingPacketHandler, port_hint
 from drivers.dynamixel.protocol import decode_hardware_error
 from drivers.dynamixel.settings import DynamixelSettings
-from drivers.dynamixel.settle import settle
+from drivers.dynamixel.settle import settle_all
 from drivers.dynamixel.units import OPERATING_MODES
 from drivers.train_loop import TrainLoop
 from drivers.ultrasonic import UltrasonicSensor
@@ -106,6 +106,7 @@ class DynamixelActuators(ActuatorsBase):
         self._lost = False  # the bench lost the train's last reading (HostLoop)
         self._fails = 0
         self.firmware: dict[int, int] = {}
+        self.emulated: dict[int, bool] = {}  # what each servo said it is (drivers.dynamixel.identity)
         self.safe_stop_report: Optional[str] = None
         self.models: dict[int, int] = {}
         self.port = BlockingPortHandler(s.port)
@@ -190,6 +191,7 @@ class DynamixelActuators(ActuatorsBase):
                     f"config says {sv.model} ({_model_name(sv.model)}); torque not enabled")
             self.models[sv.id] = model
             self.firmware[sv.id] = self._read(sv.id, "Firmware Version")
+            self.emulated[sv.id] = self._regs.says_emulated(sv.id)
         if missing:
             raise BackendSetupError(
                 f"servo ID(s) {', '.join(missing)} did not answer a ping on {s.port} at {s.baud} "
@@ -372,14 +374,8 @@ class DynamixelActuators(ActuatorsBase):
         self._settle(goals)
 
     def _settle(self, goals: np.ndarray) -> None:
-        """Wait until every servo holds still at its goal (:func:`~drivers.dynamixel.settle.settle`)."""
-        s = self.settings
-        if s.settle_timeout_s <= 0:
-            return
-        integrating = [(sv.gains[1] if sv.gains[1] is not None else self._read(sv.id, "Position I Gain")) > 0
-                       for sv in s.servos]
-        why = settle(self._cycle.read_state, goals, np.array(integrating), [sv.joint for sv in s.servos],
-                     ticks=s.settle_ticks, still_s=s.settle_still_s, timeout_s=s.settle_timeout_s)
+        """Wait until every servo holds still at its goal (:func:`~drivers.dynamixel.settle.settle_all`)."""
+        why = settle_all(self.settings, lambda sid: self._read(sid, "Position I Gain"), self._cycle.read_state, goals)
         if why:
             self._warn(why)
 
@@ -481,7 +477,8 @@ class DynamixelActuators(ActuatorsBase):
         """Model and firmware read from the bus, for the trial record."""
         return [{"joint": sv.joint, "id": sv.id, "model": self.models.get(sv.id),
                  "model_name": _model_name(self.models.get(sv.id, 0)),
-                 "firmware": self.firmware.get(sv.id)} for sv in self.settings.servos]
+                 "firmware": self.firmware.get(sv.id), "emulated": self.emulated.get(sv.id, False)}
+                for sv in self.settings.servos]
 
 
 def _model_name(number: int) -> str:

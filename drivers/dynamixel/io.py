@@ -52,6 +52,7 @@ from dynamixel_sdk.robotis_def import (
 )
 
 from drivers import CommunicationError, BackendSetupError
+from drivers.dynamixel.identity import EMULATED_ADDRESS, EMULATED_LENGTH, is_emulated_reply
 from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch, reply_params_expected
 from drivers.dynamixel.protocol import HEADER, Instruction, build_instruction
 from drivers.timing import drain_until_quiet
@@ -296,6 +297,12 @@ class RegisterAccess:
                 return int.from_bytes(bytes(data), "little", signed=signed)
         raise CommunicationError(f"servo ID {sid}: reading {what} failed after {self.tries} "
                                  f"tries: {self._why(result)}")
+
+    def says_emulated(self, sid: int) -> bool:
+        """Whether servo ``sid`` answers the identity READ as only the emulator does (one try:
+        a real servo's refusal is immediate and is the answer; see :mod:`drivers.dynamixel.identity`)."""
+        data, result, err = self.ph.readTxRx(self.port, sid, EMULATED_ADDRESS, EMULATED_LENGTH)
+        return result == COMM_SUCCESS and is_emulated_reply(err, bytes(data))
 
     def write(self, sid: int, address: int, size: int, value: int, what: str) -> None:
         data = list((int(value) & ((1 << (8 * size)) - 1)).to_bytes(size, "little"))

@@ -10,11 +10,14 @@ load it carried would drop again: Target 1's wrist swung 9° that way.
 from __future__ import annotations
 
 import time
-from typing import Callable, Optional, Sequence
+from typing import TYPE_CHECKING, Callable, Optional, Sequence
 
 import numpy as np
 
-__all__ = ["SETTLE_POLL_S", "settle"]
+if TYPE_CHECKING:
+    from drivers.dynamixel.settings import DynamixelSettings
+
+__all__ = ["SETTLE_POLL_S", "settle", "settle_all"]
 
 #: How often the servos are read while they settle (s).
 SETTLE_POLL_S = 0.01
@@ -46,3 +49,16 @@ def settle(read_state: Callable[[], Optional[np.ndarray]], goals: np.ndarray, in
             return (f"the servos had not settled {timeout_s:g} s after torque on"
                     + (f": {', '.join(far)} from their goals" if far else " (no reading)"))
         time.sleep(SETTLE_POLL_S)
+
+
+def settle_all(settings: "DynamixelSettings", read_i_gain: Callable[[int], int],
+               read_state: Callable[[], Optional[np.ndarray]], goals: np.ndarray) -> Optional[str]:
+    """:func:`settle` for a backend's servos as ``settings`` lists them (nothing when its timeout is
+    0): a servo integrates when its configured I gain, or the one it holds (``read_i_gain(id)``), is
+    over 0."""
+    if settings.settle_timeout_s <= 0:
+        return None
+    i_gains = [sv.gains[1] if sv.gains[1] is not None else read_i_gain(sv.id) for sv in settings.servos]
+    return settle(read_state, goals, np.array(i_gains) > 0, [sv.joint for sv in settings.servos],
+                  ticks=settings.settle_ticks, still_s=settings.settle_still_s,
+                  timeout_s=settings.settle_timeout_s)

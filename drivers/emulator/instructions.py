@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 from typing import Callable
 
+from drivers.dynamixel.identity import EMULATED_ADDRESS, EMULATED_LENGTH, EMULATED_REPLY
 from drivers.dynamixel.parser import Packet
 from drivers.dynamixel.protocol import (
     BROADCAST_ID,
@@ -55,6 +56,9 @@ class InstructionSet:
             self._reply(servo, StatusError.DATA_LENGTH, instruction=pkt.instruction)
             return
         address, length = _u16(pkt.params, 0), _u16(pkt.params, 2)
+        if (address, length) == (EMULATED_ADDRESS, EMULATED_LENGTH):  # the bus says it is emulated
+            self._reply(servo, 0, EMULATED_REPLY, instruction=pkt.instruction)
+            return
         error, data = servo.read(address, length)
         self._reply(servo, error, data, instruction=pkt.instruction)
 
