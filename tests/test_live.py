@@ -58,7 +58,7 @@ def browser():
     playwright = pytest.importorskip("playwright.sync_api")
     assert CHROMIUM is not None, "CI must install Debian's chromium"
     with playwright.sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=os.environ.get("TEST_CHROME", CHROMIUM), args=["--no-sandbox"])
+        b = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
         yield b
         b.close()
 

@@ -4,8 +4,8 @@ A page's poll reads the journal, works out the interlock margins of its newest r
 the rows: a few milliseconds of Python. In the trial's own process that work holds the
 interpreter's lock while the control loop waits for it, and on a loaded two-core computer a
 poll's few milliseconds became a missed deadline every half second. Here the server runs in a
-child process at the priority the trial had before it raised its own (the loop goes first,
-the page falls behind), reading the same files the loop has already handed to the operating
+child process at nice 10 (the loop, and the kernel's serial-port work at the default priority,
+go first; the page falls behind), reading the same files the loop has already handed to the operating
 system. The two talk through the child's standard streams, one word a line:
 
 - the child's first line is JSON, ``{"url": …, "token": …}``;
@@ -38,6 +38,8 @@ from drivers.errors import ExitCode
 
 __all__ = ["LiveProcess"]
 
+#: The server's nice value: below the default, so the page falls behind, never the trial.
+SERVER_NICE = 10
 #: How long the parent waits for the child to announce its address (s): it imports the bench and
 #: builds the margins' geometry first.
 START_TIMEOUT_S = 60.0
@@ -143,6 +145,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--parent", type=int, required=True)
     args = ap.parse_args(argv)
     _die_with_parent(args.parent)
+    # Behind everything at the default priority, the kernel's serial-port workers included: a poll
+    # answered late costs the page an update, never the loop a deadline.
+    os.setpriority(os.PRIO_PROCESS, 0, max(SERVER_NICE, os.getpriority(os.PRIO_PROCESS, 0)))
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the trial's Ctrl-C is the trial's; it closes us
 
     # The words go out on a private copy of stdout; fd 1 itself goes nowhere, so a library's
