@@ -17,6 +17,7 @@ from bench.identify.simulate import SlotPhysics, simulate_run
 from bench.stand.emulated import BAUD, EmulatedStand
 from bench.stand.predict import predict
 from bench.stand.record import record_stand_log, write_stand_log
+from bench.stand.session import emulated_clock
 from drivers.dynamixel.bus import ServoBus
 from drivers.dynamixel.control_table import XL330_M288, XM430_W350
 from drivers.dynamixel.stand import StandServo
@@ -108,13 +109,7 @@ def test_the_emulated_stand_with_the_identified_physics_is_what_predict_says(tmp
     with EmulatedStand(physics, mass=0.49, length=0.1, supply_v=7.0, source_ohm=1.0,
                        gravity_offset_rad=offset) as stand, \
             ServoBus(stand.port, BAUD, tries=30) as bus:
-        clock = [0.0]
-
-        def wait(dt: float) -> float:
-            if dt > 0:
-                stand.advance(dt)
-                clock[0] += dt
-            return clock[0]
+        wait = emulated_clock(stand)
 
         for name, kp in (("sin_sin", 400), ("lift_and_drop", 200), ("up_and_down", 400), ("sin_time_square", 800)):
             log = record_stand_log(StandServo(bus), name, kp=kp, mass=stand.mass, length=stand.length, vin=7.4,

@@ -14,6 +14,7 @@ from bench.stand.emulated import BAUD, EmulatedStand
 from bench.stand.logs import read_stand_logs
 from bench.stand.predict import predict
 from bench.stand.record import record_stand_log, write_stand_log
+from bench.stand.session import emulated_clock
 from drivers.dynamixel.bus import ServoBus
 from drivers.dynamixel.stand import StandServo
 from drivers.servo import ServoParams
@@ -28,13 +29,7 @@ def recorded(tmp_path_factory) -> list[Path]:
     paths = []
     # a busy machine may starve the emulator's thread: more tries than a real bus needs
     with EmulatedStand(HIDDEN, source_ohm=1.0) as stand, ServoBus(stand.port, BAUD, tries=30) as bus:
-        clock = [0.0]
-
-        def wait(dt: float) -> float:
-            if dt > 0:
-                stand.advance(dt)
-                clock[0] += dt
-            return clock[0]
+        wait = emulated_clock(stand)
 
         for name, kp in RUNS:
             log = record_stand_log(StandServo(bus), name, kp=kp, mass=stand.mass, length=stand.length,

@@ -181,7 +181,7 @@ class Runner:
                 self.progress(1.0)
             return RunResult(log, True)
         except BaseException as e:  # a lost bus, a stop signal, a bad command: stop safely first
-            log.event(_safe_now(act), "abort", abort_reason(e))
+            log.event(safe_now(act), "abort", abort_reason(e))
             _safe_disable(act)
             raise
         finally:
@@ -275,7 +275,9 @@ def abort_reason(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
-def _safe_now(act: Actuators) -> float:
+def safe_now(act: Actuators) -> float:
+    """The backend's clock, or NaN where it cannot say (a lost bus, a closed simulator): the log
+    places an event at NaN after the one before it."""
     try:
         return act.now()
     except Exception:

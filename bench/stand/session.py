@@ -16,7 +16,7 @@ from bench.stand.record import record_stand_log, write_stand_log
 from drivers.dynamixel.bus import ServoBus
 from drivers.dynamixel.stand import StandServo
 
-__all__ = ["record_session", "serve_stand"]
+__all__ = ["emulated_clock", "record_session", "serve_stand"]
 
 
 def _realtime() -> Callable[[float], float]:
@@ -32,7 +32,9 @@ def _realtime() -> Callable[[float], float]:
     return wait
 
 
-def _emulated(stand: EmulatedStand) -> Callable[[float], float]:
+def emulated_clock(stand: EmulatedStand) -> Callable[[float], float]:
+    """A recording's wait on the emulated stand: the physics advanced by ``dt``, its time returned
+    (no wall clock: the stand runs as fast as the machine allows)."""
     clock = [0.0]
 
     def wait(dt: float) -> float:
@@ -76,7 +78,7 @@ def record_session(config: StandConfig, out: Path, *, emulate: bool = False,
                            source_ohm=config.emulator.source_ohm) as stand, \
                 ServoBus(stand.port, config.baud, tries=30) as bus:
             # (more tries than a real bus needs: a busy machine may starve the emulator's thread)
-            return run_dir, _run_all(config, bus, _emulated(stand), run_dir, progress)
+            return run_dir, _run_all(config, bus, emulated_clock(stand), run_dir, progress)
     with ServoBus(config.port, config.baud) as bus:
         return run_dir, _run_all(config, bus, _realtime(), run_dir, progress)
 

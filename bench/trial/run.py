@@ -21,7 +21,7 @@ from bench.core.interrupts import NO_SIGNALS, TrialInterrupted
 from bench.core.log import TrialLog
 from bench.core.record import new_run_dir
 from bench.core.result import PreparedTrial, TrialError, TrialResult
-from bench.core.runner import Interruptible, Runner, abort_reason
+from bench.core.runner import Interruptible, Runner, abort_reason, safe_now
 from bench.faults import apply_faults
 from bench.report.trial import write_trial_report
 from bench.rig.backends import make_backend
@@ -191,15 +191,7 @@ def _note_safe_stop(log: TrialLog, backend: Actuators) -> None:
     """Record how the actuators were left (the backend's own read-back where it has one)."""
     report = _safe_stop_report(backend)
     if report:  # on the backend's clock when it still reads (the stop came after the last row)
-        log.event(_clock(backend, log), "safe-stop", report)
-
-
-def _clock(backend: Actuators, log: TrialLog) -> float:
-    """Now on the trial's clock: the backend's, or the last row's where it cannot say."""
-    try:
-        return float(backend.now())
-    except Exception:  # a simulator already disconnected: its clock is gone with it
-        return float(log.time[-1]) if len(log) else 0.0
+        log.event(safe_now(backend), "safe-stop", report)
 
 
 def _safe_stop_report(backend: Optional[Actuators]) -> Optional[str]:
