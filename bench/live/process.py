@@ -8,7 +8,7 @@ child process at nice 10 (the loop, and the kernel's serial-port work at the def
 go first; the page falls behind), reading the same files the loop has already handed to the operating
 system. The two talk through the child's standard streams, one word a line:
 
-- the child's first line is JSON, ``{"url": …, "token": …}``;
+- the child's first line is JSON, ``{"url": …}`` (the address with its token);
 - then ``page-open`` (a page loaded and polled) and ``stop`` (Stop was pressed), as they happen;
 - the parent writes ``close`` (linger for open pages to fetch the verdict) or ``close-now``.
 
@@ -55,7 +55,6 @@ class LiveProcess:
         self.on_stop = on_stop
         self.stop_requested = False
         self.page_open = threading.Event()
-        self.polls = 0
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "bench.live.process", "--out", str(out), "--config", str(config),
              "--parent", str(os.getpid())],
@@ -75,7 +74,6 @@ class LiveProcess:
             raise RuntimeError("the live view did not start" + (f" within {START_TIMEOUT_S:.0f} s"
                                                                  if not first else ""))
         self.url: str = hello["url"]
-        self.token: str = hello["token"]
         threading.Thread(target=self._follow, name="live-view-reader", daemon=True).start()
 
     def _follow(self) -> None:
@@ -169,7 +167,7 @@ def main(argv: list[str] | None = None) -> None:
     prep = prepare(load_trial_config(args.config))
     server = LiveServer(RunFollower(args.out, lambda: prep), on_stop=lambda: say("stop")).start()
     threading.Thread(target=lambda: (server.page_open.wait(), say("page-open")), daemon=True).start()
-    say(json.dumps({"url": server.url, "token": server.token}))
+    say(json.dumps({"url": server.url}))
     linger = False
     for line in sys.stdin:
         if line.strip() in ("close", "close-now"):
