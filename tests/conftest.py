@@ -3,11 +3,21 @@ and the order the test files start in."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
+import time
+from typing import Iterator
 
 import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+#: Files whose ``alone`` tests are best started last: the one worker then waits for the other's
+#: current test only (the shortest tests run last), not for a file of them.
+ALONE_LAST = ("test_live.py",)
+#: A share of one core below which this process, spinning, finds the machine loaded by others.
+LOADED_BELOW = 0.9
 
 #: The longest test files (a minute or more each, mostly the emulated rig's trials in real time),
 #: started first: the suite runs on two workers, each file whole on one (README, the test
@@ -16,9 +26,61 @@ LONGEST_FIRST = ("test_servo_model.py", "test_compare.py", "test_identify.py", "
                  "test_lab_tools.py", "test_signals.py", "test_cli_hostile_bus.py", "test_campaign.py")
 
 
+def pytest_configure(config) -> None:
+    config.addinivalue_line(
+        "markers", "alone: measures the control loop's deadlines, so no other test runs beside it "
+        "(the suite's other worker waits; see room())")
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file's own order kept
+    last = len(rank) + 1
+    items.sort(key=lambda item: last if item.path.name in ALONE_LAST else rank.get(item.path.name, len(rank)))
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem):  # noqa: ARG001
+    with room(item.config, alone=item.get_closest_marker("alone") is not None):
+        yield
+
+
+@contextlib.contextmanager
+def room(config, alone: bool) -> Iterator[None]:
+    """Under pytest-xdist, an ``alone`` test runs with no other test beside it; other tests share.
+
+    Every test holds the room shared, from its setup to its teardown (a module's fixtures set up
+    and torn down within one test's); an ``alone`` test holds it exclusively. The turnstile, held
+    while a test waits for the room, lets an ``alone`` test in as soon as the test before it ends:
+    the other worker's next test waits behind it rather than keeping the room busy for ever.
+    """
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        yield
+        return
+    shared = config._tmp_path_factory.getbasetemp().parent  # the run's: each worker's basetemp is under it
+    with open(shared / "turnstile.lock", "a") as turnstile, open(shared / "room.lock", "a") as lock:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        fcntl.flock(lock, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        fcntl.flock(turnstile, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+@pytest.fixture(scope="session")
+def machine_loaded():
+    """Whether other work loads this machine, measured now: a test that needs the cores to itself
+    (an ``alone`` test, which the suite's own tests leave alone) says so rather than failing."""
+    return lambda: _core_share() < LOADED_BELOW
+
+
+def _core_share(seconds: float = 0.5) -> float:
+    """The share of one core this process gets spinning for ``seconds``: near 1 on a machine with a
+    core to spare, 2/3 beside two CPU hogs on two cores."""
+    wall0, cpu0 = time.monotonic(), time.thread_time()
+    while time.monotonic() - wall0 < seconds:
+        pass
+    return (time.thread_time() - cpu0) / (time.monotonic() - wall0)
 
 
 def pytest_terminal_summary(terminalreporter) -> None:

@@ -123,6 +123,28 @@ def test_a_rig_reading_a_joint_beyond_its_limits_is_refused_before_torque(tmp_pa
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_train_resting_on_its_lower_limit_enables_whatever_its_noisy_sensor_reads():
+    """The train rests at home, on its lower limit; its ultrasonic reading scatters by centimetres
+    either side. Torque-on holds the pinion's shaft, so the limit check at enable reads the shaft's
+    encoder: a sensor reading below the limit never refuses a rig that is where it should be."""
+    cfg = load_trial_config(LAB)
+    cfg = cfg.model_copy(update={"emulator": cfg.emulator.model_copy(update={"ultrasonic_noise_mm": 60.0})})
+    robot = get_robot(cfg.robot)
+    train = list(robot.joint_names).index("train")
+    home = robot.chain.home.copy()
+    home[train] = robot.chain.lower[train]
+    below = 0
+    with EmulatedRig(cfg, initial_position=home) as rig:
+        for _ in range(2):
+            with make_dynamixel_backend(rig.retarget(cfg), robot) as act:
+                for _ in range(12):
+                    below += act.read().position[train] < act.limits.lower[train] - 0.01
+                    time.sleep(0.025)
+                act.enable()
+                assert rig.bus.servo(cfg.backend.servos["train"].id).torque_enabled
+    assert below >= 4, below  # the sensor did read the train beyond its limit, and torque came on anyway
+
+
 def _bounds(ratio: float = 1.0, mode: str = "position", limits=(0, 4095)) -> GoalBounds:
     sv = ServoSettings(joint="theta4", id=3, model=1020, mode=mode, ratio=ratio)
     return GoalBounds.of([sv], np.array([-np.pi / 2]), np.array([np.pi / 2]), lambda sid: limits, [0.0])

@@ -12,6 +12,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
+import warnings
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -32,7 +33,10 @@ SIM = REPO / "hil_configs" / "sim_target1.yaml"
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
-#: The share of deadlines an emulated trial with its page open may miss beside the suite's other worker.
+#: The share of deadlines an emulated trial with its page drawing may miss on two cores of its own.
+MISSED_SHARE = 0.01
+#: ... and on a machine other work loads (two CPU hogs on two cores): the serial port's kernel work
+#: then waits behind them, a few cycles a second, page or no page.
 LOADED_MISSED_SHARE = 0.03
 
 needs_chromium = pytest.mark.skipif(
@@ -71,7 +75,9 @@ def _points(page) -> int:
 
 
 @needs_chromium
-def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(tmp_path, browser):
+@pytest.mark.alone
+def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(tmp_path, browser, machine_loaded):
+    loaded = machine_loaded()
     proc, url = _start_live_trial(tmp_path)
     page = browser.new_page(viewport={"width": 1300, "height": 1000}, bypass_csp=True)  # for the probes
     page.goto(url)
@@ -115,11 +121,13 @@ def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(t
     # The page drew as it went, and cost the loop nothing it could not afford: the trial waited
     # for the page to open, its server ran in a process of its own, and the loop kept time.
     assert int(page.evaluate("document.body.dataset.draws")) >= 3
-    # Beside the suite's other worker (another emulated rig, a fit) a few cycles miss when the
-    # machine, not the page, delays the serial port's kernel work; the 1 % with the page
-    # drawing is measured on the machine alone by benchmarks/live_overhead.py. Before the page had
-    # its own process and waited to open, 22-27 % were missed and the bus could be lost.
-    assert tm["missed"] <= LOADED_MISSED_SHARE * tm["cycles"], tm
+    # No other test runs beside this one (it is marked alone). Before the page had its own process
+    # and waited to open, 22-27 % were missed and the bus could be lost.
+    if loaded:
+        warnings.warn(f"the machine was loaded by other work when the trial started: {tm['missed']} of "
+                      f"{tm['cycles']} deadlines missed is held to {LOADED_MISSED_SHARE:.0%}, not "
+                      f"{MISSED_SHARE:.0%}")
+    assert tm["missed"] <= (LOADED_MISSED_SHARE if loaded else MISSED_SHARE) * tm["cycles"], tm
     assert result["loop_timing"]["priority"] == "nice -10" or "refused" in result["loop_timing"]["priority"]
     times = [float(line.split(" s ")[0]) for line in page.inner_text("#events").splitlines()]
     assert times == sorted(times)  # the events in time order

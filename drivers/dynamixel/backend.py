@@ -353,14 +353,14 @@ class DynamixelActuators(ActuatorsBase):
         return JointState(self.now(), q, qd, eff, flags)
 
     def _enable(self) -> None:
-        st = self._read_bus()
-        outside = outside_limits(self.joint_names, st.position, self._limits.lower, self._limits.upper,
+        st = self._read_bus()  # a sensed joint by its pinion: the shaft torque-on holds, not sensor noise
+        shafts = st.position if self._sensor is None else self._encoder_positions(st)
+        outside = outside_limits(self.joint_names, shafts, self._limits.lower, self._limits.upper,
                                  self.settings.limit_tolerance)
         if outside:
             raise BackendSetupError(f"{outside}; torque not enabled (check its offset and calibration, "
                                      f"or move it by hand with torque off)")
-        goals = self._goal_ticks(st.position if self._sensor is None else self._encoder_positions(st),
-                                 hold=True)
+        goals = self._goal_ticks(shafts, hold=True)
         holding = [k for k, sid in enumerate(self._ids) if self._read(sid, "Torque Enable")]
         for k in holding:  # already holding: keep the goal it holds its load against
             held = self._read(self._ids[k], "Goal Position")
