@@ -6,12 +6,14 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from typing import Optional
 
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from bench.cli.common import console, emit_json, err_console, fail, load_config, say, stopped, styled
 from bench.cli.live import LIVE_HELP, LIVE_WAIT_HELP, LIVE_WAIT_S, live_view
+from bench.cli.monitor import MONITOR_HELP, monitor_line, with_monitor
 from bench.core.interrupts import NO_SIGNALS, SignalGuard, TrialInterrupted
 from drivers.errors import (
     ActuatorError,
@@ -66,6 +68,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
           emulate: bool = typer.Option(False, "--emulate", help="Run the real backend against the emulated servo bus and sensor."),
           live: bool = typer.Option(False, "--live", help=LIVE_HELP),
           live_wait: float = typer.Option(LIVE_WAIT_S, "--live-wait", min=0, help=LIVE_WAIT_HELP),
+          monitor: Optional[str] = typer.Option(None, "--monitor", metavar="MODEL", help=MONITOR_HELP),
           as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Run one trial: home -> Target -> insertion -> retract, with its log and report.
 
@@ -79,7 +82,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
              "the pictures) or under xvfb-run")
     with SignalGuard() as guard:  # first, so no signal can land before it
         try:
-            res, name, live_url = _trial(config, out, gui, note, emulate, guard, live, live_wait)
+            res, name, live_url = _trial(config, out, gui, note, emulate, guard, live, live_wait, monitor)
         except TrialInterrupted as e:
             _interrupted(e, as_json)
     if not res.stop_confirmed:
@@ -104,16 +107,18 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
             console.print(f"depth {round(o.depth_deviation_mm, 3) + 0.0:+.3f} mm, angle "
                           f"{round(o.angle_deviation_deg, 4) + 0.0:+.4f}°", highlight=False)
         console.print(res.timing.summary_line(), highlight=False, soft_wrap=True)
+        if res.monitor is not None:
+            console.print(monitor_line(res.monitor), highlight=False, soft_wrap=True)
         console.print(f"report: {res.run_dir / 'report.html'}")
     raise typer.Exit(ExitCode.STOP_UNCONFIRMED if not res.stop_confirmed
                      else ExitCode.PASSED if res.passed else ExitCode.FAILED)
 
 
 def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, live: bool = False,
-           live_wait: float = 0.0):
+           live_wait: float = 0.0, monitor: Optional[str] = None):
     from bench.trial.plan import prepare  # deferred: --help and completion stay fast
 
-    cfg = load_config(config)
+    cfg = with_monitor(load_config(config), monitor)
     guard.check()
     if emulate and cfg.backend.kind != "dynamixel":
         fail(f"{config}: --emulate needs backend.kind: dynamixel (this config is {cfg.backend.kind})")

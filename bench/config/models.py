@@ -17,6 +17,7 @@ from bench.config.base import (ConfigError, Strict, beside_of, describe_validati
                                read_yaml_mapping)
 from bench.config.calibration import check_calibration
 from bench.config.crossref import check_cross_references
+from bench.config.monitor import MonitorConfig
 from bench.config.servo_model import ServoPhysics, load_servo_model_file, physics_for
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot, trial_refusal
@@ -396,6 +397,8 @@ class TrialConfig(Strict):
         default_factory=list, max_length=64,
         description="faults injected around the backend: {name, joints, parameters} "
                     "(README, Faults)")
+    monitor: Optional[MonitorConfig] = Field(
+        default=None, description="the twin beside the trial: {model: datasheet|FILE, action: warn|stop}")
     # A calibration file written by `hilbench calibrate` (joint zero offsets that replace
     # the servos' `offset`, the ultrasonic sensor's offset and scale); relative paths are
     # resolved like urdf_dir. Applied when the Dynamixel backend is built, kept in the log.

@@ -42,6 +42,7 @@ class PreparedTrial:
     faults: list = field(default_factory=list)  #: the config's faults, parsed (FaultSpec)
     limits: Optional[Any] = None  #: the joint limits the backend will have (JointLimits)
     interlocks: Optional[Any] = None  #: the configured interlocks (None when disabled)
+    monitor: Optional[Any] = None  #: the twin's set-up (bench.monitor.build.MonitorSetup), if monitored
     start: Optional[np.ndarray] = None  #: the pose the prepared plan starts from
     #: False when the plan's start was given (a comparison runs the rig's very plan on the sim):
     #: the run keeps it; True: the plan's moves from the start are re-aimed at the first reading.
@@ -68,6 +69,8 @@ class TrialResult:
     safe_stop: str = ""
     #: Whether the control loop kept time (paced trials), or why there is nothing to say.
     timing: LoopTiming = field(default_factory=lambda: LoopTiming("not recorded"))
+    #: What the twin beside the trial said (bench.monitor): its model, joints and alarms; None unmonitored.
+    monitor: Optional[dict] = None
 
     @property
     def stop_confirmed(self) -> bool:
@@ -107,7 +110,7 @@ class TrialResult:
             "reason": self.why_not,
             "safe_stop": self.safe_stop or None,
             "loop_timing": self.timing.as_dict(),
-        }
+        } | ({"monitor": self.monitor} if self.monitor is not None else {})
 
 
 def status_from_log(log: TrialLog) -> tuple[bool, str]:
@@ -137,7 +140,7 @@ def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialR
     stops = [e.message for e in log.events if e.kind == "safe-stop"]
     return TrialResult(Path(run_dir), Path(run_dir) / "trial.npz", completed, reason, outcome,
                        excitation=cfg.excitation is not None, safe_stop=stops[-1] if stops else "",
-                       timing=loop_timing(log, cfg.control_period))
+                       timing=loop_timing(log, cfg.control_period), monitor=log.metadata.get("monitor"))
 
 
 def write_result_json(res: TrialResult) -> None:

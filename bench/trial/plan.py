@@ -25,6 +25,7 @@ from bench.core.safety import (
 )
 from bench.kinematics.needle import NeedleTarget, UnreachableError
 from bench.kinematics.registry import get_robot
+from bench.monitor.build import monitor_setup
 from bench.rig.backends import backend_limits, servo_table
 from bench.trial.preflight import needle_direction_problem, off_bed_problem, planned_path_trip
 from drivers import Actuators, JointLimits
@@ -84,6 +85,10 @@ def prepare(config: TrialConfig, plan_start: Optional[np.ndarray] = None) -> Pre
                          calibration_path=calibration_path(config) if calibration is not None else None,
                          faults=faults, limits=backend_limits(config, robot))
     prep.interlocks = interlocks_for(prep, prep.limits)
+    try:
+        prep.monitor = monitor_setup(config, robot)
+    except (ConfigError, ValueError) as e:
+        raise TrialError(str(e)) from None
     prep.start = np.array(robot.chain.home if plan_start is None else plan_start, dtype=float)
     prep.aim_at_reading = plan_start is None
     prep.segments = _checked_plan(prep, prep.start)

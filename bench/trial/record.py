@@ -100,8 +100,8 @@ def load_checked(run_dir: Path) -> tuple[SavedRun, PreparedTrial]:
             config._calibration_read = (calibration_path(config), CalibrationFile.model_validate(cal["content"]))
         except (ValidationError, KeyError, TypeError) as e:
             raise RunDirError(f"{run_dir}: the calibration stored in the log is not readable: {e}") from None
-    try:
-        prep = prepare(config)
+    try:  # the monitor's model file is not read again (the record holds what its twin said)
+        prep = prepare(config.model_copy(update={"monitor": None})).with_config(config)
     except BenchError as e:
         raise RunDirError(f"{run_dir}: the config stored in the log: {e}") from None
     if list(log.joint_names) != list(prep.robot.joint_names):

@@ -23,6 +23,8 @@ from bench.core.record import new_run_dir
 from bench.core.result import PreparedTrial, TrialError, TrialResult
 from bench.core.runner import Interruptible, Runner, abort_reason, safe_now
 from bench.faults import apply_faults
+from bench.monitor.build import build_monitor
+from bench.monitor.monitor import Watched
 from bench.report.trial import write_trial_report
 from bench.rig.backends import make_backend
 from bench.rig.serving import bus_rig_kind
@@ -146,6 +148,7 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
     """Run the prepared plan from the first reading; the actuators are always closed (their safe
     stop). Returns the interrupt that stopped it, if one did; other failures are logged."""
     interrupts = hooks.interrupts
+    monitor = None if prep.monitor is None else build_monitor(prep.monitor, log)
     try:
         try:
             interrupts.check()
@@ -161,13 +164,17 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
             hooks.tell("planning")
             segments = aimed_plan(prep, act.read().position)
             interrupts.check()  # a signal swallowed during the set-up still stops here
-            runner = Runner(act, prep.config.control_period, interlocks=prep.interlocks,
+            checks = prep.interlocks if monitor is None else Watched(prep.interlocks, monitor)
+            runner = Runner(act, prep.config.control_period, interlocks=checks,
                             on_trip=prep.config.safety.on_trip, progress=hooks.progress,
                             interrupts=interrupts, phase=hooks.phase)
             runner.run(segments, log)
         finally:
             with interrupts.deferred():  # the safe stop always runs to its end
                 act.close()
+                if monitor is not None:
+                    log.metadata["monitor"] = monitor.summary()
+                    monitor.close()
     except KeyboardInterrupt as e:
         _abort_once(log, abort_reason(e))
         return e

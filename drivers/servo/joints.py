@@ -24,7 +24,7 @@ from drivers.servo.friction import FrictionLaw, smooth_friction, stopping_fricti
 
 __all__ = ["JointMatrix", "step_joints"]
 
-_largest = np.maximum.reduce  # one reduction says whether any joint is past a stop
+_largest = np.maximum.reduce  # one reduction says whether any joint is past a stop (rows of joints too)
 
 #: A: its diagonal (an array, the matrix being diagonal) or a function solving A x = b.
 JointMatrix = Union[np.ndarray, Callable[[np.ndarray], np.ndarray]]
@@ -53,7 +53,7 @@ def step_joints(q: np.ndarray, qd: np.ndarray, dt: float, rhs: np.ndarray, matri
             raise ValueError(f"unknown friction law {law!r}")
     qd_new = qd + dt * (rhs / matrix if diagonal else matrix(rhs))
     q_new = q + dt * qd_new
-    if lower is not None and _largest(np.maximum(lower - q_new, q_new - upper)) > 0.0:
+    if lower is not None and _largest(np.maximum(lower - q_new, q_new - upper), axis=None) > 0.0:
         stop = (q_new < lower) | (q_new > upper)
         q_new = np.minimum(np.maximum(q_new, lower), upper)
         qd_new = np.where(stop, 0.0, qd_new)

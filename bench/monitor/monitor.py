@@ -1,0 +1,137 @@
+"""The monitor: the twin's residuals, normalised, through the detector, every cycle of a trial.
+
+Each reading ends an interval the twin (:mod:`bench.monitor.twin`) stepped under the goal sent at
+the reading before; its residual over σ (the spread the model leaves on clean trials) feeds the
+per-joint CUSUM (:mod:`bench.monitor.detector`). An alarm names the joint, the time on the trial's
+clock (seconds since its first reading, the clock of a fault's ``from_s``) and the score. With
+``action: warn`` it is logged as a ``monitor`` event and the trial goes on; with ``action: stop`` it
+is the trip that takes the safe stop, with the reason ``theta5 behaves unlike its model (…)``.
+
+:class:`Watched` puts the monitor beside the interlocks, so the runner sees one trip check: the
+interlocks' first, then the monitor's (which must see every cycle, the interlocks' fast path and
+their block scan skipping the cycles that cannot trip).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from bench.core.safety import Trip
+from bench.monitor.detector import Cusum, CusumParams, DEFAULT_CUSUM
+from bench.monitor.twin import ServoTwin
+from drivers import JointState
+
+__all__ = ["Alarm", "TwinMonitor", "Watched"]
+
+
+@dataclass(frozen=True)
+class Alarm:
+    joint: str
+    t_s: float  #: since the trial's first reading
+    signal: str  #: what the residual is of ("position")
+    score: float  #: the CUSUM's sum when it crossed the threshold (σ)
+
+    def as_dict(self) -> dict:
+        return {"joint": self.joint, "t_s": round(self.t_s, 4), "signal": self.signal,
+                "score": round(self.score, 2)}
+
+
+@dataclass
+class TwinMonitor:
+    """The twin and its detector over the monitored joints; a trip check for the runner."""
+
+    twin: ServoTwin
+    joint_names: Sequence[str]
+    sigma: np.ndarray  #: per joint, the residual's spread on clean trials (joint units)
+    monitored: np.ndarray  #: per joint, whether it is watched (a joint on another sensor is not)
+    model: str = "datasheet"
+    action: str = "warn"
+    cusum: CusumParams = DEFAULT_CUSUM
+    log: Optional[object] = None  #: the trial's log, for the alarms' events
+    name: str = "monitor"
+    alarms: list[Alarm] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self._detector = Cusum(len(self.joint_names), self.cusum)
+        self._scale = np.where(self.monitored, 1.0 / np.asarray(self.sigma, dtype=float), np.nan)
+        self._t0: Optional[float] = None
+        self._last: Optional[tuple[float, np.ndarray]] = None  # (time, goal) of the previous cycle
+        self.z: list[np.ndarray] = []  #: each cycle's normalised residual (NaN: not monitored)
+
+    def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Optional[Trip]:
+        """The residual of the interval this reading ends; a trip when an alarm must stop the trial."""
+        trip = None
+        if self._last is None:
+            self._t0 = t
+            self.twin.start(measured.position, measured.velocity)
+            self.z.append(np.full(len(self.joint_names), np.nan))
+        else:
+            t_prev, goal = self._last
+            residual = self.twin.advance(goal, measured.position, measured.velocity, t - t_prev)
+            z = residual * self._scale
+            self.z.append(z)
+            hit = self._detector.update(z)
+            if hit.size:
+                trip = self._alarm(t, hit)
+        self._last = (t, np.array(commanded, dtype=float))
+        return trip
+
+    def _alarm(self, t: float, hit: np.ndarray) -> Optional[Trip]:
+        score = self._detector.score
+        new = [Alarm(self.joint_names[j], t - self._t0, "position", float(score[j])) for j in hit]
+        self.alarms.extend(new)
+        first = new[0]
+        why = f"{first.joint} behaves unlike its model (position CUSUM {first.score:.1f} σ > {self.cusum.threshold:g} σ)"
+        if self.log is not None:
+            for a in new:
+                self.log.event(t, "monitor", f"{a.joint} behaves unlike its model (position CUSUM "
+                               f"{a.score:.1f} σ at {a.t_s:.3f} s)")
+        if self.action == "stop":
+            return Trip("monitor", why, t, first.joint, first.score)
+        return None
+
+    def scan(self, times: np.ndarray, position: np.ndarray, velocity: np.ndarray, effort: np.ndarray,
+             commanded: np.ndarray, rows: Optional[int] = None) -> Optional[tuple[int, Trip]]:
+        """Every row of a block in order (the first ``rows`` of them), as :meth:`check` would."""
+        for i in range(len(times) if rows is None else rows):
+            st = JointState(float(times[i]), position[i], velocity[i], effort[i])
+            trip = self.check(float(times[i]), st, commanded[i])
+            if trip is not None:
+                return i, trip
+        return None
+
+    def summary(self) -> dict:
+        """What ``trial --json`` and the record say of the monitor."""
+        return {"model": self.model, "action": self.action,
+                "joints": [n for n, m in zip(self.joint_names, self.monitored) if m],
+                "cusum": {"drift_sigma": self.cusum.drift, "threshold_sigma": self.cusum.threshold},
+                "alarms": [a.as_dict() for a in self.alarms],
+                "first_alarm_s": round(self.alarms[0].t_s, 4) if self.alarms else None}
+
+    def close(self) -> None:
+        self.twin.close()
+
+
+class Watched:
+    """The interlocks and the monitor as the runner's one trip check (either may be None)."""
+
+    def __init__(self, interlocks, monitor: TwinMonitor) -> None:
+        self.interlocks = interlocks
+        self.monitor = monitor
+
+    def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Optional[Trip]:
+        trip = None if self.interlocks is None else self.interlocks.check(t, measured, commanded)
+        if trip is not None:
+            return trip
+        return self.monitor.check(t, measured, commanded)
+
+    def scan(self, times, position, velocity, effort, commanded) -> Optional[tuple[int, Trip]]:
+        """The interlocks' first trip in the block, unless the monitor stops the trial before it;
+        the monitor sees the rows up to the interlocks' trip, none after."""
+        hit = None if self.interlocks is None else self.interlocks.scan(times, position, velocity, effort, commanded)
+        rows = len(times) if hit is None else hit[0]
+        mine = self.monitor.scan(times, position, velocity, effort, commanded, rows)
+        return mine if mine is not None else hit

@@ -1,0 +1,113 @@
+"""The twin beside the trial (`--monitor`, `monitor:`): silent on clean trials, an alarm naming the
+joint that stops behaving like its model, the stop action's safe stop, refusals before anything
+moves, and a record that never reads the model file again."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from bench.monitor.detector import Cusum, CusumParams
+
+REPO = Path(__file__).resolve().parents[1]
+HILBENCH = str(Path(sys.executable).with_name("hilbench"))
+SERVO_SIM = REPO / "hil_configs" / "sim_target1_servo.yaml"
+
+
+def _run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=300, cwd=cwd)
+
+
+def _config(tmp: Path, base: Path = SERVO_SIM, **changes) -> Path:
+    data = yaml.safe_load(base.read_text())
+    data.update(changes)
+    path = tmp / f"{data['name']}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_cusum_alarms_on_a_step_after_threshold_over_step_less_drift_once_until_it_clears():
+    c = Cusum(2, CusumParams(drift=2.0, threshold=12.0))
+    alarms = [c.update(np.array([4.0, -1.9])) for _ in range(20)]
+    assert [i for i, hit in enumerate(alarms) if hit.size] == [6]  # 2 σ a cycle over κ: past 12 σ at the 7th
+    assert list(alarms[6]) == [0] and c.score[1] == 0.0  # the other joint's -1.9 σ stays within κ
+    while c.score[0] > 0:  # the fault gone: the sum drains at κ a cycle, and the joint re-arms
+        assert not c.update(np.zeros(2)).size
+    again = [c.update(np.array([4.0, 0.0])) for _ in range(8)]
+    assert [i for i, hit in enumerate(again) if hit.size] == [6]
+    down = Cusum(1, CusumParams(drift=2.0, threshold=12.0))
+    assert [bool(down.update(np.array([-8.0])).size) for _ in range(3)] == [False, False, True]
+    rng = np.random.default_rng(0)
+    quiet = Cusum(9, CusumParams(drift=2.0, threshold=12.0))
+    assert not any(quiet.update(z).size for z in rng.standard_normal((100_000, 9)))  # clean noise
+
+
+def test_a_clean_servo_sim_trial_raises_no_alarm_and_says_what_it_watched(tmp_path):
+    res = _run("trial", str(SERVO_SIM), "--monitor", "datasheet", "--json", "--out", str(tmp_path / "runs"))
+    assert res.returncode == 0, res.stderr
+    m = json.loads(res.stdout)["monitor"]
+    assert m["model"] == "datasheet" and m["alarms"] == [] and m["first_alarm_s"] is None
+    assert "train" not in m["joints"] and len(m["joints"]) == 8  # the train is read on its sensor
+    plain = _run("trial", str(SERVO_SIM), "--out", str(tmp_path / "runs"))
+    assert "monitor" not in plain.stdout  # unmonitored trials say nothing of it
+    text = _run("trial", str(SERVO_SIM), "--monitor", "datasheet", "--out", str(tmp_path / "runs"))
+    assert "monitor (datasheet, warn): no alarm on 8 joints" in text.stdout
+
+
+def test_a_weak_joint_is_named_and_the_stop_action_takes_the_safe_stop(tmp_path):
+    """theta4 with a third of its torque lags its model: the monitor names it, and with action
+    stop the trial stops there, its actuators holding, the reason in the result."""
+    cfg = _config(tmp_path, name="weak", faults=[{"name": "torque_limit", "joints": ["theta4"], "scale": 0.3}],
+                  monitor={"model": "datasheet", "action": "warn"})
+    warn = json.loads(_run("trial", str(cfg), "--json", "--out", str(tmp_path / "w")).stdout)
+    assert [a["joint"] for a in warn["monitor"]["alarms"]] == ["theta4"]  # one alarm, while it lasts
+    # warned, the trial went on until theta4's lag cost it an interlock, later
+    from bench.trial.record import load_record
+    log, _ = load_record(Path(warn["run_dir"]))
+    trip = next(e for e in log.events if e.kind == "interlock")
+    assert trip.time - log.time[0] > warn["monitor"]["first_alarm_s"] + 0.25, (trip, warn["monitor"])
+    cfg = _config(tmp_path, name="weak", faults=[{"name": "torque_limit", "joints": ["theta4"], "scale": 0.3}],
+                  monitor={"model": "datasheet", "action": "stop"})
+    res = _run("trial", str(cfg), "--json", "--out", str(tmp_path / "s"))
+    assert res.returncode == 1, res.stderr
+    out = json.loads(res.stdout)
+    first = out["monitor"]["alarms"][0]
+    assert first["joint"] == "theta4" and first["t_s"] == out["monitor"]["first_alarm_s"]
+    assert abs(first["t_s"] - warn["monitor"]["first_alarm_s"]) < 1e-9  # the same twin, the same cycle
+    assert not out["completed"] and "theta4 behaves unlike its model (position CUSUM" in out["reason"]
+    assert out["safe_stop"] == "holding the measured position"
+    log, _ = load_record(Path(out["run_dir"]))
+    stop_t = log.time[0] + first["t_s"]
+    assert log.time[-1] - stop_t < 0.3  # held briefly (safety.on_trip: hold), then stopped
+    assert any(e.kind == "monitor" and "theta4" in e.message for e in log.events)
+
+
+def test_the_ideal_motors_and_a_missing_model_are_refused_before_anything_moves(tmp_path):
+    res = _run("trial", str(REPO / "hil_configs" / "sim_target1.yaml"), "--monitor", "datasheet",
+               "--out", str(tmp_path / "runs"))
+    assert res.returncode == 2 and "the ideal motors are PyBullet's position motors" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "runs").exists()
+    res = _run("trial", str(SERVO_SIM), "--monitor", str(tmp_path / "nope.yaml"), "--out", str(tmp_path / "runs"))
+    assert res.returncode == 2 and "is neither datasheet nor a servo model file" in res.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+def test_a_monitored_run_travels_without_its_model_file(tmp_path):
+    """The record holds what the twin said; rebuilding the report never reads the model again."""
+    model = tmp_path / "model.yaml"
+    shutil.copy(REPO / "hil_configs" / "servo_models" / "emulated_worn_rig.yaml", model)
+    res = _run("trial", str(SERVO_SIM), "--monitor", str(model), "--json", "--out", str(tmp_path / "runs"))
+    assert res.returncode in (0, 1), res.stderr
+    out = json.loads(res.stdout)
+    assert out["monitor"]["model"] == str(model)
+    model.unlink()
+    again = _run("report", out["run_dir"])
+    assert again.returncode == 0, again.stderr
+    assert json.loads((Path(out["run_dir"]) / "result.json").read_text())["monitor"] == out["monitor"]
