@@ -55,6 +55,10 @@ def test_a_clean_servo_sim_trial_raises_no_alarm_and_says_what_it_watched(tmp_pa
     m = json.loads(res.stdout)["monitor"]
     assert m["model"] == "datasheet" and m["alarms"] == [] and m["first_alarm_s"] is None
     assert "train" not in m["joints"] and len(m["joints"]) == 8  # the train is read on its sensor
+    from bench.trial.record import load_record
+    log, _ = load_record(Path(json.loads(res.stdout)["run_dir"]))
+    z = log.twin_z  # each cycle's residual beside it, over σ: within the drift allowance all along
+    assert np.isnan(z[:, 0]).all() and np.isfinite(z[1:-1, 1:]).all() and np.abs(z[1:-1, 1:]).max() < 2.0
     plain = _run("trial", str(SERVO_SIM), "--out", str(tmp_path / "runs"))
     assert "monitor" not in plain.stdout  # unmonitored trials say nothing of it
     text = _run("trial", str(SERVO_SIM), "--monitor", "datasheet", "--out", str(tmp_path / "runs"))
@@ -73,6 +77,13 @@ def test_a_weak_joint_is_named_and_the_stop_action_takes_the_safe_stop(tmp_path)
     log, _ = load_record(Path(warn["run_dir"]))
     trip = next(e for e in log.events if e.kind == "interlock")
     assert trip.time - log.time[0] > warn["monitor"]["first_alarm_s"] + 0.25, (trip, warn["monitor"])
+    # where a user looks: the report's section and figure, and the listing of runs
+    run = Path(warn["run_dir"])
+    md = (run / "report.md").read_text()
+    assert "## The twin" in md and f"| theta4 | {warn['monitor']['first_alarm_s']:.3f} | position |" in md
+    assert (run / "twin.png").stat().st_size > 20_000 and "data:image/png" in (run / "report.html").read_text()
+    listed = _run("runs", "--out", str(tmp_path / "w"))
+    assert f"the twin's alarms: theta4 at {warn['monitor']['first_alarm_s']:.2f} s" in listed.stdout
     cfg = _config(tmp_path, name="weak", faults=[{"name": "torque_limit", "joints": ["theta4"], "scale": 0.3}],
                   monitor={"model": "datasheet", "action": "stop"})
     res = _run("trial", str(cfg), "--json", "--out", str(tmp_path / "s"))
@@ -111,3 +122,29 @@ def test_a_monitored_run_travels_without_its_model_file(tmp_path):
     again = _run("report", out["run_dir"])
     assert again.returncode == 0, again.stderr
     assert json.loads((Path(out["run_dir"]) / "result.json").read_text())["monitor"] == out["monitor"]
+
+
+def test_the_twins_residuals_travel_in_the_log_and_its_journal_and_an_infinite_one_is_refused(tmp_path):
+    from bench.core.log import TrialLog
+    from bench.core.rundir import read_journal, read_log_file
+    from drivers.errors import RunDirError
+
+    log = TrialLog(["a", "b"], ["s"], metadata={"control_period": 0.01})
+    log.start_twin()
+    run = tmp_path / "run"
+    run.mkdir()
+    log.journal_to(run)
+    for k in range(5):
+        log.append(0.01 * k, 0, [0, 0], [0, 0], [0, 0], [0, 0], [0, 0])
+    log.twin_rows(1, np.array([[0.5, np.nan], [1.5, np.nan], [-3.0, np.nan]]))
+    log.flush()
+    back = read_journal(run)  # a killed trial's journal, recovered
+    assert np.array_equal(back.twin_z, log.twin_z, equal_nan=True) and back.twin_z[2, 0] == 1.5
+    saved = log.save(tmp_path / "trial.npz")
+    assert np.array_equal(read_log_file(saved).twin_z, log.twin_z, equal_nan=True)
+    log.twin_rows(4, np.array([[np.inf, 0.0]]))
+    with pytest.raises(RunDirError, match="twin_z holds an infinity at row 4"):
+        read_log_file(log.save(tmp_path / "bad.npz"))
+    plain = TrialLog(["a"], ["s"])
+    plain.append(0.0, 0, [0], [0], [0], [0], [0])
+    assert read_log_file(plain.save(tmp_path / "plain.npz")).twin_z is None  # unmonitored: none

@@ -79,6 +79,8 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
     for r, name in zip(found, names):
         if r.reason:
             console.print(f"{name}: {r.reason}", highlight=False, soft_wrap=True)
+        if r.alarms:
+            console.print(f"{name}: the twin's alarms: {r.alarms}", highlight=False, soft_wrap=True)
     kinds = {k: sum(r.kind == k for r in found) for k in ("trial", "compare", "campaign")}
     console.print(f"{_count(len(found), 'run')} ({', '.join(f'{n} {k}' for k, n in kinds.items() if n)}); "
                   f"tip dist.: how far the needle tip ended from its target; "

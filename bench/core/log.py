@@ -36,15 +36,19 @@ TIMING_SERIES = ("loop_start", "loop_late", "bus_s")
 #: encoder under its ultrasonic reading), per cycle, in joint units; the log's ``encoder_joint``
 #: names that joint. NaN where a cycle was not read from the servo.
 ENCODER_SERIES = "q_encoder"
-JOURNAL_ROWS = "trial.journal"  # float64 records: time, segment, q_cmd qd_cmd q qd effort[, timing][, encoder]
+#: The twin's residual (bench.monitor), per cycle and joint, over the spread its model leaves on
+#: clean trials (σ): what the monitor's detector accumulates. NaN where a joint is not watched or
+#: a cycle was not (the first, the hold after a trip). Only in a monitored trial's log.
+TWIN_SERIES = "twin_z"
+JOURNAL_ROWS = "trial.journal"  # float64 records: time, segment, q_cmd qd_cmd q qd effort[, timing][, encoder][, twin]
 JOURNAL_META = "trial.journal.json"  # joint and segment names, metadata, events
 FLUSH_EVERY_S = 0.5
 
 
-def journal_row_width(joints: int, timed: bool, encoder: bool) -> int:
+def journal_row_width(joints: int, timed: bool, encoder: bool, twin: bool = False) -> int:
     """Doubles in one journal row (see :data:`JOURNAL_ROWS`): what every reader of a journal (the
     recovery, the live view, a test counting rows) derives from its metadata, in one place."""
-    return 2 + 5 * joints + (len(TIMING_SERIES) if timed else 0) + (1 if encoder else 0)
+    return 2 + 5 * joints + (len(TIMING_SERIES) if timed else 0) + (1 if encoder else 0) + (joints if twin else 0)
 
 
 @dataclass
@@ -79,6 +83,7 @@ class TrialLog:
         self._timing: dict[str, np.ndarray] | None = None  # TIMING_SERIES once timing started
         self.encoder_joint: str | None = None  # the joint of ENCODER_SERIES once it started
         self._encoder: np.ndarray | None = None
+        self._twin: np.ndarray | None = None  # TWIN_SERIES once the monitor started it
         self._journal = None  # (rows file, meta path) while journaling
         self._journaled = 0
         self._meta_dirty = True
@@ -104,6 +109,10 @@ class TrialLog:
             grown = np.full(cap, np.nan)
             grown[: self._n] = self._encoder[: self._n]
             self._encoder = grown
+        if self._twin is not None:
+            grown = np.full((cap, len(self.joint_names)), np.nan)
+            grown[: self._n] = self._twin[: self._n]
+            self._twin = grown
 
     def start_encoder(self, joint: str) -> None:
         """Record ``joint``'s servo encoder (:data:`ENCODER_SERIES`) from the first row on; a log
@@ -121,6 +130,20 @@ class TrialLog:
     def encode(self, position: float) -> None:
         """The encoder's reading (joint units) of the cycle last appended."""
         self._encoder[self._n - 1] = position
+
+    def start_twin(self) -> None:
+        """Record the twin's residual (:data:`TWIN_SERIES`) from the first row on (a monitored
+        trial); a log that already holds rows is refused."""
+        if self._n:
+            raise ValueError(f"the twin's channel starts with the first cycle; this log has {self._n} rows")
+        self._twin = np.full((len(self._t), len(self.joint_names)), np.nan)
+        self._meta_dirty = True
+        if self._journal is not None:
+            self._write_meta()
+
+    def twin_rows(self, first: int, z: np.ndarray) -> None:
+        """The twin's normalised residuals of rows ``first`` on (rows already appended)."""
+        self._twin[first:first + len(z)] = z
 
     def start_timing(self) -> None:
         """Record the loop's timing from the first row on (a paced trial); a log that already holds
@@ -215,6 +238,8 @@ class TrialLog:
                 cols += [self._timing[k][i:n, None] for k in TIMING_SERIES]
             if self._encoder is not None:
                 cols.append(self._encoder[i:n, None])
+            if self._twin is not None:
+                cols.append(self._twin[i:n])
             block = np.hstack(cols)
             rows.write(block.tobytes())
             rows.flush()
@@ -262,6 +287,9 @@ class TrialLog:
         if name == ENCODER_SERIES:  # None in a log without it (no joint read through another sensor)
             enc = self.__dict__["_encoder"]
             return None if enc is None else enc[: self.__dict__["_n"]]
+        if name == TWIN_SERIES:  # None in a log without a monitor
+            twin = self.__dict__["_twin"]
+            return None if twin is None else twin[: self.__dict__["_n"]]
         raise AttributeError(name)
 
     def joint(self, name: str) -> int:
@@ -281,6 +309,8 @@ class TrialLog:
             timing = {k: getattr(self, k) for k in TIMING_SERIES} if self.timed else {}
             if self._encoder is not None:
                 timing[ENCODER_SERIES] = self.q_encoder
+            if self._twin is not None:
+                timing[TWIN_SERIES] = self.twin_z
             np.savez_compressed(f, time=self.time, segment=self.segment,
                                 **{k: getattr(self, k) for k in SERIES[2:]}, **timing,
                                 meta=np.array(json.dumps(meta, default=_json_default)))
@@ -290,7 +320,7 @@ class TrialLog:
     def _meta(self) -> dict:
         return {"joint_names": self.joint_names, "segment_names": self.segment_names,
                 "events": [e.as_dict() for e in self.events], "metadata": self.metadata,
-                "timing": self.timed, "encoder_joint": self.encoder_joint}
+                "timing": self.timed, "encoder_joint": self.encoder_joint, "twin": self._twin is not None}
 
     @classmethod
     def load(cls, path: Path) -> "TrialLog":
@@ -314,6 +344,9 @@ class TrialLog:
             if ENCODER_SERIES in z.files and meta.get("encoder_joint"):
                 log.start_encoder(meta["encoder_joint"])
                 log._encoder[:n] = z[ENCODER_SERIES]
+            if TWIN_SERIES in z.files and meta.get("twin"):
+                log.start_twin()
+                log._twin[:n] = z[TWIN_SERIES]
             log._n = n
         return log
 

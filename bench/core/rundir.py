@@ -24,8 +24,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 
 from bench.config.base import describe_validation_error
-from bench.core.log import (ENCODER_SERIES, JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES, Event, TrialLog,
-                            journal_row_width)
+from bench.core.log import (ENCODER_SERIES, JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES, TWIN_SERIES, Event,
+                            TrialLog, journal_row_width)
 from bench.core.record import sha256_of
 from drivers.errors import RunDirError
 
@@ -83,6 +83,7 @@ class _LogMeta(BaseModel):
     metadata: dict[str, Any]
     timing: StrictBool = False  # the loop's timing follows each row (TIMING_SERIES): a paced trial
     encoder_joint: Optional[str] = None  # the joint whose servo encoder follows (ENCODER_SERIES)
+    twin: StrictBool = False  # the twin's residual follows each row (TWIN_SERIES): a monitored trial
 
 
 class _ConfigView(BaseModel):
@@ -95,6 +96,27 @@ class _ConfigView(BaseModel):
     plan: Optional[dict[str, Any]] = None
     backend: Optional[dict[str, Any]] = None
     acceptance: Optional[dict[str, Any]] = None
+
+
+class _AlarmView(BaseModel):
+    """One alarm of the twin (bench.monitor), as a listing reads it."""
+
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+    joint: str = Field(max_length=64)
+    t_s: float
+    score: Optional[float] = None
+
+
+class _MonitorView(BaseModel):
+    """What the twin said of a monitored trial (its summary), as readers use it."""
+
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+    model: str = Field(max_length=4096)
+    alarms: list[_AlarmView] = Field(default_factory=list, max_length=100_000)
+    cusum: Optional[dict[str, float]] = None
+    joints: list[str] = Field(default_factory=list, max_length=64)
 
 
 class _TrialMetadata(BaseModel):
@@ -112,6 +134,7 @@ class _TrialMetadata(BaseModel):
     control_period: Optional[float] = Field(None, gt=0)
     loop_wall_s: Optional[float] = Field(None, ge=0)  # the run's wall-clock time (a sim's speed)
     loop_priority: Optional[str] = Field(None, max_length=200)  # a paced loop's priority (nice -10)
+    monitor: Optional[_MonitorView] = None  # the twin's summary, in a monitored trial's log
 
 
 @dataclass(frozen=True)
@@ -288,6 +311,25 @@ def _check_encoder(where: object, name: str, meta: _LogMeta, rows: int, arrays: 
                              f"finite position (NaN where a cycle was not read)")
 
 
+def _check_twin(where: object, name: str, meta: _LogMeta, rows: int, arrays: dict[str, np.ndarray]) -> None:
+    """The twin's residual, when the log has it: a float per row and joint, no infinity (NaN: a
+    joint or cycle not watched). A log without it (an unmonitored trial's, an older one) reads as before."""
+    has = TWIN_SERIES in arrays
+    if has != meta.twin:
+        raise _refuse(where, f"{name}: " + (f"{TWIN_SERIES} without twin: true in its metadata" if has else
+                                             f"twin: true without {TWIN_SERIES}"))
+    if not has:
+        return
+    a, n = arrays[TWIN_SERIES], len(meta.joint_names)
+    if a.dtype.kind != "f" or a.shape != (rows, n):
+        raise _refuse(where, f"{name}: {TWIN_SERIES} is {a.dtype} of shape {a.shape}, not float of shape "
+                             f"({rows}, {n})")
+    if np.any(np.isinf(a)):
+        i = _first_bad(np.isinf(a))
+        raise _refuse(where, f"{name}: {TWIN_SERIES} holds an infinity at row {i}; a residual is finite "
+                             f"(NaN where not watched)")
+
+
 def _build(meta: _LogMeta, arrays: dict[str, np.ndarray]) -> TrialLog:
     events = [Event(e.time, e.kind, e.message) for e in meta.events]
     log = TrialLog(list(meta.joint_names), list(meta.segment_names), dict(meta.metadata), events,
@@ -303,6 +345,9 @@ def _build(meta: _LogMeta, arrays: dict[str, np.ndarray]) -> TrialLog:
         encoder = log._encoder = np.full(len(log._t), np.nan)  # its rows are in: filled directly
         log.encoder_joint = meta.encoder_joint
         encoder[: len(log)] = arrays[ENCODER_SERIES]
+    if meta.twin:
+        log._twin = np.full((len(log._t), len(log.joint_names)), np.nan)  # its rows are in: filled directly
+        log._twin[: len(log)] = arrays[TWIN_SERIES]
     return log
 
 
@@ -313,7 +358,7 @@ def _npy_headers(where: object, name: str, zf: zipfile.ZipFile) -> None:
     missing = [m.removesuffix(".npy") for m in want if m not in members]
     if missing:
         raise _refuse(where, f"{name} has no {', '.join(missing)}: not a trial log")
-    timing = [f"{k}.npy" for k in (*TIMING_SERIES, ENCODER_SERIES) if f"{k}.npy" in members]
+    timing = [f"{k}.npy" for k in (*TIMING_SERIES, ENCODER_SERIES, TWIN_SERIES) if f"{k}.npy" in members]
     total = 0
     for m in want + timing:
         with zf.open(members[m]) as f:
@@ -338,7 +383,7 @@ def read_log_file(path: Path, where: Optional[object] = None) -> TrialLog:
         with zipfile.ZipFile(path) as zf:
             _npy_headers(where, path.name, zf)
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in (*SERIES, *TIMING_SERIES, ENCODER_SERIES) if k in z.files}
+            arrays = {k: z[k] for k in (*SERIES, *TIMING_SERIES, ENCODER_SERIES, TWIN_SERIES) if k in z.files}
             raw_meta = z["meta"]
     except RunDirError:
         raise
@@ -354,6 +399,7 @@ def read_log_file(path: Path, where: Optional[object] = None) -> TrialLog:
     _check_series(where, path.name, meta, arrays)
     _check_timing(where, path.name, len(arrays["time"]), arrays)
     _check_encoder(where, path.name, meta, len(arrays["time"]), arrays)
+    _check_twin(where, path.name, meta, len(arrays["time"]), arrays)
     return _build(meta, arrays)
 
 
@@ -393,7 +439,7 @@ def read_journal(run_dir: Path) -> TrialLog:
         raise _refuse(run_dir, f"{JOURNAL_ROWS} is larger than any trial's log")
     n = len(meta.joint_names)
     timed = len(TIMING_SERIES) if meta.timing else 0
-    width = journal_row_width(n, bool(timed), meta.encoder_joint is not None)
+    width = journal_row_width(n, bool(timed), meta.encoder_joint is not None, meta.twin)
     raw = np.frombuffer(rows_path.read_bytes(), dtype="<f8")
     rows = raw[: len(raw) // width * width].reshape(-1, width)
     seg = rows[:, 1]
@@ -406,9 +452,13 @@ def read_journal(run_dir: Path) -> TrialLog:
     if meta.timing:
         for j, k in enumerate(TIMING_SERIES):
             arrays[k] = rows[:, 2 + 5 * n + j].copy()
-    if meta.encoder_joint is not None:
+    encoder = int(meta.encoder_joint is not None)
+    if encoder:
         arrays[ENCODER_SERIES] = rows[:, 2 + 5 * n + timed].copy()
+    if meta.twin:
+        arrays[TWIN_SERIES] = rows[:, 2 + 5 * n + timed + encoder:].copy()
     _check_series(run_dir, JOURNAL_ROWS, meta, arrays)
     _check_timing(run_dir, JOURNAL_ROWS, len(rows), arrays)
     _check_encoder(run_dir, JOURNAL_ROWS, meta, len(rows), arrays)
+    _check_twin(run_dir, JOURNAL_ROWS, meta, len(rows), arrays)
     return _build(meta, arrays)

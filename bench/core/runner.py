@@ -122,6 +122,8 @@ class Runner:
         self.phase = phase
         self.interrupts = interrupts
         self._encoder: Optional[Callable[[], float]] = None  # set per run: the sensed joint's encoder
+        # told when a block's rows are in the log, by checks that record beside them (the monitor)
+        self._logged: Optional[Callable[[], None]] = getattr(interlocks, "logged", None)
 
     def _cycles(self, seg: Segment) -> int:
         return int(math.ceil((seg.trajectory.duration + seg.settle) / self.dt - 1e-9)) + 1
@@ -231,6 +233,8 @@ class Runner:
             if hit is None:
                 log.append_block(states.time, si, q, qd, states.position, states.velocity,
                                  states.effort)
+                if self._logged is not None:
+                    self._logged()
                 t_next = float(ends[-1])
                 self.interrupts.check()
                 log.maybe_flush()

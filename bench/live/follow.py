@@ -164,7 +164,8 @@ class RunFollower:
         s.segments = list(meta.get("segment_names", []))
         s.events = [e for e in meta.get("events", []) if isinstance(e, dict)]
         self._timed = meta.get("timing") is True
-        self._width = journal_row_width(len(s.joints), self._timed, bool(meta.get("encoder_joint")))
+        self._width = journal_row_width(len(s.joints), self._timed, bool(meta.get("encoder_joint")),
+                                        bool(meta.get("twin")))
         if not s.timing:
             s.timing = {"cycles": 0, "missed": 0, "worst_late_s": None}
         s.timing["paced"] = self._timed

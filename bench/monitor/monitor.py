@@ -60,6 +60,9 @@ class TwinMonitor:
         self._t0: Optional[float] = None
         self._last: Optional[tuple[float, np.ndarray]] = None  # (time, goal) of the previous cycle
         self.z: list[np.ndarray] = []  #: each cycle's normalised residual (NaN: not monitored)
+        self._written = 0  # the cycles whose residuals are in the log
+        if self.log is not None:
+            self.log.start_twin()
 
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Optional[Trip]:
         """The residual of the interval this reading ends; a trip when an alarm must stop the trial."""
@@ -77,7 +80,18 @@ class TwinMonitor:
             if hit.size:
                 trip = self._alarm(t, hit)
         self._last = (t, np.array(commanded, dtype=float))
+        self.logged()
         return trip
+
+    def logged(self) -> None:
+        """Put the residuals of the cycles now in the log beside them (the runner calls this once a
+        block's rows are in; a cycle's row is in before its check)."""
+        if self.log is None:
+            return
+        upto = min(len(self.z), len(self.log))
+        if upto > self._written:
+            self.log.twin_rows(self._written, np.array(self.z[self._written:upto]))
+            self._written = upto
 
     def _alarm(self, t: float, hit: np.ndarray) -> Optional[Trip]:
         score = self._detector.score
@@ -104,7 +118,8 @@ class TwinMonitor:
         return None
 
     def summary(self) -> dict:
-        """What ``trial --json`` and the record say of the monitor."""
+        """What ``trial --json`` and the record say of the monitor (its residuals: the log's)."""
+        self.logged()
         return {"model": self.model, "action": self.action,
                 "joints": [n for n, m in zip(self.joint_names, self.monitored) if m],
                 "cusum": {"drift_sigma": self.cusum.drift, "threshold_sigma": self.cusum.threshold},
@@ -135,3 +150,6 @@ class Watched:
         rows = len(times) if hit is None else hit[0]
         mine = self.monitor.scan(times, position, velocity, effort, commanded, rows)
         return mine if mine is not None else hit
+
+    def logged(self) -> None:
+        self.monitor.logged()

@@ -12,6 +12,7 @@ import numpy as np
 from bench.core.log import TrialLog
 from bench.core.result import PreparedTrial, TrialResult, write_result_json
 from bench.kinematics.arc_train import train_pose
+from bench.report.twin import plot_twin, twin_markdown
 from bench.scene.render import SIDE_VIEW, render_robot
 
 
@@ -233,6 +234,8 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
                       f"the robot placed the needle (measured joints).*", ""]
         else:
             lines += [f"*The robot {where}, in the CT room.*", ""]
+    if result.monitor is not None:
+        lines += ["## The twin", "", twin_markdown(result.monitor, figures.get("twin"))]
     lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Loop timing", "",
               result.timing.markdown(), "## Events", "",
               _events_markdown(log), "## Versions", "",
@@ -329,6 +332,11 @@ def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTria
                             title=f"{prep.config.name}: commanded vs measured")
     else:
         (d / "joints.png").unlink(missing_ok=True)  # a rebuilt report drops a stale figure
+    if result.monitor is not None and log.twin_z is not None and len(log) > 1:
+        figures["twin"] = "twin.png"
+        plot_twin(log, result.monitor, d / "twin.png")
+    else:
+        (d / "twin.png").unlink(missing_ok=True)
     if picture and len(log):
         try:
 

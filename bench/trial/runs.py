@@ -40,6 +40,8 @@ class RunSummary:
     report: Optional[str]  # report.html when it was drawn
     rig: Optional[str] = None  # sim, emulated or real: what the record says ran it (None: older runs)
     kind: str = "trial"  # trial | compare | campaign
+    #: The twin's alarms, "theta5 at 2.13 s, …" (a monitored trial), "" when it raised none; None unmonitored.
+    alarms: Optional[str] = None
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -90,7 +92,9 @@ def _checked_summary(run_dir: Path) -> RunSummary:
             status = "failed"
         reason = result.reason
     report = run_dir / "report.html"
+    monitor = meta.get("monitor")  # checked with the log's metadata
+    alarms = None if monitor is None else ", ".join(f"{a['joint']} at {a['t_s']:.2f} s" for a in monitor["alarms"])
     return RunSummary(str(run_dir), meta.get("start_time"), name if isinstance(name, str) else None,
                       meta.get("backend"), status, reason, None if tip is None else round(tip, 3),
                       None if angle is None else round(float(angle), 4),
-                      str(report) if report.is_file() else None, meta.get("rig"))
+                      str(report) if report.is_file() else None, meta.get("rig"), alarms=alarms)
