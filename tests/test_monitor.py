@@ -148,3 +148,17 @@ def test_the_twins_residuals_travel_in_the_log_and_its_journal_and_an_infinite_o
     plain = TrialLog(["a"], ["s"])
     plain.append(0.0, 0, [0], [0], [0], [0], [0])
     assert read_log_file(plain.save(tmp_path / "plain.npz")).twin_z is None  # unmonitored: none
+
+
+def test_a_monitored_rig_config_compares_against_the_ideal_sim_unwatched_and_a_servo_sim_watched():
+    """compare runs the rig's config as it is and its sim counterpart: the ideal motors are not
+    servos, so that side drops the monitor; a servo-model sim keeps it."""
+    from bench.compare.session import sim_counterpart
+    from bench.config.models import load_trial_config
+    from bench.config.monitor import MonitorConfig
+    from bench.trial.plan import prepare
+
+    cfg = load_trial_config(REPO / "hil_configs" / "lab_real.yaml").model_copy(update={"monitor": MonitorConfig()})
+    assert cfg.monitor is not None and prepare(cfg).monitor is not None
+    assert sim_counterpart(cfg).monitor is None and prepare(sim_counterpart(cfg)).monitor is None
+    assert prepare(sim_counterpart(cfg, "datasheet")).monitor is not None

@@ -112,6 +112,8 @@ def sim_counterpart(config: TrialConfig, servo_model: str = "ideal") -> TrialCon
     if servo_model != "ideal":
         data["backend"].update(servo_model=servo_model, servos=rig.get("servos", {}),
                                ultrasonic=rig.get("ultrasonic"))
+    else:  # the ideal motors are not servos: the twin watches the rig's side only
+        data["monitor"] = None
     try:
         return TrialConfig.model_validate({**data, "source": config.source})
     except Exception as e:  # pydantic's message, one line
