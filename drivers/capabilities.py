@@ -17,10 +17,10 @@ import numpy as np
 
 from drivers import Actuators, BackendSetupError, JointState
 
-__all__ = ["CAPABILITIES", "BlockExecution", "BusTiming", "EffortLimited", "EmulatorHooks", "HostLoop",
-           "JointKinds", "LinkPoses", "PositionReset", "SafeStopReport", "SensedEncoder", "ServoInfo",
-           "StartWarnings", "TruePosition",
-           "find_capability", "layers", "members", "require_capability"]
+__all__ = ["CAPABILITIES", "BlockExecution", "BusTiming", "EffortLimited", "EmulatorHooks", "ExternalLoad",
+           "FrictionScaled", "HostLoop", "JointKinds", "LinkPoses", "PositionReset", "SafeStopReport",
+           "SensedEncoder", "ServoInfo", "StartWarnings", "TruePosition",
+           "checked_joint", "find_capability", "layers", "members", "require_capability"]
 
 C = TypeVar("C")
 
@@ -30,6 +30,22 @@ class EffortLimited(Protocol):
     """Per-joint effort (torque or force) limits that can be lowered at run time (N·m or N)."""
 
     def set_effort_limit(self, joint: int, effort: float) -> None: ...
+
+
+@runtime_checkable
+class ExternalLoad(Protocol):
+    """An external torque or force on a joint (N·m or N, signed as the joint), felt by its dynamics from
+    the next physics step until set again (0: none)."""
+
+    def set_external_effort(self, joint: int, effort: float) -> None: ...
+
+
+@runtime_checkable
+class FrictionScaled(Protocol):
+    """A joint's friction as a multiple of its identified value (1: as identified), every term of the
+    servo core's friction law at once."""
+
+    def set_friction_scale(self, joint: int, scale: float) -> None: ...
 
 
 @runtime_checkable
@@ -143,9 +159,9 @@ class BusTiming(Protocol):
 
 
 #: Every capability a backend may offer, as the checker goes through them.
-CAPABILITIES: tuple[type, ...] = (BlockExecution, BusTiming, EffortLimited, EmulatorHooks, HostLoop,
-                                  JointKinds, LinkPoses, PositionReset, SafeStopReport, SensedEncoder,
-                                  ServoInfo, StartWarnings, TruePosition)
+CAPABILITIES: tuple[type, ...] = (BlockExecution, BusTiming, EffortLimited, EmulatorHooks, ExternalLoad,
+                                  FrictionScaled, HostLoop, JointKinds, LinkPoses, PositionReset,
+                                  SafeStopReport, SensedEncoder, ServoInfo, StartWarnings, TruePosition)
 
 
 def layers(actuators: Actuators) -> Iterator[Actuators]:
@@ -171,6 +187,16 @@ def require_capability(actuators: Actuators, capability: type[C], what: str) -> 
         raise BackendSetupError(f"{what} needs a backend with {members(capability)} ({capability.__name__}: "
                                  f"{_summary(capability)}); {type(actuators.unwrapped).__name__} has none")
     return found
+
+
+def checked_joint(joint: int, n: int, value: float, what: str) -> int:
+    """``joint`` as an index of ``n`` joints, or one line (BackendSetupError) saying why a capability's
+    call was refused: an index that is not a joint, or a value that is not finite."""
+    if isinstance(joint, bool) or not isinstance(joint, (int, np.integer)) or not 0 <= joint < n:
+        raise BackendSetupError(f"{what}: joint {joint!r} is not a joint index (0 to {n - 1})")
+    if not np.isfinite(value):
+        raise BackendSetupError(f"{what}: {value!r} for joint {joint} is not finite")
+    return int(joint)
 
 
 def members(capability: type) -> str:

@@ -4,8 +4,8 @@ backend, the servo-model simulator, the emulated Dynamixel backend and each faul
 a new backend or wrapper is held to the rules the bench relies on.
 
 :func:`check_actuators` moves the joints only to where they already are (a command of the
-present position, an effort limit set to the value it has), so it is safe on a rig that holds
-still.
+present position, an effort limit set to the value it has, no external load, the friction as
+identified), so it is safe on a rig that holds still.
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ from drivers.capabilities import (
     BusTiming,
     EffortLimited,
     EmulatorHooks,
+    ExternalLoad,
+    FrictionScaled,
     HostLoop,
     JointKinds,
     LinkPoses,
@@ -173,6 +175,11 @@ def _check_idle_capabilities(act: Actuators, n: int) -> None:
     hooks = find_capability(act, EmulatorHooks)
     if hooks is not None:
         _require(hooks.fault_hooks is not None, "fault_hooks is None: a backend without hooks has none")
+    _check_physical(find_capability(act, ExternalLoad), find_capability(act, FrictionScaled), n,
+                    "the backend")
+    fault_hooks = hooks.fault_hooks if hooks is not None else None  # an emulated rig's plant, through them
+    _check_physical(fault_hooks if isinstance(fault_hooks, ExternalLoad) else None,
+                    fault_hooks if isinstance(fault_hooks, FrictionScaled) else None, n, "its emulator hooks")
     poses = find_capability(act, LinkPoses)
     if poses is not None:
         try:
@@ -197,6 +204,26 @@ def _check_idle_capabilities(act: Actuators, n: int) -> None:
         reset.reset_position(q)
         _require(bool(np.allclose(_read(backend, n, "after reset_position()").position, q, atol=1e-9)),
                  "reset_position(present position) moved the joints")
+
+
+def _check_physical(load: ExternalLoad | None, friction: FrictionScaled | None, n: int, where: str) -> None:
+    """A load and a friction scale that change nothing (none, as identified) are taken; a joint that
+    is not one, or a value that is not finite, is refused in one line (BenchError) before it reaches
+    the physics."""
+    calls = []
+    if load is not None:
+        calls.append(("set_external_effort", load.set_external_effort, 0.0))
+    if friction is not None:
+        calls.append(("set_friction_scale", friction.set_friction_scale, 1.0))
+    for name, call, unchanged in calls:
+        call(0, unchanged)
+        for joint, value in ((n, unchanged), (-1, unchanged), (0, math.nan)):
+            try:
+                call(joint, value)
+            except BenchError:
+                continue
+            raise ContractViolation(f"{name}({joint}, {value}) on {where} was accepted: "
+                                    "not a joint, or not a value")
 
 
 def _check_active_capabilities(act: Actuators, n: int, q: np.ndarray) -> None:

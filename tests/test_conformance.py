@@ -21,6 +21,8 @@ from drivers.capabilities import (
     BlockExecution,
     EffortLimited,
     EmulatorHooks,
+    ExternalLoad,
+    FrictionScaled,
     HostLoop,
     JointKinds,
     PositionReset,
@@ -58,7 +60,7 @@ def rig():
 def _rig_backend(rig) -> Actuators:
     r, cfg = rig
     backend = make_dynamixel_backend(cfg, get_robot(cfg.robot))
-    backend.fault_hooks = r.bus.faults
+    backend.fault_hooks = r.hooks
     return backend
 
 
@@ -77,6 +79,7 @@ def test_the_pybullet_backend_keeps_the_contract():
     act = _sim_backend()
     assert find_capability(act, EffortLimited) is act and find_capability(act, JointKinds) is act
     assert find_capability(act, ServoInfo) is None and find_capability(act, EmulatorHooks) is None
+    assert find_capability(act, ExternalLoad) is act and find_capability(act, FrictionScaled) is None
     check_actuators(act)
 
 
@@ -84,6 +87,9 @@ def test_the_dynamixel_backend_on_the_emulated_rig_keeps_the_contract(rig):
     act = _rig_backend(rig)
     assert find_capability(act, ServoInfo) is act and find_capability(act, EmulatorHooks) is act
     assert find_capability(act, JointKinds) is None
+    # the driver pushes on nothing itself: the emulated rig's plant is reached through its hooks
+    assert find_capability(act, ExternalLoad) is None and find_capability(act, FrictionScaled) is None
+    assert isinstance(act.fault_hooks, ExternalLoad) and isinstance(act.fault_hooks, FrictionScaled)
     check_actuators(act)
 
 
@@ -91,6 +97,7 @@ def test_the_servo_model_sim_keeps_the_contract():
     act = _servo_sim_backend()
     assert find_capability(act, HostLoop) is act and find_capability(act, TruePosition) is act
     assert find_capability(act, BlockExecution) is act and find_capability(act, PositionReset) is None
+    assert find_capability(act, ExternalLoad) is act and find_capability(act, FrictionScaled) is act
     check_actuators(act)
 
 
@@ -200,6 +207,28 @@ def test_the_checker_catches_a_wrapper_offering_a_capability():
 
     with pytest.raises(ContractViolation, match="Forwards offers EffortLimited"):
         check_actuators(Forwards(_sim_backend()))
+
+
+def test_the_checker_catches_a_load_on_a_joint_that_is_not_one():
+    """A push on joint 9 of nine joints must be refused in one line, not land in the physics' arrays."""
+    act = _servo_sim_backend()
+    act.plant.set_external_effort = lambda joint, effort: None  # takes anything
+    with pytest.raises(ContractViolation, match=r"set_external_effort\(9, 0.0\) on the backend was accepted"):
+        check_actuators(act)
+
+
+def test_the_checker_catches_emulator_hooks_that_scale_any_friction(rig):
+    class Lax:
+        def set_friction_scale(self, joint, scale):
+            pass
+
+    act = _rig_backend(rig)
+    act.fault_hooks = Lax()
+    try:
+        with pytest.raises(ContractViolation, match=r"set_friction_scale\(9, 1.0\) on its emulator hooks"):
+            check_actuators(act)
+    finally:
+        act.close()
 
 
 def test_the_checker_catches_a_backend_that_does_not_say_how_it_stopped():

@@ -167,7 +167,9 @@ def test_a_backend_built_on_an_emulated_port_gets_its_hooks_and_a_real_port_none
         prep = prepare(there)
         act = make_dynamixel_backend(prep.config, prep.robot)
         try:
-            assert act.fault_hooks is rig.bus.faults
+            assert act.fault_hooks is rig.hooks
+            act.fault_hooks.drop_prob = 0.25  # the hooks set that rig's bus faults
+            assert rig.bus.faults.drop_prob == 0.25
         finally:
             act.close()
     assert rig_kind(there) == "real"  # the rig is gone: that port is no emulator's any more

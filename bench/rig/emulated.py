@@ -26,11 +26,13 @@ from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
-from bench.config.models import DynamixelBackendConfig, EmulatorConfig, TrialConfig, model_number
+from bench.config.models import (DynamixelBackendConfig, EmulatorConfig, TrialConfig, load_trial_config,
+                                 model_number)
 from bench.kinematics.arc_train import train_pose
 from bench.kinematics.registry import get_robot
 from bench.rig import serving
 from bench.rig.backends import with_physics
+from bench.rig.hooks import RemoteRigHooks, RigHooks, follow_commands
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import BAUD_RATES, OPERATING_MODES
 from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
@@ -122,6 +124,8 @@ class EmulatedRig:
                                         physics_dt=1.0 / e.physics_hz,
                                         wire_timing=e.wire_timing, seed=e.seed, realtime=realtime,
                                         rest_after_s=rest_after_s)
+        #: What a backend built on this bus carries as its fault hooks: the bus's faults and the plant's.
+        self.hooks = RigHooks(self.bus)
         if e.start_torque_on:
             for servo in servos.values():
                 servo.set("Torque Enable", 1)
@@ -158,7 +162,7 @@ class EmulatedRig:
         self.bus.start()
         if self.ultrasonic is not None:
             self.ultrasonic.start()
-        serving.attach(self.bus.port, self.bus.faults)  # backends built on this port get its hooks
+        serving.attach(self.bus.port, self.hooks)  # backends built on this port get its hooks
         return self
 
     def close(self) -> None:
@@ -206,8 +210,9 @@ def serve(config: TrialConfig, announce, report=None) -> None:
             previous[sig] = signal.signal(sig, on_stop)
         signal.signal(signal.SIGUSR1, lambda *a: rig.bus.unplug())
         signal.signal(signal.SIGUSR2, lambda *a: rig.bus.replug())
-        if not sys.stdin.isatty():  # a parent process drives the bus faults through our stdin
-            threading.Thread(target=_follow_commands, args=(rig, sys.stdin), daemon=True).start()
+        if not sys.stdin.isatty():  # a parent process drives the rig's faults through our stdin
+            threading.Thread(target=follow_commands, args=(rig.hooks, rig.bus, sys.stdin),
+                             daemon=True).start()
         announce(rig.ports)
         try:
             while not stop.wait(0.2):
@@ -227,52 +232,13 @@ EMULATOR_STALE_S = 0.5
 #: An emulated rig left alone (servos still, no writes) pauses its physics after this long.
 REST_AFTER_S = 0.5
 
-BUS_FAULT_FIELDS = ("drop_prob", "corrupt_crc_prob", "delay_s", "silent")
-
-
-def _follow_commands(rig: "EmulatedRig", stream) -> None:
-    """Apply JSON lines such as ``{"faults": {"drop_prob": 0.05}}`` to the running bus."""
-    for line in stream:
-        try:
-            cmd = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        with rig.bus.lock:
-            for field_name, value in cmd.get("faults", {}).items():
-                if field_name in BUS_FAULT_FIELDS:
-                    setattr(rig.bus.faults, field_name, value)
-        if cmd.get("unplug"):
-            rig.bus.unplug()
-        if cmd.get("replug"):
-            rig.bus.replug()
-
-
-class RemoteBusFaults:
-    """The bus faults of an emulator in another process: setting a field sends it there."""
-
-    def __init__(self, send) -> None:
-        object.__setattr__(self, "_send", send)
-        object.__setattr__(self, "_values", {"drop_prob": 0.0, "corrupt_crc_prob": 0.0,
-                                             "delay_s": 0.0, "silent": False})
-
-    def __getattr__(self, name: str):
-        try:
-            return self.__dict__["_values"][name]
-        except KeyError:
-            raise AttributeError(name) from None
-
-    def __setattr__(self, name: str, value) -> None:
-        if name not in BUS_FAULT_FIELDS:
-            raise AttributeError(f"unknown bus fault {name!r}; known: {BUS_FAULT_FIELDS}")
-        self._values[name] = value
-        self._send({"faults": {name: value}})
-
 
 class EmulatorProcess:
     """`hilbench emulate CONFIG --json` in a child process (its own core, its own GIL).
 
-    ``faults`` changes the bus faults of the running emulator (dropped, late or
-    corrupted status packets), so fault wrappers reach the wire through it.
+    ``faults`` changes the faults of the running emulator: its bus's (dropped, late or
+    corrupted status packets) and its plant's (a contact on a joint, a friction that drifts),
+    so fault wrappers reach the wire and the physics through it.
     """
 
     def __init__(self, config_path: Path, start_timeout: float = 30.0) -> None:
@@ -289,7 +255,6 @@ class EmulatorProcess:
                                      stderr=self._stderr, text=True, env=env,
                                      start_new_session=True,
                                      preexec_fn=functools.partial(_die_with_parent, os.getpid()))
-        self.faults = RemoteBusFaults(self._send)
         line = self._first_line(start_timeout)
         try:
             ports = json.loads(line)
@@ -304,6 +269,9 @@ class EmulatorProcess:
             why = err[-1].removeprefix("error: ") if err else f"it exited with {self.proc.returncode}"
             raise RuntimeError(f"the emulator did not start: {why}") from None
         self.ports = RigPorts(ports["dynamixel_port"], ports.get("ultrasonic_port"))
+        # the child validated the config it serves: its robot says how many joints the plant has
+        joints = len(get_robot(load_trial_config(config_path).robot).joint_names)
+        self.faults = RemoteRigHooks(self._send, joints)
         serving.attach(self.ports.dynamixel_port, self.faults)  # backends built on this port get its hooks
         #: The bus's counters, read when the emulator has stopped (see :func:`serve`).
         self.stats: dict = {}

@@ -276,6 +276,14 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
         with self.lock:
             self._unplugged = False
 
+    def disturb(self, change: Callable[[Plant], None]) -> None:
+        """Change the plant's physics while the bus runs (a contact on a joint, a friction that
+        drifts): ``change(plant)`` under the lock, and a resting physics resumes, its rig no longer
+        at rest."""
+        with self.lock:
+            change(self.plant)
+            self._wake()
+
     def advance(self, seconds: float) -> None:
         """Step the physics by ``seconds`` (rounded to substeps) outside real time."""
         with self.lock:

@@ -20,6 +20,7 @@ from typing import Callable, Literal, Sequence
 import numpy as np
 
 from drivers import ActuatorError, BackendSetupError, JointLimits, JointState, NotEnabledError, frozen_array
+from drivers.capabilities import checked_joint
 from drivers.pybullet.stepped import SteppedActuators, block_commands
 from drivers.quiet import muted_output, quiet_pybullet
 
@@ -147,6 +148,10 @@ class PyBulletActuators(SteppedActuators):
         self.link_index = {info[12].decode(): j for j, info in by_name.values()}
         infos = [by_name[n][1] for n in s.joint_names]
         self._kinds = ["prismatic" if i[2] == pb.JOINT_PRISMATIC else "revolute" for i in infos]
+        # where a contact pushes: each joint's axis in its link's frame, and the link it reacts on
+        self._axes = [np.array(i[13], dtype=float) for i in infos]
+        self._parents = [i[16] for i in infos]
+        self._loads: dict[int, float] = {}  # joint -> external torque (N·m) or force (N)
         lower = np.array([i[8] for i in infos])
         upper = np.array([i[9] for i in infos])
         effort = self._per_joint(s.max_effort, [i[10] for i in infos], "max_effort")
@@ -195,7 +200,7 @@ class PyBulletActuators(SteppedActuators):
 
     def wait_until(self, t: float) -> None:
         target = int(math.floor(t / self._dt + 1e-6))
-        step = self._pb.stepSimulation
+        step = self._step_pushed if self._loads else self._pb.stepSimulation
         c = self._client
         while self._step_count < target:
             step(physicsClientId=c)
@@ -253,7 +258,8 @@ class PyBulletActuators(SteppedActuators):
         # the step count when each cycle reads: it only moves forward
         counts = np.maximum.accumulate(np.concatenate(([self._step_count], targets_steps)))
         pb, c, body, idx = self._pb, self._client, self.robot, self._joint_index
-        read, send, step = pb.getJointStates, pb.setJointMotorControlArray, pb.stepSimulation
+        read, send = pb.getJointStates, pb.setJointMotorControlArray
+        step = self._step_pushed if self._loads else pb.stepSimulation
         mode, forces, kp, kd = pb.POSITION_CONTROL, self._forces, self._kp, self._kd
         # Each cycle's reading goes straight into one flat buffer: keeping PyBullet's
         # tuples alive instead costs more than the conversion (fresh memory every cycle).
@@ -331,6 +337,34 @@ class PyBulletActuators(SteppedActuators):
         self._forces = eff.tolist()
         if self.enabled:
             self._send(self._hold_target, None)
+
+    def set_external_effort(self, joint: int, effort: float) -> None:
+        """A contact's torque (N·m) or force (N) on a joint from the next physics step on (0: none).
+
+        Applied every step as an action on the joint's link and its reaction on the parent link (a
+        torque about the joint's axis, or a force along it through one point), so the joint alone
+        feels it, as a generalised force, and its position motor, its force limited, fights it."""
+        j = checked_joint(joint, self._n_joints, effort, "set_external_effort")
+        if effort == 0.0:
+            self._loads.pop(j, None)
+        else:
+            self._loads[j] = float(effort)
+
+    def _step_pushed(self, physicsClientId: int) -> None:  # noqa: N803 - stepSimulation's own keyword
+        """One physics step with the contacts applied (PyBullet clears external forces after each step)."""
+        pb, body = self._pb, self.robot
+        for j, effort in self._loads.items():
+            link = self._joint_index[j]
+            st = pb.getLinkState(body, link, computeForwardKinematics=True, physicsClientId=physicsClientId)
+            push = (np.array(pb.getMatrixFromQuaternion(st[5])).reshape(3, 3) @ self._axes[j]) * effort
+            for on, sign in ((link, 1.0), (self._parents[j], -1.0)):
+                if self._kinds[j] == "prismatic":
+                    pb.applyExternalForce(body, on, (sign * push).tolist(), st[4], pb.WORLD_FRAME,
+                                          physicsClientId=physicsClientId)
+                else:
+                    pb.applyExternalTorque(body, on, (sign * push).tolist(), pb.WORLD_FRAME,
+                                           physicsClientId=physicsClientId)
+        pb.stepSimulation(physicsClientId=physicsClientId)
 
     def link_pose(self, link_name: str) -> tuple[np.ndarray, np.ndarray]:
         """World position and rotation matrix of a URDF link frame."""

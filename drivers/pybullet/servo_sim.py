@@ -343,3 +343,12 @@ class ServoSimActuators(SteppedActuators):
         eff = self._limits.effort.copy()
         eff[joint] = effort
         self._limits = JointLimits(self._limits.lower, self._limits.upper, self._limits.velocity, eff)
+
+    def set_external_effort(self, joint: int, effort: float) -> None:
+        """A contact's torque (N·m) or force (N) on a joint, in the plant's torque sum from the next step:
+        the servo fights it through its PID as it fights gravity."""
+        self.plant.set_external_effort(joint, effort)
+
+    def set_friction_scale(self, joint: int, scale: float) -> None:
+        """A joint's friction as a multiple of the servo model's (the plant's law, its levels scaled)."""
+        self.plant.set_friction_scale(joint, scale)

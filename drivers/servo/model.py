@@ -172,6 +172,15 @@ class ServoParams:
         weaker motor than the datasheet's."""
         return replace(self, kt=self.kt * _arr(kt_scale, self.n), ke=self.ke * _arr(kt_scale, self.n))
 
+    def with_friction_scale(self, scale) -> "ServoParams":
+        """The same servos with every friction level scaled per joint (Coulomb, Stribeck peak, viscous
+        and the load-dependent coefficients; the Stribeck curve's shape kept): each term of the law is
+        linear in its level, so the friction is ``scale`` × this one at any speed and load (a gearbox
+        whose friction drifts as it wears or its grease thickens)."""
+        s = _arr(scale, self.n)
+        levels = ("coulomb", "stribeck", "viscous", *LOAD_FRICTION_FIELDS)
+        return replace(self, **{f: getattr(self, f) * s for f in levels})
+
     @property
     def back_emf_damping(self) -> np.ndarray:
         """Kt·Ke/R (N·m·s/rad): the damping the motor's back-EMF gives at a fixed PWM."""

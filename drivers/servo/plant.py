@@ -12,11 +12,13 @@ back-EMF damping (Kt·Ke/R ≈ 0.9 N·m·s/rad) dwarf the small links of the
 wrist, and PyBullet has no armature and integrates damping explicitly, which
 goes unstable at 1 kHz. Here the joint-space equation
 
-    (M(q) + J_a + dt·B) Δq̇ = dt · (τ_drive − B q̇ − h(q, q̇) − friction)
+    (M(q) + J_a + dt·B) Δq̇ = dt · (τ_drive + τ_ext − B q̇ − h(q, q̇) − friction)
 
 with B the back-EMF damping plus the gearbox's viscous friction and ``friction`` its
 Coulomb, Stribeck and load-dependent parts (:mod:`drivers.servo.friction`), all from
-the joints' :class:`~drivers.servo.model.ServoParams`, is integrated semi-implicitly by the core's
+the joints' :class:`~drivers.servo.model.ServoParams` (scaled by :meth:`PyBulletPlant.set_friction_scale`
+where a fault makes it drift) and τ_ext a contact's torque or force on a joint
+(:meth:`PyBulletPlant.set_external_effort`), is integrated semi-implicitly by the core's
 one integrator (:func:`~drivers.servo.joints.step_joints`), with M and h = C q̇ + g from PyBullet's
 ``calculateMassMatrix`` and ``calculateInverseDynamics``. Stable for any
 damping; joint limits act as hard stops.
@@ -39,6 +41,7 @@ from typing import Sequence
 import numpy as np
 
 from drivers import BackendSetupError
+from drivers.capabilities import checked_joint
 from drivers.quiet import muted_output, quiet_pybullet
 from drivers.servo.friction import FrictionLaw, friction_level, smooth_friction
 from drivers.servo.joints import JointMatrix, step_joints
@@ -88,26 +91,22 @@ class PyBulletPlant:
         self.kinds = tuple("prismatic" if i[2] == pb.JOINT_PRISMATIC else "revolute" for i in movable)
         self._ratio = np.asarray(ratio, dtype=float)
         self._offset = np.asarray(offset, dtype=float)
-        r2 = self._ratio ** 2
-        self.servos = servos
-        self._B_emf = servos.back_emf_damping / r2
-        self._B = self._B_emf + servos.viscous / r2
-        self._Ja = servos.armature / r2
-        self._has_friction = bool((servos.coulomb > 0).any() or (servos.stribeck > 0).any()
-                                  or servos.has_load_friction)
-        self._joint_friction = np.zeros(n) if joint_friction is None else np.asarray(joint_friction, dtype=float)
         self._dt = physics_dt
         self._q = np.clip(np.asarray(initial_position, dtype=float), self._lower, self._upper)
         self._qd = np.zeros(n)
         self._zeros = [0.0] * n
-        # worked out once: the step's constants (the back-EMF's damping is implicit, in the matrix)
         self._inv_ratio = 1.0 / self._ratio
         self._abs_inv_ratio = np.abs(self._inv_ratio)  # a level at the shaft, at the joint
-        self._viscous = servos.viscous / r2
-        self._implicit = self._Ja + physics_dt * self._B
         self._diagonal = np.diag_indices(n)
-        self._has_joint_friction = bool(self._joint_friction.any())
-        self._has_viscous = bool(self._viscous.any())
+        # the friction as identified, which a scale multiplies (FrictionScaled), and a load from outside
+        # the robot on each joint (ExternalLoad): both 1 and 0 until a fault sets them
+        self._identified = servos
+        self._identified_joint_friction = (np.zeros(n) if joint_friction is None
+                                           else np.asarray(joint_friction, dtype=float))
+        self._friction_scale = np.ones(n)
+        self._external = np.zeros(n)
+        self._has_external = False
+        self._use_friction(servos, self._identified_joint_friction)
         # the matrix's Cholesky factor and the pose it is of (LAPACK's own calls: numpy's solve
         # costs five times the arithmetic of a 9×9 in its checks)
         from scipy.linalg import lapack  # heavy: loaded with the first plant
@@ -117,6 +116,44 @@ class PyBulletPlant:
         self._factored_q = self._q
         self._reach = MASS_MATRIX_TOLERANCE ** 2
         self._stale = True  # factor the matrix at the next step
+
+    def _use_friction(self, servos: ServoParams, joint_friction: np.ndarray) -> None:
+        """The step's constants from the servos' parameters (the back-EMF's damping and the viscous
+        friction implicit, in the matrix, which is factored again at the next step)."""
+        r2 = self._ratio ** 2
+        self.servos = servos
+        self._B_emf = servos.back_emf_damping / r2
+        self._B = self._B_emf + servos.viscous / r2
+        self._Ja = servos.armature / r2
+        self._has_friction = bool((servos.coulomb > 0).any() or (servos.stribeck > 0).any()
+                                  or servos.has_load_friction)
+        self._joint_friction = joint_friction
+        self._viscous = servos.viscous / r2
+        self._implicit = self._Ja + self._dt * self._B
+        self._has_joint_friction = bool(self._joint_friction.any())
+        self._has_viscous = bool(self._viscous.any())
+        self._stale = True
+
+    def set_friction_scale(self, joint: int, scale: float) -> None:
+        """Scale a joint's friction from its identified value (every level of the servo's friction law,
+        and the joint's own dry friction): the friction drifts (a fault) while the law stays one."""
+        j = checked_joint(joint, len(self._q), scale, "set_friction_scale")
+        if scale < 0:
+            raise BackendSetupError(f"set_friction_scale: a friction scale must be >= 0, got {scale} "
+                                    f"for joint {j}")
+        self._friction_scale[j] = scale
+        self._scale_friction()
+
+    def _scale_friction(self) -> None:
+        s = self._friction_scale
+        self._use_friction(self._identified.with_friction_scale(s), self._identified_joint_friction * s)
+
+    def set_external_effort(self, joint: int, effort: float) -> None:
+        """A torque (N·m, revolute) or force (N, prismatic) on a joint from outside the robot (a
+        contact), summed with the servos' torques into the joints' dynamics from the next step on."""
+        j = checked_joint(joint, len(self._q), effort, "set_external_effort")
+        self._external[j] = effort
+        self._has_external = bool(self._external.any())
 
     @property
     def limits(self) -> tuple[np.ndarray, np.ndarray]:
@@ -179,13 +216,20 @@ class PyBulletPlant:
         self._reach = MASS_MATRIX_TOLERANCE ** 2
 
     def snapshot(self) -> tuple:
-        """The plant's state (the joints and the kept matrix), for :meth:`restore`."""
+        """The plant's state (the joints, the kept matrix, loads and friction scales), for :meth:`restore`."""
         matrix = self._matrix.copy() if isinstance(self._matrix, np.ndarray) else self._matrix
-        return self._q, self._qd, self._cholesky.copy(), matrix, self._factored_q, self._reach, self._stale
+        return (self._q, self._qd, self._cholesky.copy(), matrix, self._factored_q, self._reach, self._stale,
+                self._external.copy(), self._friction_scale.copy())
 
     def restore(self, snapshot: tuple) -> None:
         """Back to a :meth:`snapshot`: the same steps from there give the same states."""
-        self._q, self._qd, cholesky, matrix, self._factored_q, self._reach, self._stale = snapshot
+        self._q, self._qd, cholesky, matrix, self._factored_q, self._reach, stale, external, scale = snapshot
+        if not np.array_equal(scale, self._friction_scale):
+            self._friction_scale = scale.copy()
+            self._scale_friction()
+        self._stale = stale
+        self._external = external.copy()
+        self._has_external = bool(external.any())
         self._cholesky = cholesky.copy()
         self._matrix = matrix.copy() if isinstance(matrix, np.ndarray) else matrix
 
@@ -209,6 +253,8 @@ class PyBulletPlant:
         # The servo's torque already holds the back-EMF's -B_emf·qd (explicit); its damping and
         # the viscous friction are applied implicitly through the matrix, so only the viscous
         # part stays here: τ/r + B_emf·qd − B·qd = τ/r − (viscous/r²)·qd.
+        if self._has_external:  # a contact: one more torque in the joints' sum, a load on the gearbox
+            h = h - self._external
         rhs = joint_torque - h
         if self._has_viscous:
             rhs -= self._viscous * qd
@@ -216,7 +262,7 @@ class PyBulletPlant:
             rhs -= smooth_friction(self._joint_friction, qd)
         dry = speed = None
         if self._has_friction:
-            # the gearbox carries the motor's torque and the load's (gravity and the links' bias)
+            # the gearbox carries the motor's torque and the load's (gravity, the links' bias, a contact)
             shaft = joint_torque * self._ratio if torque is None else torque
             speed = qd * self._abs_inv_ratio  # the shaft's speed, signed as the joint's
             dry = friction_level(self.servos, speed, shaft, -h * self._ratio) * self._abs_inv_ratio
