@@ -328,7 +328,11 @@ class KeepsItsReading(Kinematic):
         return st
 
 
-@pytest.mark.parametrize("name", sorted(set(FAULTS) - {"corrupt_crc", "torque_limit", "deadband"}))
+#: Faults that never rewrite a reading (they act on the bus, the physics or the goals).
+NOT_ON_READINGS = {"corrupt_crc", "torque_limit", "deadband", "contact", "friction_drift", "stuck"}
+
+
+@pytest.mark.parametrize("name", sorted(set(FAULTS) - NOT_ON_READINGS))
 def test_no_fault_writes_into_the_reading_it_received(name):
     """What a fault changes it changes in a new reading: the backend's own stays as it returned it."""
     base = KeepsItsReading(kept=[])
@@ -503,9 +507,9 @@ def test_adding_a_fault_does_not_change_another_fault_draws():
 
 
 @pytest.mark.parametrize("fault, words", [
-    ({"name": "deadbnd"}, ["unknown fault 'deadbnd'", "valid faults: backlash, bias, corrupt_crc, "
-                           "deadband, dropped_status, late_status, noise, quantisation, torque_limit, "
-                           "ultrasonic_dropout, ultrasonic_noise, ultrasonic_stuck"]),
+    ({"name": "deadbnd"}, ["unknown fault 'deadbnd'", "valid faults: backlash, bias, contact, corrupt_crc, "
+                           "deadband, dropped_status, friction_drift, late_status, noise, quantisation, "
+                           "stuck, torque_limit, ultrasonic_dropout, ultrasonic_noise, ultrasonic_stuck"]),
     ({"name": "deadband", "tol": 0.3}, ["unknown parameter 'tol'",
                                         "valid parameters of deadband: joints, tol_deg, tol_mm"]),
     ({"name": "torque_limit", "joints": ["theta9"], "scale": 0.2},
@@ -528,8 +532,9 @@ def test_bad_faults_are_refused_listing_what_is_valid(fault, words):
 
 
 def test_every_fault_parses_with_its_defaults_and_documents_its_parameters():
+    required = {"contact": {"torque_nm": 0.3}}  # a contact's push has no default
     for name, fdef in FAULTS.items():
-        raw = {"name": name}
+        raw = {"name": name, **required.get(name, {})}
         if fdef.joints == "":
             raw["joints"] = ["theta5"]
         spec = parse_faults([raw], JOINTS)[0]

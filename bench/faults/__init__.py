@@ -9,11 +9,13 @@ for every fault and its parameters).
 Modules: ``base`` (the fault base, on :class:`drivers.ActuatorsWrapper`), ``tolerance`` (deadband, bias,
 backlash, quantisation, noise), ``torque`` (torque limit), ``comms``
 (dropped, late and corrupted status packets), ``ultrasonic`` (the train's
-distance sensor), ``spec`` (parsing and stacking).
+distance sensor), ``physical`` (a contact pushing on a joint, a friction that
+drifts, a joint that stops following), ``spec`` (parsing and stacking).
 """
 
 from bench.faults.base import FaultWrapper, joint_kinds
 from bench.faults.comms import DroppedStatus, EmulatorStatusFault, LateStatus
+from bench.faults.physical import Contact, FrictionDrift, Stuck
 from bench.faults.spec import (
     FAULTS,
     FaultDef,
@@ -33,16 +35,19 @@ __all__ = [
     "FAULTS",
     "Backlash",
     "Bias",
+    "Contact",
     "Deadband",
     "DroppedStatus",
     "EmulatorStatusFault",
     "FaultDef",
     "FaultSpec",
     "FaultWrapper",
+    "FrictionDrift",
     "LateStatus",
     "Noise",
     "Param",
     "Quantisation",
+    "Stuck",
     "TorqueLimit",
     "UltrasonicDropout",
     "UltrasonicNoise",

@@ -26,18 +26,20 @@ import numpy as np
 
 from bench.faults.base import joint_kinds, kinds_for_names
 from bench.faults.comms import DroppedStatus, EmulatorStatusFault, LateStatus, emulator_fault_target
+from bench.faults.physical import Contact, FrictionDrift, Stuck, contact_efforts, require_physical
 from bench.faults.tolerance import Backlash, Bias, Deadband, Noise, Quantisation
 from bench.faults.torque import TorqueLimit, check_effort_limit
 from bench.faults.ultrasonic import UltrasonicDropout, UltrasonicNoise, UltrasonicStuck
 from bench.kinematics.arc_train import PINION_RADIUS
 from bench.kinematics.transmission import SERVO_TOL_DEG, slide_tolerance_m, transmissions_for_names
 from drivers import Actuators, BackendSetupError
+from drivers.capabilities import ExternalLoad, FrictionScaled
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import TICKS_PER_REV
 
 __all__ = ["FAULTS", "FaultDef", "FaultSpec", "Param", "apply_faults", "fault_names", "parse_faults"]
 
-_TO_SI = {"deg": math.pi / 180.0, "mm": 1e-3, "ms": 1e-3, "s": 1.0, "": 1.0}
+_TO_SI = {"deg": math.pi / 180.0, "mm": 1e-3, "ms": 1e-3, "s": 1.0, "N·m": 1.0, "N": 1.0, "": 1.0}
 # The prismatic joints are rack-and-pinion on the same servos: a servo angle maps to
 # PINION_RADIUS of travel per radian.
 PINION_RADIUS_MM = PINION_RADIUS * 1e3
@@ -110,6 +112,8 @@ class FaultSpec:
 
 
 Builder = Callable[[Actuators, FaultSpec, np.ndarray, list, np.random.Generator], Actuators]
+#: Parameters checked against the joints hit and their kinds (ValueError saying what is wrong).
+Validator = Callable[[Mapping[str, Any], Sequence[str], Sequence[str]], Any]
 
 
 @dataclass(frozen=True)
@@ -122,6 +126,7 @@ class FaultDef:
     build: Builder
     joints: str = "all"  # default selector; "" = must be given; "train" = the ultrasonic joint only
     check: Callable[[Actuators, FaultSpec], None] | None = None
+    validate: Validator | None = None
 
     def param(self, key: str) -> Param:
         return next(p for p in self.params if p.name == key)
@@ -228,6 +233,30 @@ def _ultrasonic_noise(act, spec, idx, kinds, rng):
     return UltrasonicNoise(act, spec.si("std_mm"), rng)
 
 
+def _contact(act, spec, idx, kinds, rng):
+    p = spec.params
+    hit = [kinds[j] for j in idx]
+    try:
+        effort = contact_efforts(p, spec.joints, hit)
+    except ValueError as e:  # a robot the parser could not check: the backend's kinds say it here
+        raise BackendSetupError(f"contact: {e}") from None
+    past = None
+    if p["past_deg"] is not None or p["past_mm"] is not None:
+        past = [spec.si("past_deg" if k == "revolute" else "past_mm") for k in hit]
+    duration = math.inf if p["for_s"] is None else p["for_s"]
+    return Contact(act, spec.joints, effort, p["from_s"], duration, past)
+
+
+def _friction_drift(act, spec, idx, kinds, rng):
+    p = spec.params
+    return FrictionDrift(act, spec.joints, p["factor"], p["from_s"], p["over_s"])
+
+
+def _stuck(act, spec, idx, kinds, rng):
+    p = spec.params
+    return Stuck(act, spec.joints, p["from_s"], math.inf if p["for_s"] is None else p["for_s"])
+
+
 # ---------------------------------------------------------------------------
 # Capability checks made before any wrapper is built
 # ---------------------------------------------------------------------------
@@ -250,6 +279,12 @@ def _check_hook(field_name: str) -> Callable[[Actuators, FaultSpec], None]:
     return check
 
 
+def _check_physical(capability: type) -> Callable[[Actuators, FaultSpec], None]:
+    def check(act: Actuators, spec: FaultSpec) -> None:
+        require_physical(act, capability, spec.name)
+    return check
+
+
 def _check_late_bus(act: Actuators, spec: FaultSpec) -> None:
     _check_hook("delay_s")(act, spec)
     if spec.params["level"] == "bus" and spec.params["prob"] != 1.0:
@@ -258,6 +293,8 @@ def _check_late_bus(act: Actuators, spec: FaultSpec) -> None:
 
 
 _PROB = dict(lo=0.0, hi=1.0)
+_FROM = Param("from_s", 0.0, "s", lo=0.0)
+_FOR = Param("for_s", None, "s", lo=0.0, lo_open=True, optional=True)
 _LEVEL = Param("level", "auto", choices=("auto", "wrapper", "bus"))
 
 FAULTS: dict[str, FaultDef] = {f.name: f for f in (
@@ -298,6 +335,19 @@ FAULTS: dict[str, FaultDef] = {f.name: f for f in (
              _ultrasonic_stuck, joints="train"),
     FaultDef("ultrasonic_noise", "Gaussian noise on the train's distance d2, seen as its arc angle",
              (Param("std_mm", 1.0, "mm", lo=0.0),), _ultrasonic_noise, joints="train"),
+    FaultDef("contact", "an external torque (revolute) or force (prismatic) on a joint from from_s, or "
+             "once it passes past_deg/past_mm, for for_s or to the end: its servo fights it (sags, lags)",
+             (Param("torque_nm", None, "N·m", lo=-100.0, hi=100.0, kind="revolute", optional=True),
+              Param("force_n", None, "N", lo=-1000.0, hi=1000.0, kind="prismatic", optional=True), _FROM, _FOR,
+              Param("past_deg", None, "deg", kind="revolute", optional=True),
+              Param("past_mm", None, "mm", kind="prismatic", optional=True)),
+             _contact, joints="", check=_check_physical(ExternalLoad), validate=contact_efforts),
+    FaultDef("friction_drift", "a joint's friction (every level of the servo model's law) growing from its "
+             "identified value to factor × it over over_s from from_s, then staying",
+             (Param("factor", 2.0, lo=0.0, hi=20.0), _FROM, Param("over_s", 0.0, "s", lo=0.0)),
+             _friction_drift, joints="", check=_check_physical(FrictionScaled)),
+    FaultDef("stuck", "a joint that stops following from from_s (for for_s or to the end): its servo "
+             "keeps the goal it had then", (_FROM, _FOR), _stuck, joints=""),
 )}
 
 
@@ -373,6 +423,11 @@ def parse_fault(raw: Mapping[str, Any], joint_names: Sequence[str], where: str =
                                  f"{list(joints)} is {p.kind}")
     if name == "corrupt_crc" and len(joints) != len(names):
         raise ValueError(f"{where}: CRC faults act on the whole bus; joints must be all")
+    if fdef.validate is not None and kinds is not None:
+        try:
+            fdef.validate(params, joints, [kinds[names.index(j)] for j in joints])
+        except ValueError as e:
+            raise ValueError(f"{where}: {e}") from None
     return FaultSpec(name, joints, params, selector if isinstance(selector, str) else list(selector))
 
 
