@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -541,6 +542,15 @@ def test_every_fault_parses_with_its_defaults_and_documents_its_parameters():
         assert spec.name == name and spec.joints
         assert set(spec.as_dict()) - {"name", "joints"} == {p.name for p in fdef.params}
         assert fdef.summary
+
+
+def test_the_docs_table_lists_every_fault_with_its_parameters():
+    """docs/campaigns.md's table of faults is written by hand: it must not fall behind the registry."""
+    text = (REPO / "docs" / "campaigns.md").read_text()
+    rows = {m.group(1): m.group(0) for m in re.finditer(r"^\| `(\w+)` \|.*$", text, re.M)}
+    assert sorted(rows) == sorted(FAULTS)
+    for name, fdef in FAULTS.items():
+        assert all(f"`{p.name}`" in rows[name] for p in fdef.params), rows[name]
 
 
 @pytest.mark.parametrize("fault, words", [

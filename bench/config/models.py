@@ -396,7 +396,7 @@ class TrialConfig(Strict):
     faults: list[dict[str, Any]] = Field(
         default_factory=list, max_length=64,
         description="faults injected around the backend: {name, joints, parameters} "
-                    "(README, Faults)")
+                    "(docs/campaigns.md, the faults' table)")
     monitor: Optional[MonitorConfig] = Field(
         default=None, description="the twin beside the trial: {model: datasheet|FILE, action: warn|stop}")
     # A calibration file written by `hilbench calibrate` (joint zero offsets that replace
