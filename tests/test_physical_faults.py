@@ -457,6 +457,42 @@ def test_a_contact_reaches_an_emulator_in_a_child_process(tmp_path):
     assert sag["pushed"] - max(sag["free"], sag["after"]) > 0.5 and sag["after"] < 0.3, sag
 
 
+def test_the_child_emulator_applies_each_command_line_and_says_which_it_could_not(capsys):
+    """What ``hilbench emulate`` reads on its stdin: a bad line is said on stderr, and the rig goes on."""
+    from bench.rig.hooks import follow_commands
+
+    class Rig:
+        def __init__(self) -> None:
+            self.done: list[tuple] = []
+            self.drop_prob = 0.0
+
+        def set_external_effort(self, joint: int, effort: float) -> None:
+            if joint >= len(JOINTS):
+                raise BackendSetupError(f"set_external_effort: joint {joint} is not a joint index (0 to 8)")
+            self.done.append(("load", joint, effort))
+
+        def set_friction_scale(self, joint: int, scale: float) -> None:
+            self.done.append(("friction", joint, scale))
+
+        def unplug(self) -> None:
+            self.done.append(("unplug",))
+
+        def replug(self) -> None:
+            self.done.append(("replug",))
+
+    rig = Rig()
+    lines = ['{"plant": {"external_effort": [3, 0.3]}}', 'not json',
+             '{"plant": {"external_effort": [12, 0.3]}}', '{"plant": {"friction_scale": 3}}',
+             '{"faults": {"drop_prob": 0.1}, "unplug": true}',
+             '{"plant": {"friction_scale": [2, 2.5]}}', '{"replug": true}']
+    follow_commands(rig, rig, iter(line + "\n" for line in lines))
+    assert rig.done == [("load", 3, 0.3), ("unplug",), ("friction", 2, 2.5), ("replug",)]
+    assert rig.drop_prob == 0.1
+    said = capsys.readouterr().err.splitlines()
+    assert len(said) == 3 and all(line.startswith("emulator: command ") for line in said)
+    assert "not a joint index" in said[1]
+
+
 def test_a_trial_on_a_rig_served_by_another_process_refuses_a_contact_in_one_line(tmp_path):
     """`hilbench emulate` in another terminal is a real rig to the trial (no hooks in its process):
     `contact` is refused, exit 2, before anything moves, as corrupt_crc is."""
