@@ -162,3 +162,49 @@ def test_a_monitored_rig_config_compares_against_the_ideal_sim_unwatched_and_a_s
     assert cfg.monitor is not None and prepare(cfg).monitor is not None
     assert sim_counterpart(cfg).monitor is None and prepare(sim_counterpart(cfg)).monitor is None
     assert prepare(sim_counterpart(cfg, "datasheet")).monitor is not None
+
+
+@pytest.mark.parametrize("joint", ["theta5", "theta6", "theta7", "theta8"])
+def test_a_contact_of_0_3_nm_on_a_wrist_joint_is_named_within_a_quarter_second_and_the_trial_still_passes(
+        tmp_path, joint):
+    """The fixed bounds never see it (the trial passes); the twin names that joint and no other."""
+    cfg = _config(tmp_path, name="contact", monitor={"model": "datasheet", "action": "warn"},
+                  faults=[{"name": "contact", "joints": [joint], "torque_nm": 0.3, "from_s": 2.0}])
+    out = json.loads(_run("trial", str(cfg), "--json", "--out", str(tmp_path / "runs")).stdout)
+    assert out["passed"], out["reason"]
+    alarms = out["monitor"]["alarms"]
+    assert [a["joint"] for a in alarms] == [joint], alarms
+    assert 2.0 < alarms[0]["t_s"] <= 2.25
+
+
+def test_a_contact_on_the_emulated_rig_is_named_on_its_joint_and_the_clean_rig_raises_nothing(tmp_path):
+    """The real driver on the emulated bus, the contact in the emulator's physics: the same alarm."""
+    lab = REPO / "hil_configs" / "lab_real.yaml"
+    clean = _config(tmp_path, lab, name="rig-clean", monitor={"model": "datasheet", "action": "warn"})
+    out = json.loads(_run("trial", str(clean), "--emulate", "--json", "--out", str(tmp_path / "r")).stdout)
+    assert out["passed"] and out["monitor"]["alarms"] == [], out["monitor"]
+    touched = _config(tmp_path, lab, name="rig-contact", monitor={"model": "datasheet", "action": "stop"},
+                      faults=[{"name": "contact", "joints": ["theta5"], "torque_nm": 0.3, "from_s": 2.0}])
+    res = _run("trial", str(touched), "--emulate", "--json", "--out", str(tmp_path / "r"))
+    out = json.loads(res.stdout)
+    assert res.returncode == 1 and "theta5 behaves unlike its model" in out["reason"], out
+    assert [a["joint"] for a in out["monitor"]["alarms"]] == ["theta5"] and 2.0 < out["monitor"]["first_alarm_s"] <= 2.25
+    assert out["safe_stop"] and "NOT" not in out["safe_stop"]
+
+
+def test_friction_grown_two_and_a_half_times_is_named_on_that_joint_alone(tmp_path):
+    """The identified sim watched by its own model: clean, nothing; theta6's friction × 2.5 from 1 s,
+    theta6 alone, within a quarter of a second."""
+    base = REPO / "hil_configs" / "sim_target1_identified.yaml"
+    model = str(REPO / "hil_configs" / "servo_models" / "emulated_worn_rig.yaml")
+    data = yaml.safe_load(base.read_text())
+    data["backend"]["servo_model"] = model
+    (tmp_path / "base.yaml").write_text(yaml.safe_dump(data))
+    clean = _config(tmp_path, tmp_path / "base.yaml", name="worn-clean", monitor={"model": model})
+    out = json.loads(_run("trial", str(clean), "--json", "--out", str(tmp_path / "r")).stdout)
+    assert out["monitor"]["alarms"] == []
+    drift = _config(tmp_path, tmp_path / "base.yaml", name="worn-drift", monitor={"model": model},
+                    faults=[{"name": "friction_drift", "joints": ["theta6"], "factor": 2.5, "from_s": 1.0}])
+    out = json.loads(_run("trial", str(drift), "--json", "--out", str(tmp_path / "r")).stdout)
+    alarms = out["monitor"]["alarms"]
+    assert [a["joint"] for a in alarms] == ["theta6"] and 1.0 < alarms[0]["t_s"] <= 1.25, alarms
