@@ -7,7 +7,9 @@ monitored logs and from ``--rig-repeats`` emulated-rig trials (``hil_configs/lab
 --emulate --monitor datasheet``, 100 Hz on the wall clock), the highest the detector's sum rose on
 any watched joint of a clean trial, against the alarm threshold; and a weak joint (``torque_limit``
 0.3 on theta4, servo-model sim): when the monitor named it, against when an interlock stopped the
-trial.
+trial. Last, contacts (``contact`` from 2 s, servo-model sim): 0.3 N·m on each wrist joint, the time
+to the alarm; on theta5 the smallest flagged and the smallest that trips an interlock or fails the
+placement.
 
     python benchmarks/monitor_cost.py [--repeats 5] [--rig-repeats 2] [--write-table]
 """
@@ -54,6 +56,16 @@ def _peak(result: dict) -> float:
     return float(np.nanmax(_scores(log.twin_z, CusumParams(c["drift_sigma"], c["threshold_sigma"]))))
 
 
+def _contact(joint: str, torque: float) -> dict:
+    """The servo-model sim's Target 1 with a contact on ``joint`` from 2 s, watched (warn)."""
+    data = yaml.safe_load(SERVO_SIM.read_text())
+    data.update(faults=[{"name": "contact", "joints": [joint], "torque_nm": torque, "from_s": 2.0}],
+                monitor={"model": "datasheet", "action": "warn"})
+    path = Path(tempfile.mkdtemp(prefix="monitor-bench-")) / "contact.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return _trial(path)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
@@ -92,6 +104,24 @@ def main() -> None:
           f"{max(rig_peaks, default=float('nan')):.1f} σ (emulated rig), threshold {threshold:g} σ")
     print(f"weak theta4: alarms {named or 'none'}; interlock at {trips[0]:.3f} s" if trips else
           f"weak theta4: alarms {named or 'none'}; no interlock")
+    wrist = {}
+    for joint in ("theta5", "theta6", "theta7", "theta8"):
+        a = _contact(joint, 0.3)["monitor"]["alarms"]
+        wrist[joint] = a[0]["t_s"] - 2.0 if a and a[0]["joint"] == joint else None
+    smallest = None
+    for torque in (0.2, 0.15, 0.1, 0.075, 0.05, 0.03):
+        a = _contact("theta5", torque)["monitor"]["alarms"]
+        if not (a and a[0]["joint"] == "theta5"):
+            break
+        smallest = torque
+    costly = None
+    for torque in (0.5, 1.0, 1.5, 2.0, 3.0, 4.0):
+        if not _contact("theta5", torque)["passed"]:
+            costly = torque
+            break
+    told = ", ".join(f"{j} {'missed' if d is None else f'{1e3 * d:.0f} ms'}" for j, d in wrist.items())
+    print(f"contact 0.3 N·m from 2 s: time to the alarm {told}; theta5's smallest flagged {smallest} N·m, "
+          f"smallest that fails the trial {costly} N·m")
     if args.write_table:
         record("benchmarks/monitor_cost.py", {
             "monitor.cost": ("Twin beside the servo-model sim's Target 1 trial: loop wall time, monitored "
@@ -107,6 +137,10 @@ def main() -> None:
                                    "named, against the interlock that stopped the trial",
                                    f"{named or 'none'}; interlock at {trips[0]:.3f} s" if trips
                                    else f"{named or 'none'}; no interlock"),
+            "monitor.contact": ("Twin and a contact from 2 s (servo-model sim): the time to the alarm at "
+                                "0.3 N·m on each wrist joint; on theta5 the smallest contact flagged, and the "
+                                "smallest that fails the trial (an interlock, the placement)",
+                                f"{told}; smallest flagged {smallest} N·m, smallest failing {costly} N·m"),
         })
 
 

@@ -84,6 +84,21 @@ def test_a_weak_joint_is_named_and_the_stop_action_takes_the_safe_stop(tmp_path)
     assert (run / "twin.png").stat().st_size > 20_000 and "data:image/png" in (run / "report.html").read_text()
     listed = _run("runs", "--out", str(tmp_path / "w"))
     assert f"the twin's alarms: theta4 at {warn['monitor']['first_alarm_s']:.2f} s" in listed.stdout
+    bag = tmp_path / "weak.mcap"
+    assert _run("export", str(run), "--mcap", str(bag)).returncode == 0
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    residual, alarm = [], []
+    with open(bag, "rb") as f:
+        for _, channel, message, decoded in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            if channel.topic == "/twin/residual":
+                residual.append((list(decoded.name), list(decoded.position)))
+            elif channel.topic == "/twin/alarm":
+                alarm.append((message.log_time, decoded.data))
+    assert len(residual) == len(log) and residual[0][0] == warn["monitor"]["joints"]
+    z = log.twin_z[:, [log.joint(n) for n in warn["monitor"]["joints"]]]
+    assert np.allclose([p for _, p in residual][5], z[5])
+    assert len(alarm) == 1 and alarm[0][1].startswith("theta4 behaves unlike its model")
     cfg = _config(tmp_path, name="weak", faults=[{"name": "torque_limit", "joints": ["theta4"], "scale": 0.3}],
                   monitor={"model": "datasheet", "action": "stop"})
     res = _run("trial", str(cfg), "--json", "--out", str(tmp_path / "s"))

@@ -13,6 +13,9 @@ Topics (ROS 2 message types, SI units, one message per control cycle unless said
 * ``/loop_timing/late`` and ``/loop_timing/bus`` (``std_msgs/Float64``, s), a paced
   trial's only, per timed cycle: how late the cycle's work ended against its deadline
   (positive: it missed it) and how long its bus transactions took.
+* ``/twin/residual`` (``sensor_msgs/JointState``, per watched joint in ``position``), a monitored
+  trial's only: the twin's residual over σ each cycle (``bench.monitor``), NaN where not watched;
+  ``/twin/alarm`` (``std_msgs/String``): each alarm, at its time, naming the joint.
 * ``/phase`` (``std_msgs/String``): the segment, at each change.
 * ``/rosout`` (``rcl_interfaces/Log``): the trial's events (interlock trips, aborts,
   safe stop as errors and warnings).
@@ -37,12 +40,14 @@ from bench.core.result import PreparedTrial
 from bench.export import ros2_messages as msgs
 from bench.trial.margins import margins_of
 
-__all__ = ["write_mcap", "TIMING_TOPICS", "TOPICS"]
+__all__ = ["write_mcap", "TIMING_TOPICS", "TOPICS", "TWIN_TOPICS"]
 
 TOPICS = ("/joint_states", "/joint_commands", "/tracking_error", "/interlock_margins/joint_limits",
           "/interlock_margins/tracking", "/interlock_margins/gantry", "/phase", "/rosout")
 #: A paced trial's loop timing, per timed cycle (s): lateness against the deadline, bus time.
 TIMING_TOPICS = ("/loop_timing/late", "/loop_timing/bus")
+#: A monitored trial's (bench.monitor): the twin's residuals, and its alarms.
+TWIN_TOPICS = ("/twin/residual", "/twin/alarm")
 
 
 def _stamp(ns: int) -> dict:
@@ -98,6 +103,9 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
         last_segment = None
         timing = zip(TIMING_TOPICS, (log.loop_late, log.bus_s)) if log.timed else ()
         timing = [(topic, series, np.isfinite(log.loop_late)) for topic, series in timing]
+        twin = log.twin_z
+        monitor = log.metadata.get("monitor") or {}
+        watched = [log.joint(n) for n in monitor.get("joints", [])] if twin is not None else []
         for i, ns in enumerate(stamps):
             stamp = _stamp(ns)
             w.write_message("/joint_states", schema["joint"],
@@ -113,6 +121,9 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
             if margins.gantry is not None:
                 w.write_message("/interlock_margins/gantry", schema["float"],
                                 {"data": float(margins.gantry[i])}, ns, ns, i)
+            if watched:
+                w.write_message("/twin/residual", schema["joint"],
+                                _joint_state([names[j] for j in watched], stamp, twin[i, watched]), ns, ns, i)
             for topic, series, timed in timing:
                 if timed[i]:
                     w.write_message(topic, schema["float"], {"data": float(series[i])}, ns, ns, i)
@@ -126,6 +137,11 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
                             {"stamp": _stamp(ns), "level": msgs.LOG_LEVEL.get(event.kind, 20),
                              "name": "hilbench", "msg": f"{event.kind}: {event.message}",
                              "file": "", "function": event.kind, "line": 0}, ns, ns, k)
+        for k, alarm in enumerate(monitor.get("alarms", []) if twin is not None and len(log) else []):
+            ns = t0 + int(round((log.time[0] + alarm["t_s"]) * 1e9))
+            w.write_message("/twin/alarm", schema["string"],
+                            {"data": f"{alarm['joint']} behaves unlike its model ({alarm['signal']} CUSUM "
+                                     f"{alarm['score']:.1f} σ at {alarm['t_s']:.3f} s)"}, ns, ns, k)
         for name, data in _metadata(log, result):
             w.add_metadata(name, data)
         w.finish()
