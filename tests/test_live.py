@@ -18,6 +18,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import yaml
 
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
@@ -242,3 +243,32 @@ def test_without_a_page_the_trial_starts_when_the_wait_is_over(tmp_path):
     assert proc.returncode == 0, err
     assert json.loads(out)["passed"] is True and time.monotonic() - began >= 1.0
     assert err.strip() == ""  # a wait that is not on a terminal says nothing: the URL line is the only one
+
+
+@needs_chromium
+def test_the_page_shows_the_twin_and_its_alarm(tmp_path, browser):
+    """A monitored trial with a contact on theta5: the page's twin card names the joint nearest its
+    threshold and counts the alarm, which the events list shows as it came."""
+    data = yaml.safe_load((REPO / "hil_configs" / "sim_target1_servo.yaml").read_text())
+    data.update(monitor={"model": "datasheet"},
+                faults=[{"name": "contact", "joints": ["theta5"], "torque_nm": 0.3, "from_s": 2.0}])
+    config = tmp_path / "touched.yaml"
+    config.write_text(yaml.safe_dump(data))
+    proc = subprocess.Popen([HILBENCH, "trial", str(config), "--live", "--out", str(tmp_path / "runs"), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    url = None
+    while url is None:
+        line = proc.stderr.readline()
+        found = re.fullmatch(r"live view: (http://127\.0\.0\.1:\d+/\?token=[\w-]+)\n", line)
+        url = found.group(1) if found else (None if line else pytest.fail("no live view line"))
+    page = browser.new_page(viewport={"width": 1300, "height": 1000}, bypass_csp=True)  # for the probes
+    page.goto(url)
+    page.wait_for_function("document.body.dataset.verdict !== undefined", timeout=60_000)
+    out, _ = proc.communicate(timeout=60)
+    result = json.loads(out)
+    assert [a["joint"] for a in result["monitor"]["alarms"]] == ["theta5"]
+    assert page.is_visible("#twin-card")
+    t = result["monitor"]["first_alarm_s"]
+    assert page.inner_text("#twin") == "theta5 alarm"
+    assert page.inner_text("#twin-detail") == f"unlike its model at {t:.2f} s; 1 alarm on 8 joints"
+    assert "monitor: theta5 behaves unlike its model" in page.inner_text("#events")

@@ -25,6 +25,7 @@ import numpy as np
 from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TIMING_SERIES, TrialLog, journal_row_width
 from bench.core.looptiming import MISSED_SHARE_LIMIT, loop_timing
 from bench.core.result import PreparedTrial
+from bench.monitor.detector import Cusum, CusumParams
 from bench.trial.margins import MarginMeter
 
 __all__ = ["RunFollower", "Snapshot", "MAX_POINTS_HZ", "decimate"]
@@ -56,6 +57,9 @@ class Snapshot:
     #: bus time, in s; ``paced`` False for a simulator's (no deadline), None before the journal says.
     timing: dict = field(default_factory=dict)
     result: dict | None = None
+    #: The twin's detector (a monitored trial's): the joint nearest its alarm threshold and how near
+    #: (share), over every row so far; {} when the trial is not monitored.
+    twin: dict = field(default_factory=dict)
     #: Changes when the rows start again (a new run followed, or the final log read in whole).
     epoch: int = 0
 
@@ -78,7 +82,7 @@ class Snapshot:
                 "segments": self.segments, "first": n, "count": count,
                 "rows": base64.b64encode(block.tobytes()).decode("ascii"), "events": self.events, "phase": self.phase,
                 "progress": self.progress, "margins": self.margins, "timing": self.timing,
-                "result": self.result,
+                "result": self.result, "twin": self.twin,
                 "epoch": self.epoch}
 
 
@@ -100,6 +104,9 @@ class RunFollower:
         self._rows = np.empty((0, 0))
         self._timed = False
         self._next_t = -np.inf
+        self._twin_at: int | None = None  # the journal row's first column of the twin's residuals
+        self._cusum: Cusum | None = None
+        self._watched: list[int] = []
         self.snapshot = Snapshot()
 
     def _newest(self) -> Path | None:
@@ -166,6 +173,7 @@ class RunFollower:
         self._timed = meta.get("timing") is True
         self._width = journal_row_width(len(s.joints), self._timed, bool(meta.get("encoder_joint")),
                                         bool(meta.get("twin")))
+        self._follow_twin(meta)
         if not s.timing:
             s.timing = {"cycles": 0, "missed": 0, "worst_late_s": None}
         s.timing["paced"] = self._timed
@@ -189,6 +197,8 @@ class RunFollower:
         n = len(self.snapshot.joints)
         if self._timed:
             self._count_deadlines(rows[:, 2 + 5 * n:2 + 5 * n + len(TIMING_SERIES)])
+        if self._cusum is not None and self._twin_at is not None:
+            self._detect(rows[:, self._twin_at:self._twin_at + n])
         keep, self._next_t = decimate(rows[:, 0], self._next_t)
         rows = rows[keep]
         q_cmd, q = rows[:, 2:2 + n], rows[:, 2 + 2 * n:2 + 3 * n]
@@ -216,6 +226,37 @@ class RunFollower:
         if np.isfinite(bus).any():
             tm["bus_s"] = float(np.nanmedian(bus))
         tm["late"] = tm["missed"] > MISSED_SHARE_LIMIT * tm["cycles"]
+
+    def _follow_twin(self, meta: dict) -> None:
+        """A monitored trial's journal: where its residuals are, and the detector as the trial runs it."""
+        if self._cusum is not None or not meta.get("twin") or not self._start_detector(meta.get("metadata")):
+            return
+        n = len(self.snapshot.joints)
+        self._twin_at = 2 + 5 * n + (len(TIMING_SERIES) if self._timed else 0) + (1 if meta.get("encoder_joint") else 0)
+
+    def _start_detector(self, metadata: object) -> bool:
+        """The detector as the monitor's summary in the log's metadata sets it; False if there is none."""
+        monitor = metadata.get("monitor") if isinstance(metadata, dict) else None
+        try:
+            params = CusumParams(float(monitor["cusum"]["drift_sigma"]), float(monitor["cusum"]["threshold_sigma"]))
+            names = self.snapshot.joints
+            self._watched = [names.index(j) for j in monitor["joints"]]
+        except (KeyError, TypeError, ValueError):
+            return False
+        self._cusum = Cusum(len(self.snapshot.joints), params)
+        return True
+
+    def _detect(self, z: np.ndarray) -> None:
+        """Every row's residual through the detector (before the page's decimation): the nearest a
+        joint has come to its threshold is never skipped."""
+        c = self._cusum
+        for row in z:
+            c.update(row)
+        score = c.score
+        j = max(self._watched, key=lambda k: score[k]) if self._watched else 0
+        self.snapshot.twin = {"joint": self.snapshot.joints[j], "share": float(score[j] / c.params.threshold),
+                              "alarms": sum(1 for e in self.snapshot.events if e.get("kind") == "monitor"),
+                              "watched": len(self._watched)}
 
     def _margins(self, q: np.ndarray, q_cmd: np.ndarray, segment: int) -> None:
         m = self.meter(q, q_cmd)
@@ -279,6 +320,8 @@ class RunFollower:
             s.timing = {"paced": True, "cycles": whole.cycles, "missed": whole.missed,
                         "worst_late_s": whole.worst_late_s, "period_s": whole.period_median_s,
                         "bus_s": whole.bus_median_s, "late": whole.late}
+        if log.twin_z is not None and self._start_detector(log.metadata):  # the saved log's, every row
+            self._detect(log.twin_z)
         s.epoch += 1
         s.time = log.time[keep].tolist()
         s.q_cmd = log.q_cmd[keep].tolist()

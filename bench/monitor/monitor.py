@@ -61,8 +61,9 @@ class TwinMonitor:
         self._last: Optional[tuple[float, np.ndarray]] = None  # (time, goal) of the previous cycle
         self.z: list[np.ndarray] = []  #: each cycle's normalised residual (NaN: not monitored)
         self._written = 0  # the cycles whose residuals are in the log
-        if self.log is not None:
+        if self.log is not None:  # the journal says what is watched, and how, from the start
             self.log.start_twin()
+            self.log.metadata["monitor"] = self.summary()
 
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Optional[Trip]:
         """The residual of the interval this reading ends; a trip when an alarm must stop the trial."""
