@@ -223,3 +223,29 @@ def test_friction_grown_two_and_a_half_times_is_named_on_that_joint_alone(tmp_pa
     out = json.loads(_run("trial", str(drift), "--json", "--out", str(tmp_path / "r")).stdout)
     alarms = out["monitor"]["alarms"]
     assert [a["joint"] for a in alarms] == ["theta6"] and 1.0 < alarms[0]["t_s"] <= 1.25, alarms
+
+
+def test_a_campaign_with_the_twin_reports_detection_beside_the_pass_rate(tmp_path):
+    """The shipped contact campaign, cut down: no alarm without a contact, every contact of 0.3 N·m
+    flagged on theta5 (the placement still passing), 3 N·m flagged too and costing the placement."""
+    from bench.campaign.rates import fault_onset
+
+    assert fault_onset([{"name": "noise"}, {"name": "contact", "from_s": 2.5}]) == 2.5
+    assert fault_onset([{"name": "deadband"}]) == 0.0
+    spec = yaml.safe_load((REPO / "hil_configs" / "campaigns" / "contact_detection.yaml").read_text())
+    spec.update(base=str(SERVO_SIM), samples=1, repeats=2)
+    spec["faults"][1]["torque_nm"] = {"grid": [0.0, 0.3, 3.0]}
+    path = tmp_path / "spec.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    res = _run("campaign", "run", str(path), "--out", str(tmp_path / "camp"), "--workers", "2")
+    assert res.returncode in (0, 1), res.stderr
+    md = (tmp_path / "camp" / "report.md").read_text()
+    assert "## Detection by the twin" in md and (tmp_path / "camp" / "figures" / "detection.png").is_file()
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in md.splitlines() if line.startswith("| 0.000 |") or line.startswith("| 0.300 |")
+            or line.startswith("| 3.000 |")}
+    # trials, pass rate, detected, detection rate, median time, joint named, alarms before the fault
+    assert rows["0.000"][2] == "0" and rows["0.000"][6] == "0"  # no false alarm
+    assert rows["0.300"][1] == "100 %" and rows["0.300"][2] == "2" and rows["0.300"][5] == "theta5 (2)"
+    assert float(rows["0.300"][4]) <= 0.25
+    assert rows["3.000"][1] == "0 %" and rows["3.000"][2] == "2"

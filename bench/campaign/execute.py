@@ -29,6 +29,7 @@ import uuid
 from pathlib import Path
 from typing import Any, Iterable, Protocol
 
+from bench.campaign.rates import fault_onset
 from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
 from bench.core.truth import GroundTruth, true_outcome
@@ -85,6 +86,10 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
         metrics = {"outcome": outcome.as_dict() if outcome else None,
                    "measured": measured.as_dict() if measured else None,
                    "rig": rig_kind(prep.config)}  # sim, emulated or real: what the trial drove
+        if res.monitor is not None:  # the twin beside it: when it flagged what, against the fault's start
+            metrics["monitor"] = {"first_alarm_s": res.monitor["first_alarm_s"],
+                                  "joints_named": [a["joint"] for a in res.monitor["alarms"]],
+                                  "onset_s": fault_onset(cfg.faults)}
         return {**base, "status": "done", "completed": res.completed,
                 "passed": bool(res.completed and outcome is not None and outcome.passed),
                 "reason": res.reason, "columns": _columns(outcome) if outcome else {},

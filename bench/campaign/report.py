@@ -12,6 +12,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from bench.campaign.checked import read_campaign, trial_run_dir
+from bench.campaign.rates import detection_rates, detection_table, monitored, wilson
 from bench.kinematics.arc_train import table3_deviations
 from bench.report.trial import markdown_to_html
 from bench.trial.record import load_record, rebuild_report
@@ -43,16 +44,6 @@ def deviation_table(rows: Sequence[dict]) -> list[dict[str, Any]]:
         out.append({"axis": label, "unit": unit, "n": int(v.size), "mean": m, "std": s, "max_abs": mx,
                     "paper_mean": pm, "paper_std": ps, "paper_max_abs": pmx})
     return out
-
-
-def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    if n == 0:
-        return (math.nan, math.nan)
-    p = k / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return max(0.0, c - h), min(1.0, c + h)
 
 
 def _fmt(v: Any, nd: int = 3) -> str:
@@ -153,7 +144,7 @@ def plot_pass_rates(rows: Sequence[dict], axes_meta: Sequence[dict], path: Path)
         k = np.array([sum(bool(r["passed"]) for r in g[2]) for g in groups])
         m = np.array([len(g[2]) for g in groups])
         rate = np.where(m > 0, k / np.maximum(m, 1), np.nan)
-        ci = np.array([_wilson(int(a), int(b)) for a, b in zip(k, m)])
+        ci = np.array([wilson(int(a), int(b)) for a, b in zip(k, m)])
         ax.errorbar(x, rate * 100, yerr=[(rate - ci[:, 0]) * 100, (ci[:, 1] - rate) * 100],
                     fmt="o-", capsize=4)
         ax.set_ylim(-5, 105)
@@ -162,6 +153,34 @@ def plot_pass_rates(rows: Sequence[dict], axes_meta: Sequence[dict], path: Path)
         ax.grid(alpha=0.3)
         if axis["kind"] not in ("grid", "choice"):
             ax.set_title("binned by quantile")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_detection(axes: Sequence[tuple[dict, list[tuple[str, float, list[dict]]]]], path: Path) -> Path:
+    """Per varying parameter: the twin's detection rate beside the pass rate, with their intervals
+    (the twin must flag a fault before it costs the placement: its curve rises first)."""
+    plt = _plt()
+    fig, axs = plt.subplots(1, len(axes), figsize=(5.8 * len(axes), 4.2), squeeze=False)
+    for ax, (axis, groups) in zip(axs[0], axes):
+        x = np.array([g[1] for g in groups])
+        for key, label, style in (("detected", "detected by the twin", "s-"), ("passed", "placement passed", "o--")):
+            k = np.array([detection_rates(g[2])[key] for g in groups])
+            m = np.array([detection_rates(g[2])["n"] for g in groups])
+            rate = np.where(m > 0, k / np.maximum(m, 1), np.nan)
+            ci = np.array([wilson(int(a), int(b)) for a, b in zip(k, m)])
+            ax.errorbar(x, rate * 100, yerr=[(rate - ci[:, 0]) * 100, (ci[:, 1] - rate) * 100],
+                        fmt=style, capsize=4, label=label)
+        positive = x[x > 0]
+        if positive.size and positive.max() > 10 * positive.min():  # magnitudes over decades: each seen
+            ax.set_xscale("symlog", linthresh=float(positive.min()))
+        ax.set_ylim(-5, 105)
+        ax.set_xlabel(axis["label"])
+        ax.set_ylabel("share of trials (%)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=9, loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -207,7 +226,7 @@ def _pass_rate_table(rows: Sequence[dict], axis: dict) -> list[str]:
     lines = [f"| {axis['label']} | trials | passed | pass rate | 95 % interval |", "|---|---:|---:|---:|---:|"]
     for label, _, sel in _groups(rows, axis):
         k = sum(bool(r["passed"]) for r in sel)
-        lo, hi = _wilson(k, len(sel))
+        lo, hi = wilson(k, len(sel))
         lines.append(f"| {label} | {len(sel)} | {k} | {100 * k / max(1, len(sel)):.1f} % | "
                      f"{100 * lo:.0f}–{100 * hi:.0f} % |")
     return lines
@@ -326,6 +345,14 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
         for key, fig in figures.items():
             if key.startswith("heat"):
                 lines += [f"![pass-rate heatmap]({fig})", ""]
+        if monitored(done):
+            lines += ["## Detection by the twin", "",
+                      "Each trial ran the servo model beside it (`monitor:`). Detected: an alarm at or after "
+                      "the fault began; at a magnitude that injects nothing, every alarm is a false one.", ""]
+            if "detection" in figures:
+                lines += [f"![detection and pass rates]({figures['detection']})", ""]
+            for axis in axes_meta:
+                lines += detection_table(_groups(done, axis), axis["label"]) + [""]
     worst = worst_trials(rows, pos, ang)
     if worst:
         lines += ["## Worst trials", "", "Largest deviation relative to its limit first; errors and "
@@ -378,6 +405,9 @@ def write_campaign_report(campaign_dir: Path | str, beside: Sequence[Path] = (),
     if axes_meta and done:
         plot_pass_rates(done, axes_meta, fig_dir / "pass_rates.png")
         figures["rates"] = "figures/pass_rates.png"
+        if monitored(done):
+            plot_detection([(a, _groups(done, a)) for a in axes_meta], fig_dir / "detection.png")
+            figures["detection"] = "figures/detection.png"
         grid = [a for a in axes_meta if a["kind"] == "grid"]
         if len(grid) >= 2:
             plot_heatmap(done, grid[0], grid[1], fig_dir / "heatmap.png")

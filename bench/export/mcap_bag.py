@@ -122,7 +122,7 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
                 w.write_message("/interlock_margins/gantry", schema["float"],
                                 {"data": float(margins.gantry[i])}, ns, ns, i)
             if watched:
-                w.write_message("/twin/residual", schema["joint"],
+                w.write_message(TWIN_TOPICS[0], schema["joint"],
                                 _joint_state([names[j] for j in watched], stamp, twin[i, watched]), ns, ns, i)
             for topic, series, timed in timing:
                 if timed[i]:
@@ -139,7 +139,7 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
                              "file": "", "function": event.kind, "line": 0}, ns, ns, k)
         for k, alarm in enumerate(monitor.get("alarms", []) if twin is not None and len(log) else []):
             ns = t0 + int(round((log.time[0] + alarm["t_s"]) * 1e9))
-            w.write_message("/twin/alarm", schema["string"],
+            w.write_message(TWIN_TOPICS[1], schema["string"],
                             {"data": f"{alarm['joint']} behaves unlike its model ({alarm['signal']} CUSUM "
                                      f"{alarm['score']:.1f} σ at {alarm['t_s']:.3f} s)"}, ns, ns, k)
         for name, data in _metadata(log, result):
