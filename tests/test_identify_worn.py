@@ -114,3 +114,19 @@ def test_the_identified_sim_predicts_the_worn_rig_on_target_1(worn):
     ideal = float(np.linalg.norm(worn["compare"]["tip_deviation_mm"]["mean"]))
     assert ideal > 1.0  # the worn rig sags millimetres where the ideal motors do not
     assert pred["tip_error_mm"]["mean"] <= 0.3, (pred, ideal)
+
+
+def test_the_identified_model_watches_the_worn_rig_without_an_alarm(worn, tmp_path):
+    """The model file carries the spread its twin leaves on the excitation (σ per joint, a few encoder
+    ticks at most); the worn rig's Target 1 trial, watched by it, raises no alarm."""
+    from bench.config.servo_model import load_servo_model_file
+
+    model = load_servo_model_file(worn["model"])
+    tick = 2 * np.pi / 4096
+    assert "train" not in model.twin_sigma and {"theta4", "theta5", "theta6"} <= set(model.twin_sigma)
+    assert all(0 < model.twin_sigma[j] < 5 * tick for j in ("theta4", "theta5", "theta6")), model.twin_sigma
+    res = _run("trial", str(_config(tmp_path, "lab_real")), "--emulate", "--monitor", str(worn["model"]),
+               "--json", "--out", str(tmp_path / "runs"))
+    assert res.returncode in (0, 1), res.stderr
+    out = json.loads(res.stdout)
+    assert out["monitor"]["alarms"] == [], out["monitor"]

@@ -249,3 +249,19 @@ def test_a_campaign_with_the_twin_reports_detection_beside_the_pass_rate(tmp_pat
     assert rows["0.300"][1] == "100 %" and rows["0.300"][2] == "2" and rows["0.300"][5] == "theta5 (2)"
     assert float(rows["0.300"][4]) <= 0.25
     assert rows["3.000"][1] == "0 %" and rows["3.000"][2] == "2"
+
+
+def test_the_sigma_identify_writes_keeps_the_detector_at_half_its_threshold_on_its_clean_logs():
+    """Quantisation noise alone keeps the floor; a joint with bursts of several σ (a worn joint's
+    stick-slip) gets the σ at which those bursts reach half the threshold, not more."""
+    from bench.monitor.detector import DEFAULT_CUSUM
+    from bench.monitor.spread import _peak, calibrated_sigma
+
+    rng = np.random.default_rng(1)
+    residual = rng.uniform(-0.5, 0.5, (4000, 2))  # ticks: the encoder's rounding
+    residual[1000:1030, 1] += 6.0  # a burst of six ticks for 30 cycles on the second joint
+    sigma = calibrated_sigma(residual, np.array([1.0, 1.0]))
+    assert sigma[0] == 1.0 and sigma[1] > 1.0
+    peak = _peak(residual, sigma, DEFAULT_CUSUM)
+    assert peak[1] <= 0.5 * DEFAULT_CUSUM.threshold + 1e-6
+    assert _peak(residual, sigma * 0.9, DEFAULT_CUSUM)[1] > 0.5 * DEFAULT_CUSUM.threshold  # the smallest such σ

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal, Mapping, Optional, Sequence
+from typing import Annotated, Literal, Mapping, Optional, Sequence
 
 from pydantic import Field, ValidationError
 
@@ -127,6 +127,10 @@ class ServoModelFile(Strict):
         description="per joint, the keys the logs could not tell (kept at the datasheet's value)")
     sources: list[LogSource] = Field(default_factory=list, max_length=1000,
                                      description="the trial logs the model was identified from")
+    twin_sigma: dict[str, Annotated[float, Field(ge=0, le=1)]] = Field(
+        default_factory=dict, max_length=32,
+        description="per joint, the spread (σ, rad or m) of the twin's residual on the logs the model "
+                    "was identified from: what the monitor divides by (identified files)")
     notes: list[str] = Field(default_factory=list, max_length=100,
                              description="where the numbers came from (logs, fit, by hand)")
     servo: Optional[str] = Field(default=None, max_length=64,

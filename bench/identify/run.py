@@ -23,6 +23,11 @@ from bench.identify.errors import IdentifyError
 from bench.identify.fit import FitResult, JointFit, fit_servos, goal_moving
 from bench.identify.logs import LoggedRun, RigSetup, load_runs
 from bench.identify.report import write_report
+from bench.monitor.build import default_sigma
+from bench.monitor.spread import twin_spread
+from bench.monitor.twin import TwinSetup
+from bench.paths import robot_urdf
+from bench.rig.backends import with_physics
 
 __all__ = ["IdentifyResult", "identify", "model_file_of"]
 
@@ -135,6 +140,17 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
                           sources=[LogSource(run=str(r.run_dir), sha256=r.sha256) for r in runs], notes=notes)
 
 
+def spread_of(setup: RigSetup, runs: Sequence[LoggedRun], model: ServoModelFile) -> dict[str, float]:
+    """Per joint its servo drives by its own goals (the train on its sensor aside), the spread the
+    identified model's twin leaves on these logs: what the monitor divides its residual by."""
+    params = with_physics(setup.datasheet, [model.physics_of(n) for n in setup.joint_names])
+    twin = TwinSetup(str(robot_urdf(setup.robot)), setup.joint_names, params, setup.ratio, setup.offset,
+                     setup.lower, setup.upper)
+    sigma = twin_spread(twin, ((r.time, r.goal, r.q, r.qd) for r in runs), default_sigma(setup.ratio, setup.kinds))
+    return {n: float(s) for j, (n, s) in enumerate(zip(setup.joint_names, sigma))
+            if j != setup.train and np.isfinite(s)}
+
+
 def peer_values(setup: RigSetup, fit: FitResult, joint: str,
                 keys: Sequence[str]) -> tuple[dict[str, float], list[str]] | None:
     """For values a joint's fit ran to the edge of their range: the median of the fitted joints
@@ -203,6 +219,9 @@ def identify(run_dirs: Sequence[Path], out: Path, *, workers: int = 0, generatio
         raise IdentifyError("no joint moved enough in these logs to identify (goals spanning at least "
                             "0.5° or 0.5 mm); run the excitation (hil_configs/identify.yaml) first")
     model = model_file_of(setup, runs, fit)
+    if progress:
+        progress("the twin's spread", 0.9)
+    model = model.model_copy(update={"twin_sigma": spread_of(setup, runs, model)})
     write_model_file(model, out)
     report_path = None
     if report:

@@ -19,11 +19,13 @@ from bench.monitor.monitor import TwinMonitor
 from bench.monitor.twin import ServoTwin, TwinSetup
 from drivers.dynamixel.control_table import x_series_table
 
-__all__ = ["DEFAULT_SIGMA_TICKS", "MonitorSetup", "build_monitor", "monitor_setup"]
+__all__ = ["DEFAULT_SIGMA_TICKS", "MonitorSetup", "build_monitor", "default_sigma", "monitor_setup"]
 
 #: The residual's spread (σ) of a datasheet model, in encoder ticks through each joint's
 #: transmission, revolute and prismatic: the quantisation's own (0.3 tick) and the model's error
-#: on clean trials of the servo-model sim and the emulated rig (0.2-0.7 tick; README, the monitor).
+#: on clean trials of the servo-model sim and the emulated rig (0.2-0.7 tick; docs/monitor.md). A
+#: model file from ``identify`` carries the σ its detector needs on its logs (``twin_sigma``,
+#: :mod:`bench.monitor.spread`); the larger of the two is the joint's σ.
 DEFAULT_SIGMA_TICKS = {"revolute": 1.0, "prismatic": 2.0}
 
 
@@ -36,6 +38,13 @@ class MonitorSetup:
     monitored: np.ndarray
     model: str
     action: str
+
+
+def default_sigma(ratio, kinds) -> np.ndarray:
+    """Per joint the datasheet model's σ (:data:`DEFAULT_SIGMA_TICKS` through its transmission), the
+    floor of an identified one."""
+    tick = np.abs(np.asarray(ratio, dtype=float)) * x_series_table()["Present Position"].scale
+    return tick * np.array([DEFAULT_SIGMA_TICKS[k] for k in kinds])
 
 
 def monitor_setup(config: TrialConfig, robot) -> Optional[MonitorSetup]:
@@ -51,15 +60,17 @@ def monitor_setup(config: TrialConfig, robot) -> Optional[MonitorSetup]:
     names = list(robot.joint_names)
     table = servo_table(config, robot)
     params = servo_params(table, names)
+    spread: dict[str, float] = {}
     if m.model != "datasheet":
         model = load_servo_model_file(config.resolve(Path(m.model)))
         if model.robot != config.robot:
             raise ConfigError(f"monitor.model: {m.model} is for {model.robot}, not {config.robot}")
         params = with_physics(params, [model.physics_of(n) for n in names])
+        spread = model.twin_sigma
     ratio = np.array([table[n].ratio for n in names], dtype=float)
-    tick = np.abs(ratio) * x_series_table()["Present Position"].scale
-    kinds = [r.kind for r in robot.chain.rows]
-    sigma = tick * np.array([DEFAULT_SIGMA_TICKS[k] for k in kinds])
+    # the spread the model leaves where identify measured it, never below the encoder's steps
+    floor = default_sigma(ratio, [r.kind for r in robot.chain.rows])
+    sigma = np.array([max(spread.get(n, 0.0), floor[j]) for j, n in enumerate(names)])
     sensed = getattr(b, "ultrasonic", None)
     monitored = np.array([not (sensed is not None and n == sensed.joint) for n in names])
     twin = TwinSetup(str(config.robot_urdf), names, params, ratio,

@@ -22,6 +22,8 @@ import numpy as np
 
 __all__ = ["Cusum", "CusumParams", "DEFAULT_CUSUM"]
 
+_NONE = np.zeros(0, dtype=np.intp)
+
 
 @dataclass(frozen=True)
 class CusumParams:
@@ -43,6 +45,7 @@ class Cusum:
         self.up = np.zeros(n)
         self.down = np.zeros(n)
         self.latched = np.zeros(n, dtype=bool)
+        self._any_latched = False
 
     @property
     def score(self) -> np.ndarray:
@@ -50,14 +53,20 @@ class Cusum:
         return np.maximum(self.up, self.down)
 
     def update(self, z: np.ndarray) -> np.ndarray:
-        """One cycle's normalised residuals (NaN: not monitored); the indices that alarm now."""
-        k = self.params.drift
+        """One cycle's normalised residuals (NaN: not monitored); the indices that alarm now.
+        (Run every cycle beside the trial: a few array operations when nothing is near an alarm.)"""
+        k, h = self.params.drift, self.params.threshold
         z = np.nan_to_num(z, nan=0.0)
-        self.up = np.maximum(0.0, self.up + z - k)
-        self.down = np.maximum(0.0, self.down - z - k)
-        score = self.score
-        self.latched &= score > 0.0
-        over = score > self.params.threshold
+        up, down = self.up, self.down
+        np.maximum(np.subtract(up + z, k, out=up), 0.0, out=up)
+        np.maximum(np.subtract(down - z, k, out=down), 0.0, out=down)
+        if self._any_latched:  # a latch holds until the joint's sums are back to zero
+            self.latched &= (up > 0.0) | (down > 0.0)
+            self._any_latched = bool(self.latched.any())
+        if up.max() <= h and down.max() <= h:
+            return _NONE
+        over = (up > h) | (down > h)
         hit = np.flatnonzero(over & ~self.latched)
         self.latched |= over
+        self._any_latched = True
         return hit
