@@ -250,7 +250,7 @@ class RunFollower:
         """Every row's residual through the detector (before the page's decimation): the nearest a
         joint has come to its threshold is never skipped."""
         c = self._cusum
-        for row in z:
+        for row in np.nan_to_num(z, nan=0.0):  # NaN: a joint or cycle not watched
             c.update(row)
         score = c.score
         j = max(self._watched, key=lambda k: score[k]) if self._watched else 0

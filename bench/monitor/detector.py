@@ -42,30 +42,31 @@ class Cusum:
 
     def __init__(self, n: int, params: CusumParams = DEFAULT_CUSUM) -> None:
         self.params = params
-        self.up = np.zeros(n)
-        self.down = np.zeros(n)
+        self._sums = np.zeros((2, n))  # g⁺ and g⁻, one array: a cycle is a handful of operations
+        self.up, self.down = self._sums[0], self._sums[1]
         self.latched = np.zeros(n, dtype=bool)
         self._any_latched = False
 
     @property
     def score(self) -> np.ndarray:
         """Each joint's larger sum (σ): how far it has gone towards an alarm."""
-        return np.maximum(self.up, self.down)
+        return self._sums.max(axis=0)
 
     def update(self, z: np.ndarray) -> np.ndarray:
-        """One cycle's normalised residuals (NaN: not monitored); the indices that alarm now.
-        (Run every cycle beside the trial: a few array operations when nothing is near an alarm.)"""
-        k, h = self.params.drift, self.params.threshold
-        z = np.nan_to_num(z, nan=0.0)
-        up, down = self.up, self.down
-        np.maximum(np.subtract(up + z, k, out=up), 0.0, out=up)
-        np.maximum(np.subtract(down - z, k, out=down), 0.0, out=down)
+        """One cycle's normalised residuals (finite: 0 for a joint not watched); the indices that
+        alarm now. (Run every cycle beside the trial: a few array operations when nothing is near an
+        alarm.)"""
+        sums, h = self._sums, self.params.threshold
+        self.up += z
+        self.down -= z
+        sums -= self.params.drift
+        np.maximum(sums, 0.0, out=sums)
         if self._any_latched:  # a latch holds until the joint's sums are back to zero
-            self.latched &= (up > 0.0) | (down > 0.0)
+            self.latched &= sums.max(axis=0) > 0.0
             self._any_latched = bool(self.latched.any())
-        if up.max() <= h and down.max() <= h:
+        if sums.max() <= h:
             return _NONE
-        over = (up > h) | (down > h)
+        over = sums.max(axis=0) > h
         hit = np.flatnonzero(over & ~self.latched)
         self.latched |= over
         self._any_latched = True

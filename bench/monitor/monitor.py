@@ -56,10 +56,13 @@ class TwinMonitor:
 
     def __post_init__(self) -> None:
         self._detector = Cusum(len(self.joint_names), self.cusum)
-        self._scale = np.where(self.monitored, 1.0 / np.asarray(self.sigma, dtype=float), np.nan)
+        inverse = 1.0 / np.asarray(self.sigma, dtype=float)
+        self._scale = np.where(self.monitored, inverse, 0.0)  # the detector's: an unwatched joint's z is 0
+        self._shown = np.where(self.monitored, inverse, np.nan)  # the log's: NaN where not watched
         self._t0: Optional[float] = None
         self._last: Optional[tuple[float, np.ndarray]] = None  # (time, goal) of the previous cycle
-        self.z: list[np.ndarray] = []  #: each cycle's normalised residual (NaN: not monitored)
+        self._pending: list[np.ndarray] = []  # residuals over σ of the cycles not yet in the log
+        self._cycles = 0  # the cycles checked
         self._written = 0  # the cycles whose residuals are in the log
         if self.log is not None:  # the journal says what is watched, and how, from the start
             self.log.start_twin()
@@ -67,21 +70,25 @@ class TwinMonitor:
 
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Optional[Trip]:
         """The residual of the interval this reading ends; a trip when an alarm must stop the trial."""
+        trip = self._step(t, measured.position, measured.velocity, commanded)
+        self.logged()
+        return trip
+
+    def _step(self, t: float, position: np.ndarray, velocity: np.ndarray, commanded: np.ndarray) -> Optional[Trip]:
         trip = None
         if self._last is None:
             self._t0 = t
-            self.twin.start(measured.position, measured.velocity)
-            self.z.append(np.full(len(self.joint_names), np.nan))
+            self.twin.start(position, velocity)
+            self._pending.append(np.full(len(self.joint_names), np.nan))
         else:
             t_prev, goal = self._last
-            residual = self.twin.advance(goal, measured.position, measured.velocity, t - t_prev)
-            z = residual * self._scale
-            self.z.append(z)
-            hit = self._detector.update(z)
+            residual = self.twin.advance(goal, position, velocity, t - t_prev)
+            self._pending.append(residual * self._shown)
+            hit = self._detector.update(residual * self._scale)
             if hit.size:
                 trip = self._alarm(t, hit)
-        self._last = (t, np.array(commanded, dtype=float))
-        self.logged()
+        self._last = (t, commanded)  # the runner's own row of the plan, never changed after
+        self._cycles += 1
         return trip
 
     def logged(self) -> None:
@@ -89,9 +96,11 @@ class TwinMonitor:
         block's rows are in; a cycle's row is in before its check)."""
         if self.log is None:
             return
-        upto = min(len(self.z), len(self.log))
+        upto = min(self._cycles, len(self.log))
         if upto > self._written:
-            self.log.twin_rows(self._written, np.array(self.z[self._written:upto]))
+            count = upto - self._written
+            self.log.twin_rows(self._written, np.array(self._pending[:count]))
+            del self._pending[:count]
             self._written = upto
 
     def _alarm(self, t: float, hit: np.ndarray) -> Optional[Trip]:
@@ -112,8 +121,7 @@ class TwinMonitor:
              commanded: np.ndarray, rows: Optional[int] = None) -> Optional[tuple[int, Trip]]:
         """Every row of a block in order (the first ``rows`` of them), as :meth:`check` would."""
         for i in range(len(times) if rows is None else rows):
-            st = JointState(float(times[i]), position[i], velocity[i], effort[i])
-            trip = self.check(float(times[i]), st, commanded[i])
+            trip = self._step(float(times[i]), position[i], velocity[i], commanded[i])
             if trip is not None:
                 return i, trip
         return None

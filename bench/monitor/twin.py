@@ -84,6 +84,8 @@ class ServoTwin:
         r2 = self._ratio ** 2
         self._abs_inv_ratio = np.abs(1.0 / self._ratio)
         self._viscous = p.viscous / r2
+        self._has_viscous = bool(self._viscous.any())
+        self._inv_ratio = 1.0 / self._ratio
         self._implicit = np.diag(p.armature / r2 + FIRMWARE_PERIOD_S * (p.back_emf_damping + p.viscous) / r2)
         self._has_friction = bool((p.coulomb > 0).any() or (p.stribeck > 0).any() or p.has_load_friction)
         self._pose: np.ndarray | None = None
@@ -122,7 +124,7 @@ class ServoTwin:
         reading ``q``, ``qd`` that ends the interval, and correct towards it: the residual."""
         samples = max(1, int(round(interval_s / FIRMWARE_PERIOD_S)))
         loop, dt = self._loop, FIRMWARE_PERIOD_S
-        loop.set_goal((np.asarray(goal, dtype=float) - self._offset) / self._ratio)
+        loop.set_goal((goal - self._offset) * self._inv_ratio)
         x, xd = self.q, self.qd
         self._load(self._reading)  # the load where the robot is, not where the twin is
         # each joint feels its neighbours as they were measured moving, not as their models would
@@ -130,7 +132,9 @@ class ServoTwin:
         matrix = self._diagonal
         for _ in range(samples):
             torque = loop.step_joint(x, xd)
-            rhs = torque - load - self._viscous * xd
+            rhs = torque - load
+            if self._has_viscous:
+                rhs -= self._viscous * xd
             dry = speed = None
             if self._has_friction:
                 speed = xd * self._abs_inv_ratio
@@ -138,9 +142,8 @@ class ServoTwin:
                        * self._abs_inv_ratio)
             x, xd = step_joints(x, xd, dt, rhs, matrix, dry, "smooth", speed, self._lower, self._upper)
         residual = q - x
-        qd = np.asarray(qd, dtype=float)
-        self._acceleration = (qd - self._speed) / max(interval_s, 1e-6)
-        self._reading, self._speed = np.asarray(q, dtype=float), qd
+        self._acceleration = (qd - self._speed) * (1.0 / max(interval_s, 1e-6))
+        self._reading, self._speed = q, qd  # readings are the backend's, never changed after
         gain = min(1.0, interval_s / self.correction_s)
         self.q = x + gain * residual
         self.qd = xd + gain * (qd - xd)

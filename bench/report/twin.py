@@ -18,11 +18,11 @@ THRESHOLD_STYLE = {"color": "#c0392b", "ls": (0, (5, 3)), "lw": 1.4, "label": "a
 
 
 def _scores(z: np.ndarray, params: CusumParams) -> np.ndarray:
-    """The detector's sums along the log, as the monitor ran them (NaN rows count as zero)."""
+    """The detector's sums along the log, as the monitor ran them (NaN, not watched, counts as zero)."""
     c = Cusum(z.shape[1], params)
     out = np.empty_like(z)
-    for k in range(len(z)):
-        c.update(z[k])
+    for k, row in enumerate(np.nan_to_num(z, nan=0.0)):
+        c.update(row)
         out[k] = c.score
     return out
 
