@@ -22,8 +22,10 @@ from bench.kinematics.arc_train import JOINTS, TARGET_1, epsilon_from_d2, train_
 from bench.rig.backends import make_backend
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
-from drivers import Actuators, ActuatorsBase, BackendSetupError, JointLimits, JointState
+from drivers import Actuators, BackendSetupError, JointState
 from trajectories import LSPB
+
+from stand_ins import Kinematic
 
 REPO = Path(__file__).resolve().parent.parent
 FAST = REPO / "hil_configs" / "sim_target1_fast.yaml"
@@ -36,42 +38,6 @@ def fast_config(faults: list[dict], **changes) -> TrialConfig:
     data = yaml.safe_load(FAST.read_text())
     data.update(changes)
     return TrialConfig.model_validate({**data, "faults": faults})
-
-
-class Kinematic(ActuatorsBase):
-    """A perfect arc-train stand-in: joints are wherever they were last commanded."""
-
-    def __init__(self, q0=None, **extras) -> None:
-        n = len(JOINTS)
-        self.q = np.zeros(n) if q0 is None else np.array(q0, float)
-        self.t = 0.0
-        self._limits = JointLimits(np.full(n, -10.0), np.full(n, 10.0), np.ones(n), np.ones(n))
-        for k, v in extras.items():
-            setattr(self, k, v)
-
-    joint_names = property(lambda self: list(JOINTS))
-    limits = property(lambda self: self._limits)
-
-    def read(self) -> JointState:
-        return JointState(self.t, self.q.copy(), np.zeros(len(self.q)), np.zeros(len(self.q)))
-
-    def now(self) -> float:
-        return self.t
-
-    def wait_until(self, t: float) -> None:
-        self.t = max(self.t, t)
-
-    def _enable(self) -> None:
-        pass
-
-    def _disable(self) -> None:
-        pass
-
-    def _command(self, position, velocity) -> None:
-        self.q = position.copy()
-
-    def _close(self) -> None:
-        pass
 
 
 def run_with_truth(cfg: TrialConfig, tmp_path: Path):

@@ -24,8 +24,10 @@ from bench.kinematics.arc_train import JOINTS
 from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_backend, make_dynamixel_backend
 from bench.rig.emulated import EmulatedRig, EmulatorProcess
-from drivers import Actuators, ActuatorsBase, BackendSetupError, JointLimits, JointState
+from drivers import Actuators, BackendSetupError
 from trajectories import LSPB
+
+from stand_ins import Kinematic
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIGS = REPO / "hil_configs"
@@ -70,29 +72,14 @@ def held(log: TrialLog, settle_cycles: int) -> slice:
     return slice(len(log) - 1 - settle_cycles, len(log) - 1)
 
 
-class Pushable(ActuatorsBase):
+class Pushable(Kinematic):
     """A kinematic arc-train stand-in (joints where last commanded) whose physics records what the
-    faults ask of it: each load and friction scale with the backend's time."""
+    faults ask of it: each load and friction scale with the backend's time, and every goal."""
 
     def __init__(self, q0: np.ndarray | None = None) -> None:
-        n = len(JOINTS)
-        self.q = np.zeros(n) if q0 is None else np.asarray(q0, dtype=float).copy()
-        self.t = 0.0
+        super().__init__(q0)
         self.calls: list[tuple[str, float, int, float]] = []
         self.goals: list[np.ndarray] = []
-        self._limits = JointLimits(np.full(n, -10.0), np.full(n, 10.0), np.ones(n), np.ones(n))
-
-    joint_names = property(lambda self: list(JOINTS))
-    limits = property(lambda self: self._limits)
-
-    def read(self) -> JointState:
-        return JointState(self.t, self.q.copy(), np.zeros(len(self.q)), np.zeros(len(self.q)))
-
-    def now(self) -> float:
-        return self.t
-
-    def wait_until(self, t: float) -> None:
-        self.t = max(self.t, t)
 
     def set_external_effort(self, joint: int, effort: float) -> None:
         self.calls.append(("load", self.t, joint, effort))
@@ -100,18 +87,9 @@ class Pushable(ActuatorsBase):
     def set_friction_scale(self, joint: int, scale: float) -> None:
         self.calls.append(("friction", self.t, joint, scale))
 
-    def _enable(self) -> None:
-        pass
-
-    def _disable(self) -> None:
-        pass
-
     def _command(self, position, velocity) -> None:
         self.goals.append(position.copy())
-        self.q = position.copy()
-
-    def _close(self) -> None:
-        pass
+        super()._command(position, velocity)
 
 
 def stack(base: Actuators, *faults: dict) -> Actuators:
