@@ -55,22 +55,33 @@ def _run(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def rigs(tmp_path_factory):
-    """Excitation runs on two emulated rigs (run side by side), every joint briefly."""
+def rigs(tmp_path_factory, machine_loaded):
+    """Excitation runs on two emulated rigs (side by side; one after the other on a machine other
+    work loads), every joint briefly. A rehearsal whose rig could not keep real time (its physics
+    skipped) is no log to hold identification's accuracy to: the tests say so and skip."""
     tmp = tmp_path_factory.mktemp("identify")
     short = {"chirp_s": 2.0, "multisine_s": 2.0, "multisine_period_s": 1.0, "updown_s": 1.0, "pause_s": 0.2,
              "sweep_speeds": 0}  # the earlier plan: chirp, multi-sine and up-and-down (no friction sweeps)
     cfg_a = _config(tmp, "rig_a", HIDDEN_A, short)
     cfg_b = _config(tmp, "rig_b", HIDDEN_B, short, theta5={"position_i": 400})
-    procs = [subprocess.Popen([HILBENCH, "trial", str(c), "--emulate", "--json", "--out", str(tmp / "runs")],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in (cfg_a, cfg_b)]
-    runs = []
+
+    def start(c: Path) -> subprocess.Popen:
+        return subprocess.Popen([HILBENCH, "trial", str(c), "--emulate", "--json", "--out", str(tmp / "runs")],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    loaded = machine_loaded()
+    procs = [start(c) for c in (cfg_a, cfg_b)] if not loaded else [cfg_a, cfg_b]
+    runs, unfaithful = [], []
     for p in procs:
+        p = start(p) if loaded else p
         out, err = p.communicate(timeout=600)
         assert p.returncode == 0, err
         res = json.loads(out)
         assert res["passed"] and res["completed"]
         runs.append(Path(res["run_dir"]))
+        unfaithful += [line for line in err.splitlines() if "fell behind real time" in line]
+    if unfaithful:
+        pytest.skip(f"the machine was too loaded for a faithful rehearsal: {unfaithful[0]}")
     return {"tmp": tmp, "a": runs[0], "b": runs[1]}
 
 
@@ -170,6 +181,9 @@ def test_the_identified_sim_predicts_the_rig_on_a_motion_it_never_saw(rigs, mode
     res = _run("compare", str(cfg), "--emulate", "--repeats", "2", "--sim-model", str(model), "--json",
                "--out", str(rigs["tmp"] / f"cmp_{which}"))
     assert res.returncode in (0, 1), res.stderr
+    if "fell behind real time" in res.stderr:  # the rig it predicts did not keep real time
+        said = next(line for line in res.stderr.splitlines() if "fell behind real time" in line)
+        pytest.skip(f"the machine was too loaded for a faithful rehearsal: {said}")
     d = json.loads(res.stdout)
     pred = d["prediction"]
     print(pred)

@@ -96,6 +96,10 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
         predicted, stop, live_url = None, "", None
     summary = result.summary()
     summary["report"] = str(out_dir / "report.html")
+    skipped = (getattr(result, "rig_stats", None) or {}).get("physics_skipped_s", 0.0)
+    if skipped:  # as trial says it: the rehearsal's rig did not keep real time
+        say("warning: the emulated rig's physics fell behind real time and skipped {} s; the machine "
+            "was too busy for a faithful rehearsal", f"{skipped:.2f}")
     unconfirmed = safe_stop_unconfirmed(stop)
     if stop:
         summary["safe_stop"] = stop
