@@ -82,14 +82,14 @@ class ServoTwin:
                              "current-based mode; a servo of this model has one")
         p = setup.params
         r2 = self._ratio ** 2
-        self._abs_inv_ratio = np.abs(1.0 / self._ratio)
+        self._inv_ratio = 1.0 / self._ratio
+        self._abs_inv_ratio = np.abs(self._inv_ratio)
         self._viscous = p.viscous / r2
         self._has_viscous = bool(self._viscous.any())
-        self._inv_ratio = 1.0 / self._ratio
-        self._implicit = np.diag(p.armature / r2 + FIRMWARE_PERIOD_S * (p.back_emf_damping + p.viscous) / r2)
+        # the armature, and the back-EMF's and viscous damping stepped implicitly, on each joint's inertia
+        self._implicit = p.armature / r2 + FIRMWARE_PERIOD_S * (p.back_emf_damping + p.viscous) / r2
         self._has_friction = bool((p.coulomb > 0).any() or (p.stribeck > 0).any() or p.has_load_friction)
         self._pose: np.ndarray | None = None
-        self._inverse = np.eye(n)
         self._bias = np.zeros(n)
         self.q = np.zeros(n)
         self.qd = np.zeros(n)
@@ -98,13 +98,13 @@ class ServoTwin:
         self._dynamics.close()
 
     def _load(self, q: np.ndarray) -> None:
-        """The matrix the integrator solves with and gravity's torques, at the twin's pose."""
+        """Each joint's inertia for the integrator, its coupling to the others and gravity's torques, at pose ``q``."""
         if self._pose is not None:
             d = q - self._pose
             if d.dot(d) < DYNAMICS_TOLERANCE ** 2:
                 return
         M, h = self._dynamics.dynamics(q, np.zeros_like(q))
-        self._diagonal = np.diag(M) + np.diag(self._implicit)
+        self._diagonal = np.diag(M) + self._implicit
         self._coupling = M - np.diag(np.diag(M))
         self._bias, self._pose = h, q.copy()
 
