@@ -272,3 +272,48 @@ def test_the_page_shows_the_twin_and_its_alarm(tmp_path, browser):
     assert page.inner_text("#twin") == "theta5 alarm"
     assert page.inner_text("#twin-detail") == f"unlike its model at {t:.2f} s; 1 alarm on 8 joints"
     assert "monitor: theta5 behaves unlike its model" in page.inner_text("#events")
+    # the residual panel: every watched joint's detector sum, theta5's crossing the threshold where it alarmed
+    assert page.is_visible("#twinplot") and int(page.evaluate("document.body.dataset.twinPoints")) > 100
+    drawn = page.evaluate("({labels: twinPlot.series.slice(1).map(s => s.label), data: twinPlot.data})")
+    assert drawn["labels"] == [*result["monitor"]["joints"], "alarm threshold"]
+    t_drawn = np.array(drawn["data"][0])
+    sums = {name: np.array([np.nan if v is None else v for v in drawn["data"][1 + i]], dtype=float)
+            for i, name in enumerate(result["monitor"]["joints"])}
+    threshold = result["monitor"]["cusum"]["threshold_sigma"]
+    assert set(drawn["data"][-1]) == {threshold}
+    crossed = t_drawn[np.nan_to_num(sums["theta5"]) >= threshold]
+    assert crossed.size and abs(crossed[0] - t) < 0.1, (crossed[:3], t)  # drawn where the alarm came
+    assert all(np.nanmax(v) < threshold for name, v in sums.items() if name != "theta5")
+
+
+def test_a_monitored_runs_rows_carry_each_joints_detector_sum_and_an_unwatched_joint_none(tmp_path):
+    """The follower's rows of a finished monitored trial (the page's increments): the detector's sums
+    beside the positions, the train (read by its sensor, not watched) NaN, the contacted joint's
+    crossing the threshold at the alarm; a trial without a monitor sends the positions only."""
+    import base64
+
+    data = yaml.safe_load((REPO / "hil_configs" / "sim_target1_servo.yaml").read_text())
+    data.update(monitor={"model": "datasheet"},
+                faults=[{"name": "contact", "joints": ["theta5"], "torque_nm": 0.3, "from_s": 2.0}])
+    config = tmp_path / "touched.yaml"
+    config.write_text(yaml.safe_dump(data))
+    follower = RunFollower(tmp_path / "runs", lambda: prepare(load_trial_config(config)))
+    res = subprocess.run([HILBENCH, "trial", str(config), "--out", str(tmp_path / "runs"), "--json"],
+                         capture_output=True, text=True, timeout=300)
+    result = json.loads(res.stdout)
+    snap = follower.poll().since(0)
+    n = len(snap["joints"])
+    assert snap["twin_columns"] is True and snap["twin"]["threshold"] == 12.0
+    rows = np.frombuffer(base64.b64decode(snap["rows"]), dtype="<f8").reshape(snap["count"], 1 + 3 * n)
+    sums = rows[:, 1 + 2 * n:]
+    watched = [snap["joints"].index(j) for j in result["monitor"]["joints"]]
+    assert np.isfinite(sums[:, watched]).all() and np.isnan(np.delete(sums, watched, axis=1)).all()
+    j5 = snap["joints"].index("theta5")
+    first = rows[np.argmax(sums[:, j5] >= 12.0), 0]
+    assert abs(first - result["monitor"]["first_alarm_s"]) < 0.05
+    plain = RunFollower(tmp_path / "plain", lambda: prepare(load_trial_config(SIM)))
+    subprocess.run([HILBENCH, "trial", str(SIM), "--out", str(tmp_path / "plain"), "--json"],
+                   capture_output=True, text=True, timeout=300, check=True)
+    snap = plain.poll().since(0)
+    assert snap["twin_columns"] is False
+    assert len(base64.b64decode(snap["rows"])) == 8 * snap["count"] * (1 + 2 * len(snap["joints"]))

@@ -60,6 +60,9 @@ class Snapshot:
     #: The twin's detector (a monitored trial's): the joint nearest its alarm threshold and how near
     #: (share), over every row so far; {} when the trial is not monitored.
     twin: dict = field(default_factory=dict)
+    #: A monitored trial's residuals as its detector sums them: each joint's CUSUM (σ) at each row of
+    #: ``time`` (NaN where a joint is not watched or the row came before the detector); [] otherwise.
+    twin_sum: list[list[float]] = field(default_factory=list)
     #: Changes when the rows start again (a new run followed, or the final log read in whole).
     epoch: int = 0
 
@@ -67,22 +70,26 @@ class Snapshot:
         """The snapshot as JSON, with only the rows after the first ``n`` (a page's increment).
 
         The rows go as one base64 block of little-endian float64 (``count`` rows of time, the
-        commanded positions, the measured ones): a sim trial faster than real time adds about a
-        thousand rows between two polls, and writing them as JSON numbers took the server's
-        thread ~10 ms of the interpreter per poll, time the control loop waited for."""
+        commanded positions, the measured ones, and a monitored trial's detector sums): a sim trial
+        faster than real time adds about a thousand rows between two polls, and writing them as JSON
+        numbers took the server's thread ~10 ms of the interpreter per poll, time the control loop
+        waited for."""
         n = max(0, min(int(n), len(self.time)))
         count = len(self.time) - n
         width = len(self.joints)
-        block = np.empty((count, 1 + 2 * width), dtype="<f8")
+        twin = bool(self.twin_sum) and len(self.twin_sum) == len(self.time)
+        block = np.empty((count, 1 + (3 if twin else 2) * width), dtype="<f8")
         if count:
             block[:, 0] = self.time[n:]
             block[:, 1:1 + width] = self.q_cmd[n:]
-            block[:, 1 + width:] = self.q[n:]
+            block[:, 1 + width:1 + 2 * width] = self.q[n:]
+            if twin:
+                block[:, 1 + 2 * width:] = self.twin_sum[n:]
         return {"run": self.run, "run_dir": self.run_dir, "joints": self.joints, "kinds": self.kinds,
                 "segments": self.segments, "first": n, "count": count,
                 "rows": base64.b64encode(block.tobytes()).decode("ascii"), "events": self.events, "phase": self.phase,
                 "progress": self.progress, "margins": self.margins, "timing": self.timing,
-                "result": self.result, "twin": self.twin,
+                "result": self.result, "twin": self.twin, "twin_columns": twin,
                 "epoch": self.epoch}
 
 
@@ -153,6 +160,7 @@ class RunFollower:
     def _switch(self, run_dir: Path) -> None:
         self._dir, self._offset, self._meta_mtime, self._meta = run_dir, 0, -1.0, {}
         self._next_t = -np.inf
+        self._cusum, self._twin_at = None, None  # a comparison's next run: its own detector, from zero
         self.snapshot = Snapshot(run=run_dir.name, run_dir=str(run_dir), kinds=self.kinds,
                                  epoch=self.snapshot.epoch + 1)
 
@@ -197,12 +205,16 @@ class RunFollower:
         n = len(self.snapshot.joints)
         if self._timed:
             self._count_deadlines(rows[:, 2 + 5 * n:2 + 5 * n + len(TIMING_SERIES)])
+        sums = None
         if self._cusum is not None and self._twin_at is not None:
-            self._detect(rows[:, self._twin_at:self._twin_at + n])
+            sums = self._detect(rows[:, self._twin_at:self._twin_at + n])
         keep, self._next_t = decimate(rows[:, 0], self._next_t)
         rows = rows[keep]
         q_cmd, q = rows[:, 2:2 + n], rows[:, 2 + 2 * n:2 + 3 * n]
         s = self.snapshot
+        if sums is not None:  # rows the page got before the detector started have none
+            s.twin_sum.extend([[np.nan] * n] * (len(s.time) - len(s.twin_sum)))
+            s.twin_sum.extend(sums[keep].tolist())
         s.time.extend(rows[:, 0].tolist())
         s.q_cmd.extend(q_cmd.tolist())
         s.q.extend(q.tolist())
@@ -246,17 +258,23 @@ class RunFollower:
         self._cusum = Cusum(len(self.snapshot.joints), params)
         return True
 
-    def _detect(self, z: np.ndarray) -> None:
+    def _detect(self, z: np.ndarray) -> np.ndarray:
         """Every row's residual through the detector (before the page's decimation): the nearest a
-        joint has come to its threshold is never skipped."""
+        joint has come to its threshold is never skipped. Each row's sums (σ; NaN where a joint is
+        not watched), for the page's residual panel."""
         c = self._cusum
-        for row in np.nan_to_num(z, nan=0.0):  # NaN: a joint or cycle not watched
+        sums = np.full(z.shape, np.nan)
+        for i, row in enumerate(np.nan_to_num(z, nan=0.0)):  # NaN: a joint or cycle not watched
             c.update(row)
+            sums[i, self._watched] = c.score[self._watched]
         score = c.score
         j = max(self._watched, key=lambda k: score[k]) if self._watched else 0
-        self.snapshot.twin = {"joint": self.snapshot.joints[j], "share": float(score[j] / c.params.threshold),
+        names = self.snapshot.joints
+        self.snapshot.twin = {"joint": names[j], "share": float(score[j] / c.params.threshold),
                               "alarms": sum(1 for e in self.snapshot.events if e.get("kind") == "monitor"),
-                              "watched": len(self._watched)}
+                              "watched": len(self._watched), "joints": [names[k] for k in self._watched],
+                              "threshold": c.params.threshold}
+        return sums
 
     def _margins(self, q: np.ndarray, q_cmd: np.ndarray, segment: int) -> None:
         m = self.meter(q, q_cmd)
@@ -320,8 +338,9 @@ class RunFollower:
             s.timing = {"paced": True, "cycles": whole.cycles, "missed": whole.missed,
                         "worst_late_s": whole.worst_late_s, "period_s": whole.period_median_s,
                         "bus_s": whole.bus_median_s, "late": whole.late}
+        s.twin_sum = []
         if log.twin_z is not None and self._start_detector(log.metadata):  # the saved log's, every row
-            self._detect(log.twin_z)
+            s.twin_sum = self._detect(log.twin_z)[keep].tolist()
         s.epoch += 1
         s.time = log.time[keep].tolist()
         s.q_cmd = log.q_cmd[keep].tolist()
