@@ -6,13 +6,15 @@ photographed with headless Chromium.
 * ``registers.png``: ``hilbench registers --port PTY --baud B --id 3 --watch`` run in a
   pseudo-terminal against the lab's emulated rig while θ4 is jogged 300 ticks, its last frame
   rendered as the terminal shows it (Rich's SVG export of the ANSI output).
+* ``live-twin.png``: the live page of a monitored servo-model sim trial with a contact on θ5
+  (``monitor: {model: datasheet}``, ``contact`` 0.3 N·m from 2 s), at its end.
 * ``export.png``: ``hilbench export RUN --mcap FILE`` of a sim trial, read back with the ``mcap``
   reader: every topic with its ROS 2 type, message count and last message, and the metadata.
 
 Needs Debian's ``chromium`` and the test extra (``playwright``, ``pexpect``). Writes into
 ``--out`` (default ``runs/screenshots``); the README's copies live in ``docs/``.
 
-    python benchmarks/readme_screenshots.py [--out DIR] [--only live,registers,export]
+    python benchmarks/readme_screenshots.py [--out DIR] [--only live,registers,export,twin]
 """
 
 from __future__ import annotations
@@ -64,6 +66,39 @@ def live_view(png: Path, work: Path) -> Path:
             page.goto(url)
             page.wait_for_selector('body[data-phase="insert"]', timeout=300_000)
             time.sleep(1.2)  # a few of the insertion's polls drawn
+            page.screenshot(path=str(png))
+            browser.close()
+    finally:
+        trial.wait(timeout=300)
+    return png
+
+
+def twin_view(png: Path, work: Path) -> Path:
+    """The live page of a monitored servo-model sim trial with a 0.3 N·m contact on θ5 from 2 s, at
+    its end: the twin's card and residual panel with the alarm."""
+    import yaml
+    from playwright.sync_api import sync_playwright  # the test extra
+
+    data = yaml.safe_load((REPO / "hil_configs" / "sim_target1_servo.yaml").read_text())
+    data.update(monitor={"model": "datasheet"},
+                faults=[{"name": "contact", "joints": ["theta5"], "torque_nm": 0.3, "from_s": 2.0}])
+    config = work / "contact.yaml"
+    config.write_text(yaml.safe_dump(data))
+    trial = subprocess.Popen([HILBENCH, "trial", str(config), "--live", "--live-wait", "1", "--out", str(work)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    try:
+        url = ""
+        while not url:
+            line = trial.stderr.readline()
+            if not line:
+                raise SystemExit("the trial ended before its live view started")
+            url = line.split("live view: ", 1)[1].strip() if "live view: " in line else ""
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=_chromium(), args=["--no-sandbox"])
+            page = browser.new_page(viewport={"width": 1280, "height": 900})
+            page.goto(url)
+            page.wait_for_selector("body[data-verdict]", timeout=300_000)
+            time.sleep(0.8)  # the final rows drawn
             page.screenshot(path=str(png))
             browser.close()
     finally:
@@ -171,11 +206,11 @@ def _palette(png: Path, colours: int = 96) -> Path:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=REPO / "runs" / "screenshots")
-    ap.add_argument("--only", default="live,registers,export", help="Which pictures, comma-separated.")
+    ap.add_argument("--only", default="live,registers,export,twin", help="Which pictures, comma-separated.")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     makers = {"live": (live_view, "live-view.png"), "registers": (registers_view, "registers.png"),
-              "export": (export_view, "export.png")}
+              "export": (export_view, "export.png"), "twin": (twin_view, "live-twin.png")}
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.only.split(","):
             make, file = makers[name]
