@@ -25,6 +25,7 @@ from drivers.dynamixel.units import CENTER_TICK
 from drivers.emulator import ServoModel
 from drivers.servo import ServoArray, ServoParams
 from drivers.servo.fast import PositionLoop
+from drivers.servo.joints import joint_damping
 from drivers.servo.plant import PyBulletPlant
 
 REPO = Path(__file__).resolve().parents[1]
@@ -70,6 +71,34 @@ def test_no_friction_law_or_joint_integrator_is_written_outside_the_core() -> No
            "        qd_new = qd + dt * self._potrs(self._cholesky, rhs)[0]\n"
            "            rhs -= self._joint_friction * np.tanh(qd / FRICTION_SMOOTHING_RAD_S)\n")
     assert all(FRICTION_LAW.search(x) or INTEGRATOR.search(x) for x in old.splitlines())
+
+
+#: The servo's damping on its joint recomputed: the back-EMF's damping or the armature read off the
+#: parameters (their one reader is :func:`drivers.servo.joints.joint_damping`).
+DAMPING = re.compile(r"\.back_emf_damping\b|\.armature\s*[/*+]|\.armature\s*$")
+
+
+def test_the_servos_damping_on_its_joint_is_computed_once() -> None:
+    """Every simulator of a servo (the robot's plant, the twin, identification's rollout, the stand's)
+    takes the armature and the back-EMF's and viscous damping through the transmission, and the
+    implicit step's share of them, from ``joint_damping``; a copy of that law fails here."""
+    found = []
+    for path in _sources():
+        rel = path.relative_to(REPO).as_posix()
+        if rel in CORE | {"drivers/servo/model.py"}:
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if DAMPING.search(line.split("#", 1)[0]):
+                found.append(f"{rel}:{number}: {line.strip()}")
+    assert not found, "the damping law computed outside drivers/servo/joints.py:\n" + "\n".join(found)
+    old = ("        self._implicit = p.armature / r2 + FIRMWARE_PERIOD_S * (p.back_emf_damping + p.viscous) / r2\n"
+           "    matrix = inertia + dt * (p.back_emf_damping + viscous)\n"
+           "        self._Ja = servos.armature / r2\n")
+    assert all(DAMPING.search(x) for x in old.splitlines())
+    p = ServoParams.datasheet([XM430_W350] * 2, viscous=0.02)
+    d = joint_damping(p, np.array([1.0, 0.01]))
+    assert np.allclose(d.armature, p.armature / [1.0, 1e-4]) and np.allclose(d.back_emf, p.back_emf_damping / [1.0, 1e-4])
+    assert np.allclose(d.implicit(1e-3), d.armature + 1e-3 * (d.back_emf + d.viscous))
 
 
 def test_an_emulated_servo_runs_the_motor_its_model_file_describes() -> None:

@@ -25,7 +25,7 @@ from bench.identify.logs import LoggedRun, RigSetup
 from drivers.servo import ServoArray, ServoParams
 from drivers.servo.fast import PositionLoop
 from drivers.servo.friction import friction_level
-from drivers.servo.joints import step_joints
+from drivers.servo.joints import joint_damping, step_joints
 from drivers.servo.model import FIRMWARE_PERIOD_S
 
 __all__ = ["FILE_KEYS", "PHYSICS", "SlotPhysics", "file_values", "merge_runs", "WINDOW_S", "simulate_run", "windows_of"]
@@ -131,9 +131,8 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     off = setup.offset[j]
     lower, upper = setup.lower[j], setup.upper[j]
     abs_inv_r = np.abs(inv_r)
-    viscous = p.viscous * inv_r ** 2
-    b = p.back_emf_damping * inv_r ** 2 + viscous
-    ja = p.armature * inv_r ** 2
+    damping = joint_damping(p, r)
+    viscous = damping.viscous
 
     # each window's rows on its own step grid, and the robot around the joint along it
     t = run.time
@@ -156,7 +155,7 @@ def simulate_run(setup: RigSetup, run: LoggedRun, slots: SlotPhysics, dt: float 
     flat = win * n + j  # slot -> (window, joint) in a step's (W·n) row
     inertia = inertia.reshape(n_steps, W * n)
     load = load.reshape(n_steps, W * n)
-    extra = ja + dt * b
+    extra = damping.implicit(dt)
     # the rows read and the goals written, per step: (row, window) events
     reads: dict[int, list[tuple[int, int]]] = {}
     writes: dict[int, list[tuple[int, int]]] = {}

@@ -30,7 +30,7 @@ import numpy as np
 from drivers.servo import ServoParams
 from drivers.servo.fast import PositionLoop
 from drivers.servo.friction import friction_level
-from drivers.servo.joints import step_joints
+from drivers.servo.joints import joint_damping, step_joints
 from drivers.servo.model import FIRMWARE_PERIOD_S, ServoArray
 from drivers.servo.plant import PyBulletPlant
 
@@ -81,13 +81,13 @@ class ServoTwin:
             raise ValueError("the twin models the position loop without a profile, deadband or "
                              "current-based mode; a servo of this model has one")
         p = setup.params
-        r2 = self._ratio ** 2
+        damping = joint_damping(p, self._ratio)
         self._inv_ratio = 1.0 / self._ratio
         self._abs_inv_ratio = np.abs(self._inv_ratio)
-        self._viscous = p.viscous / r2
+        self._viscous = damping.viscous
         self._has_viscous = bool(self._viscous.any())
         # the armature, and the back-EMF's and viscous damping stepped implicitly, on each joint's inertia
-        self._implicit = p.armature / r2 + FIRMWARE_PERIOD_S * (p.back_emf_damping + p.viscous) / r2
+        self._implicit = damping.implicit(FIRMWARE_PERIOD_S)
         self._has_friction = bool((p.coulomb > 0).any() or (p.stribeck > 0).any() or p.has_load_friction)
         self._pose: np.ndarray | None = None
         self._bias = np.zeros(n)

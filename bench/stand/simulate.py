@@ -27,7 +27,7 @@ from bench.stand.logs import SAMPLE_S, StandLog
 from drivers.servo import FIRMWARE_PERIOD_S, ServoArray, ServoParams
 from drivers.servo.fast import PositionLoop
 from drivers.servo.friction import friction_level
-from drivers.servo.joints import step_joints
+from drivers.servo.joints import joint_damping, step_joints
 
 __all__ = ["GRAVITY", "Slots", "rollout", "stand_inertia"]
 
@@ -64,7 +64,7 @@ def rollout(logs: Sequence[StandLog], slots: Slots, substeps: int = int(round(SA
     volts = np.stack([pad(g.volts) if g.volts is not None else np.full(K, g.vin) for g in logs],
                      axis=1)[:, slots.log]
     supply = np.where(slots.measured_supply[None, :], volts, nominal[None, :])
-    inertia = np.array([stand_inertia(g) for g in logs])[slots.log] + slots.params.armature
+    pendulum = np.array([stand_inertia(g) for g in logs])[slots.log]
     weight = np.array([(g.mass + g.arm_mass / 2.0) * GRAVITY * g.length for g in logs])[slots.log]
     kp = np.array([g.kp for g in logs])[slots.log]
     p = slots.params.with_(position_p=kp, position_i=0.0, position_d=0.0)
@@ -76,7 +76,7 @@ def rollout(logs: Sequence[StandLog], slots: Slots, substeps: int = int(round(SA
     dt = SAMPLE_S / substeps
     offset, viscous = slots.gravity_offset, p.viscous
     # A, diagonal: the pendulum, the armature and the back-EMF's and viscous damping (implicit)
-    matrix = inertia + dt * (p.back_emf_damping + viscous)
+    matrix = pendulum + joint_damping(p).implicit(dt)
     out = np.empty((K, S))
     on_before = torque[0] > 0.5
     for k in range(K):

@@ -16,18 +16,38 @@ identification) or a constant inertia (the bus emulator's default plant), A as i
 
 from __future__ import annotations
 
-from typing import Callable, Union
+from typing import Callable, NamedTuple, Union
 
 import numpy as np
 
 from drivers.servo.friction import FrictionLaw, smooth_friction, stopping_friction
 
-__all__ = ["JointMatrix", "step_joints"]
+__all__ = ["JointDamping", "JointMatrix", "joint_damping", "step_joints"]
 
 _largest = np.maximum.reduce  # one reduction says whether any joint is past a stop (rows of joints too)
 
 #: A: its diagonal (an array, the matrix being diagonal) or a function solving A x = b.
 JointMatrix = Union[np.ndarray, Callable[[np.ndarray], np.ndarray]]
+
+
+class JointDamping(NamedTuple):
+    """A servo's rotor and damping as its joint feels them, through the transmission (kg·m² and
+    N·m·s/rad at a revolute joint, kg and N·s/m at a slide)."""
+
+    armature: np.ndarray  #: J_a, the reflected rotor inertia
+    back_emf: np.ndarray  #: the back-EMF's damping Kt·Ke/R
+    viscous: np.ndarray  #: the gearbox's viscous friction
+
+    def implicit(self, dt: float) -> np.ndarray:
+        """What A adds to each joint's inertia for a step of ``dt``: J_a + dt·B."""
+        return self.armature + dt * (self.back_emf + self.viscous)
+
+
+def joint_damping(params, ratio=1.0) -> JointDamping:
+    """The servos' (:class:`~drivers.servo.ServoParams`) armature and damping at their joints: each
+    divided by ratio² (joint value = ratio × shaft angle)."""
+    r2 = np.asarray(ratio, dtype=float) ** 2
+    return JointDamping(params.armature / r2, params.back_emf_damping / r2, params.viscous / r2)
 
 
 def step_joints(q: np.ndarray, qd: np.ndarray, dt: float, rhs: np.ndarray, matrix: JointMatrix,

@@ -44,7 +44,7 @@ from drivers import BackendSetupError
 from drivers.capabilities import checked_joint
 from drivers.quiet import muted_output, quiet_pybullet
 from drivers.servo.friction import FrictionLaw, friction_level, smooth_friction
-from drivers.servo.joints import JointMatrix, step_joints
+from drivers.servo.joints import JointMatrix, joint_damping, step_joints
 from drivers.servo.model import ServoParams
 
 #: How far (rad and m, Euclidean over the joints) the pose may move from where the mass matrix was
@@ -120,16 +120,13 @@ class PyBulletPlant:
     def _use_friction(self, servos: ServoParams, joint_friction: np.ndarray) -> None:
         """The step's constants from the servos' parameters (the back-EMF's damping and the viscous
         friction implicit, in the matrix, which is factored again at the next step)."""
-        r2 = self._ratio ** 2
         self.servos = servos
-        self._B_emf = servos.back_emf_damping / r2
-        self._B = self._B_emf + servos.viscous / r2
-        self._Ja = servos.armature / r2
+        damping = joint_damping(servos, self._ratio)
         self._has_friction = bool((servos.coulomb > 0).any() or (servos.stribeck > 0).any()
                                   or servos.has_load_friction)
         self._joint_friction = joint_friction
-        self._viscous = servos.viscous / r2
-        self._implicit = self._Ja + self._dt * self._B
+        self._viscous = damping.viscous
+        self._implicit = damping.implicit(self._dt)
         self._has_joint_friction = bool(self._joint_friction.any())
         self._has_viscous = bool(self._viscous.any())
         self._stale = True
