@@ -244,9 +244,11 @@ def test_a_campaign_with_the_twin_reports_detection_beside_the_pass_rate(tmp_pat
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
             for line in md.splitlines() if line.startswith("| 0.000 |") or line.startswith("| 0.300 |")
             or line.startswith("| 3.000 |")}
-    # trials, pass rate, detected, detection rate, median time, joint named, alarms before the fault
-    assert rows["0.000"][2] == "0" and rows["0.000"][6] == "0"  # no false alarm
+    # trials, pass rate, detected, detection rate, median time, joint named, alarms before the fault,
+    # flagged before the insertion ended
+    assert rows["0.000"][2] == "0" and rows["0.000"][6] == "0" and rows["0.000"][7] == "0"  # no false alarm
     assert rows["0.300"][1] == "100 %" and rows["0.300"][2] == "2" and rows["0.300"][5] == "theta5 (2)"
+    assert rows["0.300"][7] == "2"  # contacts from 1-4 s of a trial whose insertion ends after 5 s
     assert float(rows["0.300"][4]) <= 0.25
     assert rows["3.000"][1] == "0 %" and rows["3.000"][2] == "2"
 

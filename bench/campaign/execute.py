@@ -38,7 +38,7 @@ from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
 from drivers.errors import ExitCode
 
-__all__ = ["DaskPool", "InlinePool", "LocalPool", "Pool", "THREAD_ENV", "execute_trial", "start_forkserver",
+__all__ = ["DaskPool", "InlinePool", "LocalPool", "Pool", "THREAD_ENV", "execute_trial", "segment_end_s", "start_forkserver",
            "worker_init"]
 
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
@@ -48,6 +48,15 @@ THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THRE
 # ---------------------------------------------------------------------------
 # The trial, in a worker
 # ---------------------------------------------------------------------------
+
+
+def segment_end_s(log: TrialLog, segment: str) -> float | None:
+    """When ``segment`` (its settle included) ended, on the trial's clock (s since its first
+    reading, as the monitor's alarms); None when the trial never ran it."""
+    if segment not in log.segment_names or not len(log):
+        return None
+    rows = (log.segment == log.segment_names.index(segment)).nonzero()[0]
+    return float(log.time[rows[-1]] - log.time[0]) if rows.size else None
 
 
 def _columns(outcome) -> dict[str, float]:
@@ -75,11 +84,11 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
         res = run_trial(prep, Path(task["stage"]), TrialHooks(wrap=wrap, report=bool(task.get("report", False))))
         measured = res.outcome
         outcome, truth = measured, "measured"
+        log = TrialLog.load(res.log_path) if (recorder and recorder[0].available) or res.monitor else None
         if recorder and recorder[0].available:
             truth = "sim"
             try:
-                outcome = true_outcome(TrialLog.load(res.log_path), recorder[0], prep.robot,
-                                       prep.target, cfg.acceptance.position_mm,
+                outcome = true_outcome(log, recorder[0], prep.robot, prep.target, cfg.acceptance.position_mm,
                                        cfg.acceptance.angle_deg)
             except (KeyError, ValueError):  # stopped before the insertion: no placement
                 outcome = None
@@ -89,7 +98,8 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
         if res.monitor is not None:  # the twin beside it: when it flagged what, against the fault's start
             metrics["monitor"] = {"first_alarm_s": res.monitor["first_alarm_s"],
                                   "joints_named": [a["joint"] for a in res.monitor["alarms"]],
-                                  "onset_s": fault_onset(cfg.faults)}
+                                  "onset_s": fault_onset(cfg.faults),
+                                  "insertion_end_s": segment_end_s(log, "insert")}
         return {**base, "status": "done", "completed": res.completed,
                 "passed": bool(res.completed and outcome is not None and outcome.passed),
                 "reason": res.reason, "columns": _columns(outcome) if outcome else {},

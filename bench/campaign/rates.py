@@ -45,11 +45,11 @@ def _watch(row: dict) -> Optional[dict]:
     if not isinstance(m, dict):
         return None
     first, onset = m.get("first_alarm_s"), m.get("onset_s", 0.0)
-    joints = m.get("joints_named", [])
-    ok = (first is None or (isinstance(first, (int, float)) and math.isfinite(first))) and \
-        isinstance(onset, (int, float)) and math.isfinite(onset) and \
+    joints, end = m.get("joints_named", []), m.get("insertion_end_s")
+    finite = lambda v: isinstance(v, (int, float)) and math.isfinite(v)  # noqa: E731
+    ok = (first is None or finite(first)) and finite(onset) and (end is None or finite(end)) and \
         isinstance(joints, list) and all(isinstance(j, str) for j in joints)
-    return {"first": first, "onset": float(onset), "joints": joints} if ok else None
+    return {"first": first, "onset": float(onset), "joints": joints, "end": end} if ok else None
 
 
 def monitored(rows: Sequence[dict]) -> bool:
@@ -64,7 +64,11 @@ def detection_rates(sel: Sequence[dict]) -> dict[str, Any]:
     false = sum(1 for _, w in watched if w["first"] is not None and w["first"] < w["onset"] - 1e-9)
     delays = [w["first"] - w["onset"] for w in hits]
     named = Counter(j for w in hits for j in w["joints"][:1])
+    # in time: before the insertion ended (the placement is measured then); unknown in older records
+    in_time = sum(1 for w in hits if w["end"] is not None and w["first"] <= w["end"])
+    timed = sum(1 for _, w in watched if w["end"] is not None)
     return {"n": n, "detected": len(hits), "interval": wilson(len(hits), n), "false": false,
+            "in_time": in_time, "timed": timed,
             "delay": statistics.median(delays) if delays else math.nan,
             "named": ", ".join(f"{j} ({k})" for j, k in named.most_common(3)) or "—",
             "passed": sum(bool(r["passed"]) for r, _ in watched)}
@@ -72,10 +76,12 @@ def detection_rates(sel: Sequence[dict]) -> dict[str, Any]:
 
 def detection_table(groups: Sequence[tuple[str, float, list[dict]]], label: str) -> list[str]:
     """One markdown row per magnitude: pass rate, detection rate with its 95 % interval, the
-    median time from the fault's start to the alarm, the joints named first."""
+    median time from the fault's start to the alarm, the joints named first, the alarms before the
+    fault, and the trials flagged before their insertion ended (when the placement is measured)."""
     lines = [f"| {label} | trials | pass rate | detected | detection rate (95 % interval) | "
-             f"median time to alarm (s) | joint named first | alarms before the fault |",
-             "|---|---:|---:|---:|---:|---:|---|---:|"]
+             f"median time to alarm (s) | joint named first | alarms before the fault | "
+             f"flagged before the insertion ended |",
+             "|---|---:|---:|---:|---:|---:|---|---:|---:|"]
     for text, _, sel in groups:
         d = detection_rates(sel)
         if not d["n"]:
@@ -84,5 +90,6 @@ def detection_table(groups: Sequence[tuple[str, float, list[dict]]], label: str)
         delay = "—" if math.isnan(d["delay"]) else f"{d['delay']:.3f}"
         lines.append(f"| {text} | {d['n']} | {100 * d['passed'] / d['n']:.0f} % | {d['detected']} | "
                      f"{100 * d['detected'] / d['n']:.0f} % ({100 * lo:.0f}–{100 * hi:.0f} %) | "
-                     f"{delay} | {d['named']} | {d['false']} |")
+                     f"{delay} | {d['named']} | {d['false']} | "
+                     f"{d['in_time'] if d['timed'] else '—'} |")
     return lines
