@@ -225,6 +225,39 @@ def test_friction_grown_two_and_a_half_times_is_named_on_that_joint_alone(tmp_pa
     assert [a["joint"] for a in alarms] == ["theta6"] and 1.0 < alarms[0]["t_s"] <= 1.25, alarms
 
 
+def _watched(tmp_path: Path, name: str, fault: dict) -> dict:
+    cfg = _config(tmp_path, name=name, monitor={"model": "datasheet", "action": "warn"},
+                  faults=[{"name": "noise", "joints": "all", "std_deg": 0.02, "std_mm": 0.005}, fault])
+    return json.loads(_run("trial", str(cfg), "--json", "--out", str(tmp_path / "runs")).stdout)
+
+
+def test_a_stuck_joint_is_named_as_it_stops_following(tmp_path):
+    """theta6 keeps its goal of 2 s while its command moves on: named first, within a quarter second of
+    the moment its commanded motion leaves it behind."""
+    out = _watched(tmp_path, "stuck", {"name": "stuck", "joints": ["theta6"], "from_s": 2.0})
+    alarms = out["monitor"]["alarms"]
+    assert alarms and alarms[0]["joint"] == "theta6" and 2.0 < alarms[0]["t_s"] <= 2.25, alarms
+
+
+def test_a_deadband_and_the_slides_backlash_are_named_on_the_joints_that_carry_them(tmp_path):
+    """The servo tolerance of the card (±0.29° on every joint): the twin names joints that settle
+    off their goal by more than its drift allowance; 0.5 mm of play on the needle's slide is named on
+    that slide, and only there."""
+    out = _watched(tmp_path, "deadband", {"name": "deadband", "joints": "all", "tol_deg": 0.29})
+    assert out["monitor"]["alarms"], out["monitor"]
+    out = _watched(tmp_path, "backlash", {"name": "backlash", "joints": ["d10"], "play_mm": 0.5})
+    assert {a["joint"] for a in out["monitor"]["alarms"]} == {"d10"}, out["monitor"]
+
+
+def test_an_encoder_bias_moves_the_tip_and_the_twin_does_not_claim_to_see_it(tmp_path):
+    """A bias of 1° on theta5's encoder: its servo closes the loop on the biased reading the twin is
+    given, reading and model agree, no alarm (docs/monitor.md says so: finding a bias is calibration's).
+    If the twin ever flagged it, that page must change."""
+    out = _watched(tmp_path, "bias", {"name": "bias", "joints": ["theta5"], "bias_deg": 1.0})
+    assert out["monitor"]["alarms"] == [], out["monitor"]
+    assert "An encoder bias* is never flagged" in (REPO / "docs" / "monitor.md").read_text()
+
+
 def test_a_campaign_with_the_twin_reports_detection_beside_the_pass_rate(tmp_path):
     """The shipped contact campaign, cut down: no alarm without a contact, every contact of 0.3 N·m
     flagged on theta5 (the placement still passing), 3 N·m flagged too and costing the placement."""
