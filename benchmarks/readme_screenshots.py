@@ -47,11 +47,12 @@ SIM = REPO / "hil_configs" / "sim_target1.yaml"
 _CONTROL = re.compile(r"\x1b\[(?:\?25[lh]|\d*[ABCDGKJ]|2K)|\r")
 
 
-def live_view(png: Path, work: Path) -> Path:
-    """The live page of an emulated-rig trial, taken once the insertion has drawn a while."""
+def _live_page(png: Path, args: list[str], work: Path, ready: str, settle_s: float) -> Path:
+    """``hilbench trial ARGS --live`` opened in Chromium, photographed once ``ready`` (a selector)
+    matches and ``settle_s`` more have been drawn."""
     from playwright.sync_api import sync_playwright  # the test extra
 
-    trial = subprocess.Popen([HILBENCH, "trial", str(LAB), "--emulate", "--live", "--out", str(work)],
+    trial = subprocess.Popen([HILBENCH, "trial", *args, "--live", "--out", str(work)],
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO)
     try:
         url = ""
@@ -64,8 +65,8 @@ def live_view(png: Path, work: Path) -> Path:
             browser = pw.chromium.launch(executable_path=_chromium(), args=["--no-sandbox"])
             page = browser.new_page(viewport={"width": 1280, "height": 900})
             page.goto(url)
-            page.wait_for_selector('body[data-phase="insert"]', timeout=300_000)
-            time.sleep(1.2)  # a few of the insertion's polls drawn
+            page.wait_for_selector(ready, timeout=300_000)
+            time.sleep(settle_s)
             page.screenshot(path=str(png))
             browser.close()
     finally:
@@ -73,37 +74,23 @@ def live_view(png: Path, work: Path) -> Path:
     return png
 
 
+def live_view(png: Path, work: Path) -> Path:
+    """The live page of an emulated-rig trial, taken once the insertion has drawn a while (a few of
+    its polls)."""
+    return _live_page(png, [str(LAB), "--emulate"], work, 'body[data-phase="insert"]', 1.2)
+
+
 def twin_view(png: Path, work: Path) -> Path:
     """The live page of a monitored servo-model sim trial with a 0.3 N·m contact on θ5 from 2 s, at
-    its end: the twin's card and residual panel with the alarm."""
+    its end (the final rows drawn): the twin's card and residual panel with the alarm."""
     import yaml
-    from playwright.sync_api import sync_playwright  # the test extra
 
     data = yaml.safe_load((REPO / "hil_configs" / "sim_target1_servo.yaml").read_text())
     data.update(monitor={"model": "datasheet"},
                 faults=[{"name": "contact", "joints": ["theta5"], "torque_nm": 0.3, "from_s": 2.0}])
     config = work / "contact.yaml"
     config.write_text(yaml.safe_dump(data))
-    trial = subprocess.Popen([HILBENCH, "trial", str(config), "--live", "--live-wait", "1", "--out", str(work)],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO)
-    try:
-        url = ""
-        while not url:
-            line = trial.stderr.readline()
-            if not line:
-                raise SystemExit("the trial ended before its live view started")
-            url = line.split("live view: ", 1)[1].strip() if "live view: " in line else ""
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=_chromium(), args=["--no-sandbox"])
-            page = browser.new_page(viewport={"width": 1280, "height": 900})
-            page.goto(url)
-            page.wait_for_selector("body[data-verdict]", timeout=300_000)
-            time.sleep(0.8)  # the final rows drawn
-            page.screenshot(path=str(png))
-            browser.close()
-    finally:
-        trial.wait(timeout=300)
-    return png
+    return _live_page(png, [str(config), "--live-wait", "1"], work, "body[data-verdict]", 0.8)
 
 
 def registers_view(png: Path, work: Path) -> Path:
