@@ -31,6 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from report_screenshots import HILBENCH, REPO, _chromium, screenshot
@@ -83,8 +84,6 @@ def live_view(png: Path, work: Path) -> Path:
 def twin_view(png: Path, work: Path) -> Path:
     """The live page of a monitored servo-model sim trial with a 0.3 N·m contact on θ5 from 2 s, at
     its end (the final rows drawn): the twin's card and residual panel with the alarm."""
-    import yaml
-
     data = yaml.safe_load((REPO / "hil_configs" / "sim_target1_servo.yaml").read_text())
     data.update(monitor={"model": "datasheet"},
                 faults=[{"name": "contact", "joints": ["theta5"], "torque_nm": 0.3, "from_s": 2.0}])
