@@ -47,13 +47,13 @@ def _trial(config: Path, *extra: str) -> dict:
 
 def _peak(result: dict) -> float:
     """The highest the detector's sum rose on a watched joint, recomputed from the log's residuals."""
-    from bench.monitor.detector import CusumParams
-    from bench.report.twin import _scores
+    from bench.monitor.detector import Cusum, CusumParams
     from bench.trial.record import load_record
 
     log, _ = load_record(Path(result["run_dir"]))
     c = result["monitor"]["cusum"]
-    return float(np.nanmax(_scores(log.twin_z, CusumParams(c["drift_sigma"], c["threshold_sigma"]))))
+    params = CusumParams(c["drift_sigma"], c["threshold_sigma"])
+    return float(np.nanmax(Cusum(log.twin_z.shape[1], params).sums(log.twin_z)))
 
 
 def _contact(joint: str, torque: float) -> dict:

@@ -166,11 +166,11 @@ def _run(task: dict) -> dict:
 def _peak(result: dict) -> float:
     """The highest a watched joint's detector sum rose in the trial, as a share of the threshold."""
     from bench.core.log import TrialLog
-    from bench.monitor.detector import DEFAULT_CUSUM
-    from bench.report.twin import _scores
+    from bench.monitor.detector import DEFAULT_CUSUM, Cusum
 
     log = TrialLog.load(Path(result["run_dir"]) / "trial.npz")
-    return float(np.nanmax(_scores(log.twin_z, DEFAULT_CUSUM))) / DEFAULT_CUSUM.threshold
+    z = log.twin_z
+    return float(np.nanmax(Cusum(z.shape[1], DEFAULT_CUSUM).sums(z))) / DEFAULT_CUSUM.threshold
 
 
 def _tip(result: dict) -> np.ndarray | None:

@@ -264,9 +264,7 @@ class RunFollower:
         not watched), for the page's residual panel."""
         c = self._cusum
         sums = np.full(z.shape, np.nan)
-        for i, row in enumerate(np.nan_to_num(z, nan=0.0)):  # NaN: a joint or cycle not watched
-            c.update(row)
-            sums[i, self._watched] = c.score[self._watched]
+        sums[:, self._watched] = c.sums(z)[:, self._watched]  # NaN in z: a joint or cycle not watched
         score = c.score
         j = max(self._watched, key=lambda k: score[k]) if self._watched else 0
         names = self.snapshot.joints

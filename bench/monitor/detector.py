@@ -71,3 +71,12 @@ class Cusum:
         self.latched |= over
         self._any_latched = True
         return hit
+
+    def sums(self, z: np.ndarray) -> np.ndarray:
+        """:meth:`update` over rows of residuals (NaN, not watched, counts as zero): each joint's
+        larger sum after each row, for the plots and pages that show the detector's course."""
+        out = np.empty(z.shape)
+        for k, row in enumerate(np.nan_to_num(z, nan=0.0)):
+            self.update(row)
+            out[k] = self._sums.max(axis=0)
+        return out

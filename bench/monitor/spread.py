@@ -44,11 +44,7 @@ def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, np.ndarray
 
 
 def _peak(residuals: np.ndarray, sigma: np.ndarray, params: CusumParams) -> np.ndarray:
-    c, peak = Cusum(residuals.shape[1], params), np.zeros(residuals.shape[1])
-    for row in residuals / sigma:
-        c.update(row)
-        np.maximum(peak, c.score, out=peak)
-    return peak
+    return Cusum(residuals.shape[1], params).sums(residuals / sigma).max(axis=0, initial=0.0)
 
 
 def calibrated_sigma(residuals: np.ndarray, floor: np.ndarray, params: CusumParams = DEFAULT_CUSUM,

@@ -17,16 +17,6 @@ SCORE_STYLE = {"color": "#1f5fa8", "lw": 1.7, "label": "CUSUM (larger side)"}
 THRESHOLD_STYLE = {"color": "#c0392b", "ls": (0, (5, 3)), "lw": 1.4, "label": "alarm threshold"}
 
 
-def _scores(z: np.ndarray, params: CusumParams) -> np.ndarray:
-    """The detector's sums along the log, as the monitor ran them (NaN, not watched, counts as zero)."""
-    c = Cusum(z.shape[1], params)
-    out = np.empty_like(z)
-    for k, row in enumerate(np.nan_to_num(z, nan=0.0)):
-        c.update(row)
-        out[k] = c.score
-    return out
-
-
 def plot_twin(log: TrialLog, summary: dict, path: Path) -> Path:
     """One panel a watched joint: its residual over σ and the detector's sum against the threshold."""
     import matplotlib  # heavy: loaded only when a figure is drawn
@@ -37,7 +27,7 @@ def plot_twin(log: TrialLog, summary: dict, path: Path) -> Path:
     params = CusumParams(summary["cusum"]["drift_sigma"], summary["cusum"]["threshold_sigma"])
     watched = [log.joint(n) for n in summary["joints"]]
     z = log.twin_z
-    scores = _scores(z, params)
+    scores = Cusum(z.shape[1], params).sums(z)  # as the monitor ran them
     t = log.time - log.time[0]
     cols = 3
     rows = int(np.ceil(len(watched) / cols))
