@@ -2,7 +2,8 @@
 
 The trial is Target 1 on the servo-model sim (``hil_configs/sim_target1_servo.yaml``, 500 Hz, the
 interlocks on), as configured, run ``--repeats`` times plain and, interleaved, with ``--monitor
-datasheet``: the loop's wall time of each (median and best), and their ratio. Then, from the same
+datasheet``: the loop's wall time of each (median and best), and their ratio; the same for the worn
+rig's identified model (dry friction, so its twin steps at 1 kHz) on the sim it describes. Then, from the same
 monitored logs and from ``--rig-repeats`` emulated-rig trials (``hil_configs/lab_real.yaml
 --emulate --monitor datasheet``, 100 Hz on the wall clock), the highest the detector's sum rose on
 any watched joint of a clean trial, against the alarm threshold; and a weak joint (``torque_limit``
@@ -33,6 +34,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 SERVO_SIM = ROOT / "hil_configs" / "sim_target1_servo.yaml"
 LAB = ROOT / "hil_configs" / "lab_real.yaml"
+IDENTIFIED_SIM = ROOT / "hil_configs" / "sim_target1_identified.yaml"
+WORN_MODEL = ROOT / "hil_configs" / "servo_models" / "emulated_worn_rig.yaml"
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 
 
@@ -80,6 +83,15 @@ def main() -> None:
         peaks.append(_peak(r))
         alarms += len(r["monitor"]["alarms"])
     ratio = statistics.median(watched) / statistics.median(plain)
+    # a model with dry friction (the worn rig's, identified), on the sim it describes: stepped at 1 kHz
+    worn_sim = IDENTIFIED_SIM  # its servo model: the worn rig's
+    worn_plain, worn_watched = [], []
+    for _ in range(args.repeats):
+        worn_plain.append(_trial(worn_sim)["loop_timing"]["wall_s"])
+        r = _trial(worn_sim, "--monitor", str(WORN_MODEL))
+        worn_watched.append(r["loop_timing"]["wall_s"])
+        alarms += len(r["monitor"]["alarms"])
+    worn_ratio = statistics.median(worn_watched) / statistics.median(worn_plain)
     rig_peaks = []
     for _ in range(args.rig_repeats):
         r = _trial(LAB, "--emulate", "--monitor", "datasheet")
@@ -100,6 +112,9 @@ def main() -> None:
     print(f"servo-model sim, Target 1, {args.repeats} runs each: loop {statistics.median(plain):.3f} s plain "
           f"(best {min(plain):.3f}), {statistics.median(watched):.3f} s monitored (best {min(watched):.3f}): "
           f"×{ratio:.2f}")
+    print(f"the worn model (dry friction) on its sim: loop {statistics.median(worn_plain):.3f} s plain "
+          f"(best {min(worn_plain):.3f}), {statistics.median(worn_watched):.3f} s monitored "
+          f"(best {min(worn_watched):.3f}): ×{worn_ratio:.2f}")
     print(f"clean trials: {alarms} alarms; detector peak {max(peaks):.1f} σ (sim), "
           f"{max(rig_peaks, default=float('nan')):.1f} σ (emulated rig), threshold {threshold:g} σ")
     print(f"weak theta4: alarms {named or 'none'}; interlock at {trips[0]:.3f} s" if trips else
@@ -128,6 +143,11 @@ def main() -> None:
                              "against plain (median of runs)",
                              f"×{ratio:.2f} ({statistics.median(watched):.3f} s against "
                              f"{statistics.median(plain):.3f} s, {args.repeats} runs each)"),
+            "monitor.cost_friction": ("Twin with a model that has dry friction (the worn rig's) beside the sim "
+                                      "it describes, Target 1: loop wall time, monitored against plain "
+                                      "(median of runs)",
+                                      f"×{worn_ratio:.2f} ({statistics.median(worn_watched):.3f} s against "
+                                      f"{statistics.median(worn_plain):.3f} s, {args.repeats} runs each)"),
             "monitor.clean_peak": ("Twin on clean trials: alarms, and the highest its detector rose on any "
                                    "watched joint, against the threshold",
                                    f"{alarms} alarms; {max(peaks):.1f} σ servo-model sim ({args.repeats} runs), "

@@ -209,3 +209,29 @@ def test_the_servo_sim_runs_blocks_and_trips_where_checking_every_cycle_trips(mo
     assert len(blocks) == len(cycles)
     for field in ("time", "q_cmd", "qd_cmd", "q", "qd", "effort"):
         assert np.array_equal(getattr(blocks, field), getattr(cycles, field)), field
+
+
+def test_the_loops_joint_gains_are_its_torques_slope_in_position_and_speed():
+    """What a coarse integrator takes implicitly is the loop's own slope: a few ticks more of joint
+    position take the P gain's torque off, at any transmission; a current limit met, the slope is
+    gone and the loop says so."""
+    n = 4
+    params = ServoParams.datasheet([XM430_W350] * n, gains=[(800, 0, 0), (640, 0, 120), (800, 0, 0), (1500, 0, 0)])
+    ratio, offset = np.array([1.0, 0.05, -0.01, 1.0]), np.array([0.0, 0.3, 0.0, -0.2])
+    servos = ServoArray(params)
+    q = offset + ratio * 0.1
+    servos.reset(np.full(n, 0.1))
+    loop = PositionLoop(servos, 0.005, ratio, offset)
+    loop.set_goal(np.full(n, 0.1))
+    gain, derivative = loop.joint_gains()
+    tick = 2 * np.pi / 4096 * np.abs(ratio)
+    base = loop.step_joint(q, np.zeros(n))
+    loop.set_goal(np.full(n, 0.1))
+    moved = loop.step_joint(q + 3 * tick * np.sign(ratio), np.zeros(n))
+    slope = -(moved - base) / (3 * tick * np.sign(ratio))
+    assert np.allclose(slope[[0, 2, 3]], gain[[0, 2, 3]], rtol=0.02), (slope, gain)
+    assert derivative[1] > 0 and not derivative[[0, 2, 3]].any()  # D only where the gain has one
+    assert loop.unsaturated()[[0, 2]].all()
+    loop.set_goal(np.full(n, 1.6))  # 1.5 rad of error: the PWM at its cap
+    loop.step_joint(q, np.zeros(n))
+    assert not loop.unsaturated().any()

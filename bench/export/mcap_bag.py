@@ -14,7 +14,8 @@ Topics (ROS 2 message types, SI units, one message per control cycle unless said
   trial's only, per timed cycle: how late the cycle's work ended against its deadline
   (positive: it missed it) and how long its bus transactions took.
 * ``/twin/residual`` (``sensor_msgs/JointState``, per watched joint in ``position``), a monitored
-  trial's only: the twin's residual over σ each cycle (``bench.monitor``), NaN where not watched;
+  trial's only: the twin's residual over σ at each reading it predicted (every 10 ms,
+  ``bench.monitor``), NaN where not watched;
   ``/twin/alarm`` (``std_msgs/String``): each alarm, at its time, naming the joint.
 * ``/phase`` (``std_msgs/String``): the segment, at each change.
 * ``/rosout`` (``rcl_interfaces/Log``): the trial's events (interlock trips, aborts,
@@ -121,7 +122,7 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
             if margins.gantry is not None:
                 w.write_message("/interlock_margins/gantry", schema["float"],
                                 {"data": float(margins.gantry[i])}, ns, ns, i)
-            if watched:
+            if watched and np.isfinite(twin[i, watched]).any():  # a reading the twin predicted
                 w.write_message(TWIN_TOPICS[0], schema["joint"],
                                 _joint_state([names[j] for j in watched], stamp, twin[i, watched]), ns, ns, i)
             for topic, series, timed in timing:

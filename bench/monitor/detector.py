@@ -73,10 +73,13 @@ class Cusum:
         return hit
 
     def sums(self, z: np.ndarray) -> np.ndarray:
-        """:meth:`update` over rows of residuals (NaN, not watched, counts as zero): each joint's
-        larger sum after each row, for the plots and pages that show the detector's course."""
+        """:meth:`update` over rows of residuals (NaN, not watched, counts as zero; a row all NaN, a
+        reading the twin did not predict, is no cycle of the detector): each joint's larger sum after
+        each row, for the plots and pages that show the detector's course."""
         out = np.empty(z.shape)
+        predicted = ~np.isnan(z).all(axis=1)
         for k, row in enumerate(np.nan_to_num(z, nan=0.0)):
-            self.update(row)
+            if predicted[k]:
+                self.update(row)
             out[k] = self._sums.max(axis=0)
         return out

@@ -1,8 +1,9 @@
 """The monitor: the twin's residuals, normalised, through the detector, every cycle of a trial.
 
-Each reading ends an interval the twin (:mod:`bench.monitor.twin`) stepped under the goal sent at
-the reading before; its residual over σ (the spread the model leaves on clean trials) feeds the
-per-joint CUSUM (:mod:`bench.monitor.detector`). An alarm names the joint, the time on the trial's
+Each reading the twin (:mod:`bench.monitor.twin`) predicts, every 10 ms, ends the interval it
+stepped under the goals sent since; its residual over σ (the spread the model leaves on clean
+trials) feeds the per-joint CUSUM (:mod:`bench.monitor.detector`). The log holds it beside that
+reading, NaN beside the readings between. An alarm names the joint, the time on the trial's
 clock (seconds since its first reading, the clock of a fault's ``from_s``) and the score. With
 ``action: warn`` it is logged as a ``monitor`` event and the trial goes on; with ``action: stop`` it
 is the trip that takes the safe stop, with the reason ``theta5 behaves unlike its model (…)``.
@@ -59,6 +60,7 @@ class TwinMonitor:
         inverse = 1.0 / np.asarray(self.sigma, dtype=float)
         self._scale = np.where(self.monitored, inverse, 0.0)  # the detector's: an unwatched joint's z is 0
         self._shown = np.where(self.monitored, inverse, np.nan)  # the log's: NaN where not watched
+        self._unpredicted = np.full(len(self.joint_names), np.nan)  # the log's row where the twin predicted nothing
         self._t0: Optional[float] = None
         self._last: Optional[tuple[float, np.ndarray]] = None  # (time, goal) of the previous cycle
         self._pending: list[np.ndarray] = []  # residuals over σ of the cycles not yet in the log
@@ -79,14 +81,17 @@ class TwinMonitor:
         if self._last is None:
             self._t0 = t
             self.twin.start(position, velocity)
-            self._pending.append(np.full(len(self.joint_names), np.nan))
+            self._pending.append(self._unpredicted)
         else:
             t_prev, goal = self._last
             residual = self.twin.advance(goal, position, velocity, t - t_prev)
-            self._pending.append(residual * self._shown)
-            hit = self._detector.update(residual * self._scale)
-            if hit.size:
-                trip = self._alarm(t, hit)
+            if residual is None:  # a reading between the twin's predictions
+                self._pending.append(self._unpredicted)
+            else:
+                self._pending.append(residual * self._shown)
+                hit = self._detector.update(residual * self._scale)
+                if hit.size:
+                    trip = self._alarm(t, hit)
         self._last = (t, commanded)  # the runner's own row of the plan, never changed after
         self._cycles += 1
         return trip

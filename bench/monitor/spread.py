@@ -28,7 +28,8 @@ CLEAN_SHARE = 0.5
 def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
                    ) -> np.ndarray:
     """The twin's residual over ``logs`` (each: time, the goals sent, the measured positions and
-    speeds, rows per control cycle), rows of joints, joint units; the logs one after another."""
+    speeds, rows per control cycle), rows of joints, joint units, at the readings it predicted (the
+    rows its detector meets); the logs one after another."""
     twin = ServoTwin(setup)
     residuals = []
     try:
@@ -36,8 +37,9 @@ def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, np.ndarray
             if len(time) < 2:
                 continue
             twin.start(q[0], qd[0])
-            residuals += [twin.advance(goal[k], q[k + 1], qd[k + 1], time[k + 1] - time[k])
-                          for k in range(len(time) - 1)]
+            predicted = (twin.advance(goal[k], q[k + 1], qd[k + 1], time[k + 1] - time[k])
+                         for k in range(len(time) - 1))
+            residuals += [r for r in predicted if r is not None]
     finally:
         twin.close()
     return np.array(residuals).reshape(-1, len(setup.joint_names))

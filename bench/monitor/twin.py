@@ -18,6 +18,16 @@ The robot's mass matrix and gravity's torques (PyBullet's, from the URDF, as the
 and the emulated rig use) are those of the measured pose, where the robot is: a joint far from its
 model then does not load its neighbours' twins as if the arm were where the model would have it.
 They are kept until the pose has moved :data:`DYNAMICS_TOLERANCE`.
+
+Why every 10 ms. The twin predicts a reading each :data:`PREDICTION_PERIOD_S`: every reading of a
+100 Hz rig loop, every fifth of the 500 Hz sim's, the goals sent in between averaged over the time
+each was in force. Its detector then meets residuals at one rate on every backend, so a σ and a
+threshold measured on the rig mean the same in the sim (readings 2 ms apart are not five times the
+evidence of one: the residual hardly changes between them). A model without dry friction is stepped
+once a prediction, the position loop's proportional torque taken at the step's mid-point (its
+stiffness half implicit, beside the motor's fully implicit damping): on clean logs of the emulated
+rig and the sim its residuals are those of the firmware's 1 kHz. Dry friction's smoothed law is too
+stiff through zero speed for such a step, so a model with it steps at the firmware's 1 kHz.
 """
 
 from __future__ import annotations
@@ -34,7 +44,7 @@ from drivers.servo.joints import joint_damping, step_joints
 from drivers.servo.model import FIRMWARE_PERIOD_S, ServoArray
 from drivers.servo.plant import PyBulletPlant
 
-__all__ = ["CORRECTION_S", "DYNAMICS_TOLERANCE", "ServoTwin", "TwinSetup"]
+__all__ = ["CORRECTION_S", "DYNAMICS_TOLERANCE", "PREDICTION_PERIOD_S", "ServoTwin", "TwinSetup"]
 
 #: How far the pose moves (Euclidean over the joints, rad and m) before the twin asks PyBullet for
 #: the mass matrix and gravity again: the load moves by about that fraction of the links' weight.
@@ -42,6 +52,8 @@ DYNAMICS_TOLERANCE = 2e-3
 #: The time constant (s) of the twin's correction towards the readings: long beside a servo's
 #: response to a disturbance (tens of ms), short beside the model's drift.
 CORRECTION_S = 0.3
+#: The twin predicts a reading at most this often (s); see the module's docstring.
+PREDICTION_PERIOD_S = 0.01
 
 
 @dataclass(frozen=True)
@@ -61,34 +73,42 @@ class ServoTwin:
     """The servo model of every joint, stepped beside the trial and corrected by its readings.
 
     :meth:`start` at the first reading; then :meth:`advance` at each reading after it, with the
-    goal the trial sent at the reading before: the residual (measured minus predicted, joint units).
+    goal the trial sent at the reading before: the residual (measured minus predicted, joint units)
+    at the readings it predicts (:data:`PREDICTION_PERIOD_S` apart), None at the others.
     """
 
-    def __init__(self, setup: TwinSetup, correction_s: float = CORRECTION_S) -> None:
+    def __init__(self, setup: TwinSetup, correction_s: float = CORRECTION_S,
+                 period_s: float = PREDICTION_PERIOD_S) -> None:
         self.setup = setup
         n = len(setup.joint_names)
         self.n = n
         self.params = setup.params
         self.correction_s = float(correction_s)
+        self.period_s = float(period_s)
+        p = setup.params
+        self._has_friction = bool((p.coulomb > 0).any() or (p.stribeck > 0).any() or p.has_load_friction)
+        #: the integrator's step: once a prediction without dry friction, the firmware's sample with it
+        self.step_s = FIRMWARE_PERIOD_S if self._has_friction else self.period_s
         self._ratio = np.asarray(setup.ratio, dtype=float)
         self._offset = np.asarray(setup.offset, dtype=float)
         self._lower, self._upper = np.asarray(setup.lower, float), np.asarray(setup.upper, float)
         self._dynamics = PyBulletPlant(setup.robot_urdf, setup.joint_names, self._ratio, self._offset,
                                        np.clip(np.zeros(n), self._lower, self._upper), setup.params)
         self._servos = ServoArray(setup.params)
-        self._loop = PositionLoop(self._servos, FIRMWARE_PERIOD_S, self._ratio, self._offset)
+        self._loop = PositionLoop(self._servos, self.step_s, self._ratio, self._offset)
         if not self._loop.fused:
             raise ValueError("the twin models the position loop without a profile, deadband or "
                              "current-based mode; a servo of this model has one")
-        p = setup.params
         damping = joint_damping(p, self._ratio)
         self._inv_ratio = 1.0 / self._ratio
         self._abs_inv_ratio = np.abs(self._inv_ratio)
         self._viscous = damping.viscous
         self._has_viscous = bool(self._viscous.any())
-        # the armature, and the back-EMF's and viscous damping stepped implicitly, on each joint's inertia
-        self._implicit = damping.implicit(FIRMWARE_PERIOD_S)
-        self._has_friction = bool((p.coulomb > 0).any() or (p.stribeck > 0).any() or p.has_load_friction)
+        # the armature, and the back-EMF's and viscous damping stepped implicitly, on each joint's
+        # inertia; the loop's derivative gain as a damping too, its proportional one at mid-step
+        gain, derivative = self._loop.joint_gains()
+        self._implicit = damping.implicit(self.step_s) + self.step_s * derivative
+        self._midstep = 0.5 * self.step_s * gain  # N·m·s/rad: the P torque's change over half a step's travel
         self._pose: np.ndarray | None = None
         self._bias = np.zeros(n)
         self.q = np.zeros(n)
@@ -113,26 +133,39 @@ class ServoTwin:
         self.q, self.qd = np.asarray(q, dtype=float).copy(), np.asarray(qd, dtype=float).copy()
         self._reading, self._speed = self.q, self.qd
         self._acceleration = np.zeros(self.n)
+        self._elapsed, self._behind = 0.0, 0.0
+        self._goal_area = np.zeros(self.n)
         self._load(self.q)
         shafts = (self.q - self._offset) / self._ratio
         self._servos.hold(shafts, self._bias * self._ratio)
         self._servos.has_prev[:] = True
         self._loop.refresh()
 
-    def advance(self, goal: np.ndarray, q: np.ndarray, qd: np.ndarray, interval_s: float) -> np.ndarray:
-        """Step the model over ``interval_s`` under ``goal`` (joint values, as sent), compare with the
-        reading ``q``, ``qd`` that ends the interval, and correct towards it: the residual."""
-        samples = max(1, int(round(interval_s / FIRMWARE_PERIOD_S)))
-        loop, dt = self._loop, FIRMWARE_PERIOD_S
+    def advance(self, goal: np.ndarray, q: np.ndarray, qd: np.ndarray, interval_s: float) -> np.ndarray | None:
+        """The interval ``interval_s`` that ends at reading ``q``, ``qd``, under ``goal`` (joint values,
+        as sent at the reading before): the residual (measured minus predicted) when a prediction is
+        due, the twin then corrected towards the reading; None between predictions."""
+        self._elapsed += interval_s
+        self._goal_area += goal * interval_s
+        if self._elapsed < self.period_s - 0.5 * interval_s:
+            return None
+        elapsed, goal = self._elapsed, self._goal_area / self._elapsed  # the goals as they were in force
+        self._elapsed = 0.0
+        self._goal_area = np.zeros(self.n)
+        span = elapsed + self._behind  # the twin's state lags the reading by this (leads: below 0)
+        samples = int(round(span / self.step_s))
+        self._behind = span - samples * self.step_s
+        loop, dt = self._loop, self.step_s
         loop.set_goal((goal - self._offset) * self._inv_ratio)
         x, xd = self.q, self.qd
         self._load(self._reading)  # the load where the robot is, not where the twin is
         # each joint feels its neighbours as they were measured moving, not as their models would
         load = self._bias + self._coupling @ self._acceleration
-        matrix = self._diagonal
         for _ in range(samples):
             torque = loop.step_joint(x, xd)
-            rhs = torque - load
+            midstep = self._midstep * loop.unsaturated()
+            matrix = self._diagonal + dt * midstep
+            rhs = torque - load - midstep * xd
             if self._has_viscous:
                 rhs -= self._viscous * xd
             dry = speed = None
@@ -141,10 +174,10 @@ class ServoTwin:
                 dry = (friction_level(self.params, speed, torque * self._ratio, -load * self._ratio)
                        * self._abs_inv_ratio)
             x, xd = step_joints(x, xd, dt, rhs, matrix, dry, "smooth", speed, self._lower, self._upper)
-        residual = q - x
-        self._acceleration = (qd - self._speed) * (1.0 / max(interval_s, 1e-6))
+        residual = q - (x + xd * self._behind)  # the prediction carried to the reading's time
+        self._acceleration = (qd - self._speed) * (1.0 / max(elapsed, 1e-6))
         self._reading, self._speed = q, qd  # readings are the backend's, never changed after
-        gain = min(1.0, interval_s / self.correction_s)
+        gain = min(1.0, elapsed / self.correction_s)
         self.q = x + gain * residual
         self.qd = xd + gain * (qd - xd)
         return residual

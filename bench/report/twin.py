@@ -35,7 +35,8 @@ def plot_twin(log: TrialLog, summary: dict, path: Path) -> Path:
     alarms = summary.get("alarms") or []
     for ax, j in zip(axes.flat, watched):
         name = log.joint_names[j]
-        ax.plot(t, z[:, j], **RESIDUAL_STYLE)
+        predicted = np.isfinite(z[:, j])  # the readings the twin predicted
+        ax.plot(t[predicted], z[predicted, j], **RESIDUAL_STYLE)
         ax.plot(t, scores[:, j], **SCORE_STYLE)
         ax.axhline(params.threshold, **THRESHOLD_STYLE)
         for a in alarms:

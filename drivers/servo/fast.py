@@ -69,6 +69,20 @@ class PositionLoop:
         self._joint_tick, self._joint_zero = self._transmission.tick, self._transmission.zero
         self._joint_kt = self._transmission.kt
 
+    def joint_gains(self) -> tuple[np.ndarray, np.ndarray]:
+        """The loop's proportional and derivative gains as torques at the joints, per joint value
+        (N·m/rad or N/m) and per joint speed (N·m·s/rad or N·s/m), the PWM and current unsaturated:
+        what an integrator stepping the loop coarser than the firmware takes implicitly."""
+        volts = np.maximum(self.servos.supply, 1e-6) / self.servos._pwm_full
+        per_tick = np.abs(self._joint_kt * self._joint_tick) * volts / self._resistance  # 1/ratio²: sign-free
+        return per_tick * self._kp, per_tick * self._kd * self.dt
+
+    def unsaturated(self) -> np.ndarray:
+        """Per slot, whether the last sample's PWM and current were inside their limits (where
+        :meth:`joint_gains` hold)."""
+        s = self.servos
+        return (np.abs(s.pwm) < self._cap) & (np.abs(s.current) < self._ilim)
+
     def set_goal(self, goal: np.ndarray) -> None:
         """New goal positions (rad), in ticks as the bus writes them: with no profile the
         trajectory is the goal at the next sample."""
