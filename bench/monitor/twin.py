@@ -8,8 +8,8 @@ the trial sent, from its own state, and predicts the next reading.
 Why an observer. A free-running copy drifts from the robot by every small error of its model, and
 after a few seconds its residual says more about that drift than about the joint. A copy restarted
 from every reading (a one-step predictor) cannot drift, but it cannot see a slow fault either: a
-contact of 0.3 N·m moves a joint by a fortieth of an encoder tick in 2 ms, under the encoder's own
-noise. So the twin is corrected towards each reading with a time constant (:data:`CORRECTION_S`):
+contact of 0.3 N·m moves a wrist joint by under an encoder tick in 10 ms, within the encoder's own
+rounding. So the twin is corrected towards each reading with a time constant (:data:`CORRECTION_S`):
 a joint that sags six ticks within 50 ms under a contact its model does not know leaves a residual
 of six ticks, which the correction takes up over a few tenths of a second, while the model's own
 slow drift never builds up. The firmware's integrator is the twin's own, charged by its errors.
