@@ -83,12 +83,11 @@ def main() -> None:
         peaks.append(_peak(r))
         alarms += len(r["monitor"]["alarms"])
     ratio = statistics.median(watched) / statistics.median(plain)
-    # a model with dry friction (the worn rig's, identified), on the sim it describes: stepped at 1 kHz
-    worn_sim = IDENTIFIED_SIM  # its servo model: the worn rig's
+    # a model with dry friction (the worn rig's, identified), on the sim it describes (its servo model): 1 kHz
     worn_plain, worn_watched = [], []
     for _ in range(args.repeats):
-        worn_plain.append(_trial(worn_sim)["loop_timing"]["wall_s"])
-        r = _trial(worn_sim, "--monitor", str(WORN_MODEL))
+        worn_plain.append(_trial(IDENTIFIED_SIM)["loop_timing"]["wall_s"])
+        r = _trial(IDENTIFIED_SIM, "--monitor", str(WORN_MODEL))
         worn_watched.append(r["loop_timing"]["wall_s"])
         alarms += len(r["monitor"]["alarms"])
     worn_ratio = statistics.median(worn_watched) / statistics.median(worn_plain)

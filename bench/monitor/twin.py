@@ -86,7 +86,7 @@ class ServoTwin:
         self.correction_s = float(correction_s)
         self.period_s = float(period_s)
         p = setup.params
-        self._has_friction = bool((p.coulomb > 0).any() or (p.stribeck > 0).any() or p.has_load_friction)
+        self._has_friction = p.has_dry_friction
         #: the integrator's step: once a prediction without dry friction, the firmware's sample with it
         self.step_s = FIRMWARE_PERIOD_S if self._has_friction else self.period_s
         self._ratio = np.asarray(setup.ratio, dtype=float)
@@ -151,7 +151,7 @@ class ServoTwin:
             return None
         elapsed, goal = self._elapsed, self._goal_area / self._elapsed  # the goals as they were in force
         self._elapsed = 0.0
-        self._goal_area = np.zeros(self.n)
+        self._goal_area.fill(0.0)
         span = elapsed + self._behind  # the twin's state lags the reading by this (leads: below 0)
         samples = int(round(span / self.step_s))
         self._behind = span - samples * self.step_s

@@ -73,8 +73,7 @@ class PositionLoop:
         """The loop's proportional and derivative gains as torques at the joints, per joint value
         (N·m/rad or N/m) and per joint speed (N·m·s/rad or N·s/m), the PWM and current unsaturated:
         what an integrator stepping the loop coarser than the firmware takes implicitly."""
-        volts = np.maximum(self.servos.supply, 1e-6) / self.servos._pwm_full
-        per_tick = np.abs(self._joint_kt * self._joint_tick) * volts / self._resistance  # 1/ratio²: sign-free
+        per_tick = np.abs(self._joint_kt * self._joint_tick) * self._volts / self._resistance  # 1/ratio²: sign-free
         return per_tick * self._kp, per_tick * self._kd * self.dt
 
     def unsaturated(self) -> np.ndarray:

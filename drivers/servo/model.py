@@ -111,6 +111,11 @@ class ServoParams:
         return any(bool(np.any(getattr(self, f) != 0.0)) for f in LOAD_FRICTION_FIELDS)
 
     @cached_property
+    def has_dry_friction(self) -> bool:
+        """Whether any joint's gearbox has dry friction (Coulomb, a Stribeck peak, load-dependent)."""
+        return bool((self.coulomb > 0).any() or (self.stribeck > 0).any() or self.has_load_friction)
+
+    @cached_property
     def _friction_terms(self) -> tuple[bool, bool, bool, bool]:
         """Which terms of :func:`~drivers.servo.friction.friction_level` any joint has: Stribeck peak,
         load, load at rest, quadratic (worked out once: the friction is evaluated every step)."""

@@ -122,8 +122,7 @@ class PyBulletPlant:
         friction implicit, in the matrix, which is factored again at the next step)."""
         self.servos = servos
         damping = joint_damping(servos, self._ratio)
-        self._has_friction = bool((servos.coulomb > 0).any() or (servos.stribeck > 0).any()
-                                  or servos.has_load_friction)
+        self._has_friction = servos.has_dry_friction
         self._joint_friction = joint_friction
         self._viscous = damping.viscous
         self._implicit = damping.implicit(self._dt)
