@@ -69,26 +69,25 @@ def test_a_clean_servo_sim_trial_raises_no_alarm_and_says_what_it_watched(tmp_pa
     assert "monitor (datasheet, warn): no alarm on 8 joints" in text.stdout
 
 
-def test_the_twin_predicts_every_10_ms_a_frictionless_model_in_one_step_and_dry_friction_at_1_khz():
+def test_the_twin_predicts_every_10_ms_in_one_step_with_or_without_dry_friction():
     """The twin predicts a reading each 10 ms whatever the loop's rate, the goals between averaged
-    over the time each was in force; a model without dry friction is stepped once a prediction (the
-    loop's P torque at mid-step), one with it at the firmware's sample. Held still at its start pose
-    under its start goal, either predicts the hold within a tick."""
+    over the time each was in force, in one step of its model (the loop's P torque at mid-step, dry
+    friction at the step's end speed). Held still at its start pose under its start goal, a model
+    with or without dry friction predicts the hold within a tick."""
     from dataclasses import replace
 
     from bench.config.models import load_trial_config
     from bench.config.monitor import MonitorConfig
     from bench.monitor.twin import ServoTwin
     from bench.trial.plan import prepare
-    from drivers.servo.model import FIRMWARE_PERIOD_S
 
     config = load_trial_config(SERVO_SIM).model_copy(update={"monitor": MonitorConfig()})
     setup = prepare(config).monitor.twin
     dry = replace(setup.params, coulomb=np.full(len(setup.joint_names), 0.2))
     tick = 2 * np.pi / 4096 * np.abs(setup.ratio)
-    for params, step in ((setup.params, 0.01), (dry, FIRMWARE_PERIOD_S)):
+    for params in (setup.params, dry):
         twin = ServoTwin(replace(setup, params=params))
-        assert twin.step_s == step
+        assert twin.step_s == 0.01
         q = np.clip(np.zeros(len(setup.joint_names)), setup.lower, setup.upper)
         still = np.zeros_like(q)
         twin.start(q, still)

@@ -38,6 +38,7 @@ class MonitorSetup:
     monitored: np.ndarray
     model: str
     action: str
+    loop_period_s: Optional[float] = None  #: the trial's control period, when the readings are due
 
 
 def default_sigma(ratio, kinds) -> np.ndarray:
@@ -76,10 +77,10 @@ def monitor_setup(config: TrialConfig, robot) -> Optional[MonitorSetup]:
     twin = TwinSetup(str(config.robot_urdf), names, params, ratio,
                      np.array([table[n].offset for n in names], dtype=float),
                      robot.chain.lower, robot.chain.upper)
-    return MonitorSetup(twin, sigma, monitored, m.model, m.action)
+    return MonitorSetup(twin, sigma, monitored, m.model, m.action, config.control_period)
 
 
 def build_monitor(setup: MonitorSetup, log=None) -> TwinMonitor:
     """A fresh monitor for one run (its alarms logged in ``log``)."""
     return TwinMonitor(ServoTwin(setup.twin), setup.twin.joint_names, setup.sigma, setup.monitored,
-                       setup.model, setup.action, log=log)
+                       setup.model, setup.action, log=log, loop_period_s=setup.loop_period_s)

@@ -2,7 +2,7 @@
 
 Each reading the twin (:mod:`bench.monitor.twin`) predicts, every 10 ms, ends the interval it
 stepped under the goals sent since; its residual over σ (the spread the model leaves on clean
-trials) feeds the per-joint CUSUM (:mod:`bench.monitor.detector`). The log holds it beside that
+trials; with the twin's timing spread in quadrature where the loop ran late) feeds the per-joint CUSUM (:mod:`bench.monitor.detector`). The log holds it beside that
 reading, NaN beside the readings between. An alarm names the joint, the time on the trial's
 clock (seconds since its first reading, the clock of a fault's ``from_s``) and the score. With
 ``action: warn`` it is logged as a ``monitor`` event and the trial goes on; with ``action: stop`` it
@@ -52,6 +52,7 @@ class TwinMonitor:
     action: str = "warn"
     cusum: CusumParams = DEFAULT_CUSUM
     log: Optional[object] = None  #: the trial's log, for the alarms' events
+    loop_period_s: Optional[float] = None  #: the period the readings are due at (the twin's timing spread)
     name: str = "monitor"
     alarms: list[Alarm] = field(default_factory=list)
 
@@ -60,6 +61,7 @@ class TwinMonitor:
         inverse = 1.0 / np.asarray(self.sigma, dtype=float)
         self._scale = np.where(self.monitored, inverse, 0.0)  # the detector's: an unwatched joint's z is 0
         self._shown = np.where(self.monitored, inverse, np.nan)  # the log's: NaN where not watched
+        self._variance = np.asarray(self.sigma, dtype=float) ** 2
         self._unpredicted = np.full(len(self.joint_names), np.nan)  # the log's row where the twin predicted nothing
         self._t0: Optional[float] = None
         self._last: Optional[tuple[float, np.ndarray]] = None  # (time, goal) of the previous cycle
@@ -80,7 +82,7 @@ class TwinMonitor:
         trip = None
         if self._last is None:
             self._t0 = t
-            self.twin.start(position, velocity)
+            self.twin.start(position, velocity, self.loop_period_s)
             self._pending.append(self._unpredicted)
         else:
             t_prev, goal = self._last
@@ -88,6 +90,9 @@ class TwinMonitor:
             if residual is None:  # a reading between the twin's predictions
                 self._pending.append(self._unpredicted)
             else:
+                timing = self.twin.timing
+                if timing is not None:  # a late loop: σ and the timing spread in quadrature
+                    residual = residual * np.sqrt(self._variance / (self._variance + timing * timing))
                 self._pending.append(residual * self._shown)
                 hit = self._detector.update(residual * self._scale)
                 if hit.size:

@@ -23,11 +23,20 @@ Why every 10 ms. The twin predicts a reading each :data:`PREDICTION_PERIOD_S`: e
 100 Hz rig loop, every fifth of the 500 Hz sim's, the goals sent in between averaged over the time
 each was in force. Its detector then meets residuals at one rate on every backend, so a σ and a
 threshold measured on the rig mean the same in the sim (readings 2 ms apart are not five times the
-evidence of one: the residual hardly changes between them). A model without dry friction is stepped
-once a prediction, the position loop's proportional torque taken at the step's mid-point (its
-stiffness half implicit, beside the motor's fully implicit damping): on clean logs of the emulated
-rig and the sim its residuals are those of the firmware's 1 kHz. Dry friction's smoothed law is too
-stiff through zero speed for such a step, so a model with it steps at the firmware's 1 kHz.
+evidence of one: the residual hardly changes between them). The model is stepped once a prediction:
+the position loop's proportional torque taken at the step's mid-point (its stiffness half implicit,
+beside the motor's fully implicit damping), and dry friction by its smoothed law at the speed the
+step ends with (:func:`drivers.servo.friction.implicit_smooth_speed`: taken at the step's start, a
+law that stiff through zero speed would chatter at 10 ms). On clean logs of the sim and the
+emulated rig its residuals are those of the twin stepped at the firmware's 1 kHz, within 0.05 tick
+rms, at a fifth of the cost.
+
+Why a timing spread. A rig's loop that runs late (a busy host, a slow bus answer) read its servos
+and wrote their goals at moments its clock stamps only to within the delay, and a joint moving at
+speed v is then known to within v times it. The twin says so: with each prediction,
+:attr:`ServoTwin.timing` is each joint's measured speed times how far the intervals it spans
+strayed from the loop's period, which the monitor adds to σ in quadrature. A loop on time (every
+simulator) has none; a late cycle of a stiff slide at insertion speed no longer reads as a fault.
 """
 
 from __future__ import annotations
@@ -41,7 +50,7 @@ from drivers.servo import ServoParams
 from drivers.servo.fast import PositionLoop
 from drivers.servo.friction import friction_level
 from drivers.servo.joints import joint_damping, step_joints
-from drivers.servo.model import FIRMWARE_PERIOD_S, ServoArray
+from drivers.servo.model import ServoArray
 from drivers.servo.plant import PyBulletPlant
 
 __all__ = ["CORRECTION_S", "DYNAMICS_TOLERANCE", "PREDICTION_PERIOD_S", "ServoTwin", "TwinSetup"]
@@ -87,8 +96,8 @@ class ServoTwin:
         self.period_s = float(period_s)
         p = setup.params
         self._has_friction = p.has_dry_friction
-        #: the integrator's step: once a prediction without dry friction, the firmware's sample with it
-        self.step_s = FIRMWARE_PERIOD_S if self._has_friction else self.period_s
+        #: the integrator's step: one a prediction (dry friction by the implicit law)
+        self.step_s = self.period_s
         self._ratio = np.asarray(setup.ratio, dtype=float)
         self._offset = np.asarray(setup.offset, dtype=float)
         self._lower, self._upper = np.asarray(setup.lower, float), np.asarray(setup.upper, float)
@@ -110,6 +119,10 @@ class ServoTwin:
         self._implicit = damping.implicit(self.step_s) + self.step_s * derivative
         self._midstep = 0.5 * self.step_s * gain  # N·m·s/rad: the P torque's change over half a step's travel
         self._pose: np.ndarray | None = None
+        self._loop_period: float | None = None
+        self._stray = 0.0
+        #: per joint, the timing spread of the last prediction (joint units; None: the loop was on time)
+        self.timing: np.ndarray | None = None
         self._bias = np.zeros(n)
         self.q = np.zeros(n)
         self.qd = np.zeros(n)
@@ -128,9 +141,11 @@ class ServoTwin:
         self._coupling = M - np.diag(np.diag(M))
         self._bias, self._pose = h, q.copy()
 
-    def start(self, q: np.ndarray, qd: np.ndarray) -> None:
-        """At the first reading: the servos holding pose ``q`` against gravity, as a trial starts."""
+    def start(self, q: np.ndarray, qd: np.ndarray, loop_period_s: float | None = None) -> None:
+        """At the first reading: the servos holding pose ``q`` against gravity, as a trial starts;
+        ``loop_period_s``, the period the readings are due at (None: no timing spread)."""
         self.q, self.qd = np.asarray(q, dtype=float).copy(), np.asarray(qd, dtype=float).copy()
+        self._loop_period, self._stray, self.timing = loop_period_s, 0.0, None
         self._reading, self._speed = self.q, self.qd
         self._acceleration = np.zeros(self.n)
         self._elapsed, self._behind = 0.0, 0.0
@@ -147,6 +162,8 @@ class ServoTwin:
         due, the twin then corrected towards the reading; None between predictions."""
         self._elapsed += interval_s
         self._goal_area += goal * interval_s
+        if self._loop_period is not None:  # how far the loop strayed from its period
+            self._stray += abs(interval_s - self._loop_period)
         if self._elapsed < self.period_s - 0.5 * interval_s:
             return None
         elapsed, goal = self._elapsed, self._goal_area / self._elapsed  # the goals as they were in force
@@ -173,8 +190,14 @@ class ServoTwin:
                 speed = xd * self._abs_inv_ratio
                 dry = (friction_level(self.params, speed, torque * self._ratio, -load * self._ratio)
                        * self._abs_inv_ratio)
-            x, xd = step_joints(x, xd, dt, rhs, matrix, dry, "smooth", speed, self._lower, self._upper)
+            x, xd = step_joints(x, xd, dt, rhs, matrix, dry, "implicit", speed, self._lower, self._upper,
+                                self._abs_inv_ratio)
         residual = q - (x + xd * self._behind)  # the prediction carried to the reading's time
+        if self._stray > 1e-4:  # the goals' and the reading's moments known to within the stray
+            self.timing = np.maximum(np.abs(qd), np.abs(self._speed)) * self._stray
+        else:
+            self.timing = None
+        self._stray = 0.0
         self._acceleration = (qd - self._speed) * (1.0 / max(elapsed, 1e-6))
         self._reading, self._speed = q, qd  # readings are the backend's, never changed after
         gain = min(1.0, elapsed / self.correction_s)

@@ -1,11 +1,14 @@
 """Every friction law of the servo core, written once: the gearbox's dry friction level (Coulomb,
 the Stribeck curve with its exponent, the load-dependent gear friction of BAM's m3–m6) and the
-two ways an integrator applies a dry level, by name:
+three ways an integrator applies a dry level, by name:
 
 - ``"smooth"``: ``level·tanh(ω/ω_ε)``, what a stiff integrator over a full mass matrix applies
   (the robot's plant, identification's rollout);
 - ``"stick"``: the exact stick-slip force that stops the joint within a step and never exceeds the
-  level, for a diagonal mass matrix (the stand's pendulum, BAM's simulator, the bus's inertias).
+  level, for a diagonal mass matrix (the stand's pendulum, BAM's simulator, the bus's inertias);
+- ``"implicit"``: the smooth law at the speed the step ends with (backward Euler through zero
+  speed, :func:`implicit_smooth_speed`), for a diagonal mass matrix stepped far coarser than the
+  firmware (the twin's 10 ms), where the smooth law taken at the step's start would chatter.
 
 Viscous friction is linear and sits in the integrator's implicit damping, not here. Nothing
 outside this module evaluates a friction law (``tests/test_servo_core.py`` scans for one).
@@ -18,13 +21,16 @@ from typing import Literal, Protocol
 import numpy as np
 
 __all__ = ["FRICTION_SMOOTHING_RAD_S", "FrictionParams", "FrictionLaw", "friction_level", "friction_torque",
-           "regressors", "smooth_friction", "stopping_friction", "stribeck_fade"]
+           "implicit_smooth_speed", "regressors", "smooth_friction", "stopping_friction", "stribeck_fade"]
 
 #: Velocity below which Coulomb friction is smoothed (rad/s): tanh(ω/ω_ε), as the plant integrates it.
 FRICTION_SMOOTHING_RAD_S = 1e-3
 
 #: How an integrator applies a dry friction level (see the module's docstring).
-FrictionLaw = Literal["smooth", "stick"]
+FrictionLaw = Literal["smooth", "stick", "implicit"]
+#: Newton steps of :func:`implicit_smooth_speed`: each brings the smoothed speed within a fraction
+#: of ω_ε, far below what moves a joint an encoder tick in a step.
+IMPLICIT_NEWTON_STEPS = 3
 
 
 class FrictionParams(Protocol):
@@ -108,3 +114,26 @@ def stopping_friction(level: np.ndarray, viscous: np.ndarray, omega: np.ndarray,
     A shaft held by friction stays put (stick) instead of chattering through zero speed."""
     budget = level + viscous * np.abs(omega)
     return -np.sign(tau_stop) * np.minimum(np.abs(tau_stop), budget)
+
+
+def implicit_smooth_speed(inertia: np.ndarray, momentum: np.ndarray, level: np.ndarray,
+                          scale: np.ndarray) -> np.ndarray:
+    """The joint speeds ``v`` that solve ``inertia·v + level·tanh(scale·v / ω_ε) = momentum``, per
+    joint: the ``"implicit"`` law's step (``momentum`` = A·q̇ + dt·rhs, ``level`` = dt × the dry
+    level at the joint, ``scale`` the shaft's speed per joint speed, |1/ratio|).
+
+    The left side grows with ``v``, so there is one root; in ``s = scale·v/ω_ε`` it is concave for
+    s > 0, and Newton's steps from a point right of the root (the root without friction, or the
+    creep speed where the inertia is negligible) land left of it and climb to it without passing it."""
+    k = scale / FRICTION_SMOOTHING_RAD_S
+    a = inertia / k
+    b = np.abs(momentum)
+    e = np.maximum(level, 1e-300)
+    s = b / a
+    creep = b < e
+    if creep.any():  # held by friction: no faster than the smoothed law's own creep
+        s = np.where(creep, np.minimum(s, np.arctanh(np.minimum(b / e, 1.0 - 1e-12))), s)
+    for _ in range(IMPLICIT_NEWTON_STEPS):
+        t = np.tanh(s)
+        s = s - (a * s + e * t - b) / (a + e * (1.0 - t * t))
+    return np.copysign(s, momentum) / k

@@ -20,7 +20,7 @@ from typing import Callable, NamedTuple, Union
 
 import numpy as np
 
-from drivers.servo.friction import FrictionLaw, smooth_friction, stopping_friction
+from drivers.servo.friction import FrictionLaw, implicit_smooth_speed, smooth_friction, stopping_friction
 
 __all__ = ["JointDamping", "JointMatrix", "joint_damping", "step_joints"]
 
@@ -52,17 +52,22 @@ def joint_damping(params, ratio=1.0) -> JointDamping:
 
 def step_joints(q: np.ndarray, qd: np.ndarray, dt: float, rhs: np.ndarray, matrix: JointMatrix,
                 dry: np.ndarray | None = None, law: FrictionLaw = "smooth", speed: np.ndarray | None = None,
-                lower: np.ndarray | None = None, upper: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+                lower: np.ndarray | None = None, upper: np.ndarray | None = None,
+                shaft_scale: np.ndarray | float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """The joints' positions and velocities one step of ``dt`` on (new arrays; the inputs are left
     as they were).
 
     ``dry``: the dry friction level at each joint (≥ 0; None: none), applied by ``law``:
     ``"smooth"`` over ``speed`` (the shaft's speed the level is smoothed over; q̇ when None), or
-    ``"stick"``, the force that stops the joint within the step (A diagonal only). ``lower`` and
-    ``upper``: hard stops, where a joint stops dead."""
+    ``"stick"``, the force that stops the joint within the step (A diagonal only), or ``"implicit"``,
+    the smooth law at the step's end speed (A diagonal only; ``shaft_scale``: the shaft's speed per
+    joint speed). ``lower`` and ``upper``: hard stops, where a joint stops dead."""
     diagonal = isinstance(matrix, np.ndarray)
-    if dry is not None:
+    if dry is not None and law == "implicit":
+        if not diagonal:
+            raise ValueError("implicit friction needs a diagonal mass matrix")
+        qd_new = implicit_smooth_speed(matrix, matrix * qd + dt * rhs, dt * dry, shaft_scale)
+    elif dry is not None:
         if law == "smooth":
             rhs = rhs - smooth_friction(dry, qd if speed is None else speed)
         elif law == "stick":
@@ -71,7 +76,9 @@ def step_joints(q: np.ndarray, qd: np.ndarray, dt: float, rhs: np.ndarray, matri
             rhs = rhs + stopping_friction(dry, 0.0, qd, matrix / dt * qd + rhs)
         else:
             raise ValueError(f"unknown friction law {law!r}")
-    qd_new = qd + dt * (rhs / matrix if diagonal else matrix(rhs))
+        qd_new = qd + dt * (rhs / matrix if diagonal else matrix(rhs))
+    else:
+        qd_new = qd + dt * (rhs / matrix if diagonal else matrix(rhs))
     q_new = q + dt * qd_new
     if lower is not None and _largest(np.maximum(lower - q_new, q_new - upper), axis=None) > 0.0:
         stop = (q_new < lower) | (q_new > upper)
