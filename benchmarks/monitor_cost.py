@@ -3,7 +3,7 @@
 The trial is Target 1 on the servo-model sim (``hil_configs/sim_target1_servo.yaml``, 500 Hz, the
 interlocks on), as configured, run ``--repeats`` times plain and, interleaved, with ``--monitor
 datasheet``: the loop's wall time of each (median and best), and their ratio; the same for the worn
-rig's identified model (dry friction, so its twin steps at 1 kHz) on the sim it describes. Then, from the same
+rig's identified model (dry friction, stepped by its implicit law) on the sim it describes. Then, from the same
 monitored logs and from ``--rig-repeats`` emulated-rig trials (``hil_configs/lab_real.yaml
 --emulate --monitor datasheet``, 100 Hz on the wall clock), the highest the detector's sum rose on
 any watched joint of a clean trial, against the alarm threshold; and a weak joint (``torque_limit``
@@ -83,7 +83,7 @@ def main() -> None:
         peaks.append(_peak(r))
         alarms += len(r["monitor"]["alarms"])
     ratio = statistics.median(watched) / statistics.median(plain)
-    # a model with dry friction (the worn rig's, identified), on the sim it describes (its servo model): 1 kHz
+    # a model with dry friction (the worn rig's, identified), on the sim it describes (its servo model)
     worn_plain, worn_watched = [], []
     for _ in range(args.repeats):
         worn_plain.append(_trial(IDENTIFIED_SIM)["loop_timing"]["wall_s"])

@@ -99,6 +99,51 @@ def test_the_twin_predicts_every_10_ms_in_one_step_with_or_without_dry_friction(
         twin.close()
 
 
+def test_a_block_scanned_whole_is_its_rows_checked_one_by_one_and_a_trip_ends_it_there(tmp_path):
+    """The sim hands the monitor blocks of readings, the rig one reading a cycle: the twin takes a
+    block's rows between predictions at once, and must say what row-by-row checks say (the same
+    alarms at the same rows, the same residuals to rounding), on a trial whose readings come at an
+    uneven 100 Hz (a late loop's timing spread too). With the stop action a trip ends the block at its
+    row: nothing after it is the monitor's."""
+    from bench.config.models import load_trial_config
+    from bench.monitor.build import build_monitor
+    from bench.trial.plan import prepare
+    from bench.trial.record import load_record
+    from drivers import JointState
+
+    cfg = _config(tmp_path, name="blocks", monitor={"model": "datasheet", "action": "warn"},
+                  faults=[{"name": "contact", "joints": ["theta6"], "torque_nm": 0.3, "from_s": 2.0}])
+    out = json.loads(_run("trial", str(cfg), "--json", "--out", str(tmp_path / "r")).stdout)
+    log, _ = load_record(Path(out["run_dir"]))
+    rng = np.random.default_rng(0)
+    every = slice(None, None, 5)  # the sim's 500 Hz read as a 100 Hz loop's, a few cycles late
+    time = log.time[every] + np.where(rng.random(len(log.time[every])) < 0.1, rng.uniform(0, 0.008), 0.0)
+    rows = (time, log.q[every], log.qd[every], log.effort[every], log.q_cmd[every])  # as scan takes them
+    for action in ("warn", "stop"):
+        setup = prepare(load_trial_config(cfg)).monitor
+        setup = type(setup)(setup.twin, setup.sigma, setup.monitored, setup.model, action, 0.01)
+        one, block = build_monitor(setup), build_monitor(setup)
+        seen = []
+        for k in range(len(time)):
+            trip = one.check(time[k], JointState(time[k], rows[1][k], rows[2][k], rows[3][k]), rows[4][k])
+            if trip is not None:
+                seen.append(k)
+                break
+        found = None
+        for b0 in range(0, len(time), 64):
+            hit = block.scan(*(r[b0:b0 + 64] for r in rows))
+            if hit is not None:
+                found = b0 + hit[0]
+                break
+        assert [a.as_dict() for a in block.alarms] == [a.as_dict() for a in one.alarms] and one.alarms
+        assert block._cycles == one._cycles and len(block._pending) == len(one._pending)
+        assert np.allclose(np.array(block._pending, float), np.array(one._pending, float), atol=1e-9, equal_nan=True)
+        if action == "stop":
+            assert seen == [found] and one.alarms[0].joint == "theta6"
+        one.close()
+        block.close()
+
+
 def test_a_weak_joint_is_named_and_the_stop_action_takes_the_safe_stop(tmp_path):
     """theta4 with a third of its torque lags its model: the monitor names it, and with action
     stop the trial stops there, its actuators holding, the reason in the result."""

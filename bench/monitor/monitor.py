@@ -90,16 +90,18 @@ class TwinMonitor:
             if residual is None:  # a reading between the twin's predictions
                 self._pending.append(self._unpredicted)
             else:
-                timing = self.twin.timing
-                if timing is not None:  # a late loop: σ and the timing spread in quadrature
-                    residual = residual * np.sqrt(self._variance / (self._variance + timing * timing))
-                self._pending.append(residual * self._shown)
-                hit = self._detector.update(residual * self._scale)
-                if hit.size:
-                    trip = self._alarm(t, hit)
+                trip = self._judge(t, residual, self.twin.timing)
         self._last = (t, commanded)  # the runner's own row of the plan, never changed after
         self._cycles += 1
         return trip
+
+    def _judge(self, t: float, residual: np.ndarray, timing: Optional[np.ndarray]) -> Optional[Trip]:
+        """A prediction's residual over σ into the log and the detector; a trip when it must stop."""
+        if timing is not None:  # a late loop: σ and the timing spread in quadrature
+            residual = residual * np.sqrt(self._variance / (self._variance + timing * timing))
+        self._pending.append(residual * self._shown)
+        hit = self._detector.update(residual * self._scale)
+        return self._alarm(t, hit) if hit.size else None
 
     def logged(self) -> None:
         """Put the residuals of the cycles now in the log beside them (the runner calls this once a
@@ -129,11 +131,34 @@ class TwinMonitor:
 
     def scan(self, times: np.ndarray, position: np.ndarray, velocity: np.ndarray, effort: np.ndarray,
              commanded: np.ndarray, rows: Optional[int] = None) -> Optional[tuple[int, Trip]]:
-        """Every row of a block in order (the first ``rows`` of them), as :meth:`check` would."""
-        for i in range(len(times) if rows is None else rows):
-            trip = self._step(float(times[i]), position[i], velocity[i], commanded[i])
-            if trip is not None:
-                return i, trip
+        """Every row of a block in order (the first ``rows`` of them), as :meth:`check` would: the
+        twin takes the rows between its predictions at once (:meth:`ServoTwin.advance_rows`)."""
+        rows = len(times) if rows is None else rows
+        if rows == 0:
+            return None
+        first = 0
+        if self._last is None:  # the trial's first reading starts the twin
+            self._step(float(times[0]), position[0], velocity[0], commanded[0])
+            first = 1
+        t_prev, goal = self._last
+        stamps = np.asarray(times[first:rows], dtype=float)
+        if not len(stamps):
+            return None
+        intervals = np.diff(stamps, prepend=t_prev)
+        goals = np.concatenate((goal[None, :], commanded[first:rows - 1]))
+        written = first
+        for k, residual, timing in self.twin.advance_rows(goals, position[first:rows], velocity[first:rows], intervals):
+            row = first + k
+            self._pending.extend([self._unpredicted] * (row - written))
+            trip = self._judge(float(times[row]), residual, timing)
+            self._cycles += row - written + 1
+            written = row + 1
+            if trip is not None:  # the trial stops here: the rows after it are never the monitor's
+                self._last = (float(times[row]), commanded[row])
+                return row, trip
+        self._pending.extend([self._unpredicted] * (rows - written))
+        self._cycles += rows - written
+        self._last = (float(times[rows - 1]), commanded[rows - 1])
         return None
 
     def summary(self) -> dict:

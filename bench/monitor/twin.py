@@ -27,9 +27,9 @@ evidence of one: the residual hardly changes between them). The model is stepped
 the position loop's proportional torque taken at the step's mid-point (its stiffness half implicit,
 beside the motor's fully implicit damping), and dry friction by its smoothed law at the speed the
 step ends with (:func:`drivers.servo.friction.implicit_smooth_speed`: taken at the step's start, a
-law that stiff through zero speed would chatter at 10 ms). On clean logs of the sim and the
-emulated rig its residuals are those of the twin stepped at the firmware's 1 kHz, within 0.05 tick
-rms, at a fifth of the cost.
+law that stiff through zero speed would chatter at 10 ms). On clean logs of the worn model's sims
+its residuals were those of the twin stepped at the firmware's 1 kHz, which it replaced, within
+0.05 tick rms (docs/monitor.md), at a fifth of the cost.
 
 Why a timing spread. A rig's loop that runs late (a busy host, a slow bus answer) read its servos
 and wrote their goals at moments its clock stamps only to within the delay, and a joint moving at
@@ -42,7 +42,7 @@ simulator) has none; a late cycle of a stiff slide at insertion speed no longer 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -166,6 +166,41 @@ class ServoTwin:
             self._stray += abs(interval_s - self._loop_period)
         if self._elapsed < self.period_s - 0.5 * interval_s:
             return None
+        return self._predict(q, qd)
+
+    def advance_rows(self, goals: np.ndarray, q: np.ndarray, qd: np.ndarray,
+                     intervals: np.ndarray) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
+        """:meth:`advance` over rows (a block of readings, each row's goal the one sent at the
+        reading before): (row, residual, :attr:`timing`) for each row it predicts. The predictions of
+        row by row (to rounding: the goals are summed in one product); the rows between predictions
+        cost a float's addition each, not an array's. A caller that stops taking them (a trip) leaves
+        the twin at the last row it took."""
+        begin, period = 0, self.period_s
+        elapsed = self._elapsed
+        for k, dt in enumerate(intervals.tolist()):
+            elapsed += dt
+            if elapsed < period - 0.5 * dt:
+                continue
+            self._take(goals[begin:k + 1], intervals[begin:k + 1])
+            self._elapsed = elapsed
+            residual = self._predict(q[k], qd[k])
+            begin, elapsed = k + 1, 0.0
+            yield k, residual, self.timing
+        if begin < len(intervals):
+            self._take(goals[begin:], intervals[begin:])
+        self._elapsed = elapsed
+
+    def _take(self, goals: np.ndarray, intervals: np.ndarray) -> None:
+        """Rows of goals in force for ``intervals`` into the prediction's goal sum (and stray)."""
+        if len(intervals) == 1:
+            self._goal_area += goals[0] * intervals[0]
+        else:
+            self._goal_area += intervals @ goals
+        if self._loop_period is not None:
+            self._stray += float(np.abs(intervals - self._loop_period).sum())
+
+    def _predict(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """The prediction due at reading ``q``, ``qd`` under the goals summed since the last one."""
         elapsed, goal = self._elapsed, self._goal_area / self._elapsed  # the goals as they were in force
         self._elapsed = 0.0
         self._goal_area.fill(0.0)
