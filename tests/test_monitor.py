@@ -144,6 +144,38 @@ def test_a_block_scanned_whole_is_its_rows_checked_one_by_one_and_a_trip_ends_it
         block.close()
 
 
+def test_a_goal_sent_late_is_weighed_in_from_when_it_left():
+    """A paced loop tells the monitor when each cycle's goal left (the runner's ``sent``): over the
+    next interval the twin steps the goal before it until then and the new one after, time-weighted,
+    not the new one from the reading on; a loop that does not tell (the sim's blocks) is as before."""
+    from bench.config.models import load_trial_config
+    from bench.config.monitor import MonitorConfig
+    from bench.monitor.build import build_monitor
+    from bench.monitor.monitor import Watched
+    from bench.trial.plan import prepare
+    from drivers import JointState
+
+    setup = prepare(load_trial_config(SERVO_SIM).model_copy(update={"monitor": MonitorConfig()})).monitor
+    n = len(setup.twin.joint_names)
+    q = np.clip(np.zeros(n), setup.twin.lower, setup.twin.upper)
+    state = JointState(0.0, q, np.zeros(n), np.zeros(n))
+    seen = []
+    for told in (True, False):
+        monitor = build_monitor(setup)
+        advance = monitor.twin.advance
+        monitor.twin.advance = lambda goal, *rest: seen.append((told, goal.copy())) or advance(goal, *rest)
+        watched = Watched(None, monitor)
+        a, b = q.copy(), q + 0.01
+        watched.check(0.0, state, a)  # the first reading: its goal a
+        watched.check(0.002, state, b)  # goal b, sent 0.0005 s after its reading when told
+        if told:
+            watched.sent(0.0025)
+        watched.check(0.004, state, b)
+        monitor.close()
+    told_goal, plain_goal = seen[1][1], seen[3][1]
+    assert np.allclose(plain_goal, b) and np.allclose(told_goal, 0.25 * a + 0.75 * b)
+
+
 def test_a_weak_joint_is_named_and_the_stop_action_takes_the_safe_stop(tmp_path):
     """theta4 with a third of its torque lags its model: the monitor names it, and with action
     stop the trial stops there, its actuators holding, the reason in the result."""

@@ -124,6 +124,8 @@ class Runner:
         self._encoder: Optional[Callable[[], float]] = None  # set per run: the sensed joint's encoder
         # told when a block's rows are in the log, by checks that record beside them (the monitor)
         self._logged: Optional[Callable[[], None]] = getattr(interlocks, "logged", None)
+        #: told when each paced cycle's goal has left (the twin's goals start then, not at the reading)
+        self._sent: Optional[Callable[[float], None]] = getattr(interlocks, "sent", None)
 
     def _cycles(self, seg: Segment) -> int:
         return int(math.ceil((seg.trajectory.duration + seg.settle) / self.dt - 1e-9)) + 1
@@ -196,6 +198,7 @@ class Runner:
         report_every, check = self._report_every, self.interrupts.check
         bus_time = self._bus_time  # None when not paced: no clock read beyond the backend's own
         encoder = self._encoder  # None unless a joint is read through another sensor
+        sent = self._sent if bus_time is not None else None
         for k in range(len(q_all)):
             q_c, qd_c = q_all[k], qd_all[k]
             started = act.now() if bus_time is not None else 0.0
@@ -210,7 +213,10 @@ class Runner:
             act.command(q_c, qd_c)
             t_next += dt
             if bus_time is not None:  # the deadline is the next cycle's start
-                log.time_cycle(started, act.now() - t_next, bus_time())
+                now = act.now()
+                if sent is not None:
+                    sent(now)
+                log.time_cycle(started, now - t_next, bus_time())
             act.wait_until(t_next)
             check()
             log.maybe_flush()

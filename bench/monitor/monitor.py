@@ -65,6 +65,8 @@ class TwinMonitor:
         self._unpredicted = np.full(len(self.joint_names), np.nan)  # the log's row where the twin predicted nothing
         self._t0: Optional[float] = None
         self._last: Optional[tuple[float, np.ndarray]] = None  # (time, goal) of the previous cycle
+        self._before: Optional[np.ndarray] = None  # the goal in force until the previous cycle's left
+        self._lag = 0.0  # how long after its reading the previous cycle's goal left (s)
         self._pending: list[np.ndarray] = []  # residuals over σ of the cycles not yet in the log
         self._cycles = 0  # the cycles checked
         self._written = 0  # the cycles whose residuals are in the log
@@ -86,14 +88,26 @@ class TwinMonitor:
             self._pending.append(self._unpredicted)
         else:
             t_prev, goal = self._last
-            residual = self.twin.advance(goal, position, velocity, t - t_prev)
+            interval = t - t_prev
+            if self._lag > 0.0:  # the goal before held until this one left: the time-weighted goal
+                lag = min(self._lag, interval)
+                goal = goal + (self._before - goal) * (lag / interval)
+            residual = self.twin.advance(goal, position, velocity, interval)
             if residual is None:  # a reading between the twin's predictions
                 self._pending.append(self._unpredicted)
             else:
                 trip = self._judge(t, residual, self.twin.timing)
+        self._before = self._last[1] if self._last is not None else commanded
         self._last = (t, commanded)  # the runner's own row of the plan, never changed after
+        self._lag = 0.0
         self._cycles += 1
         return trip
+
+    def sent(self, t: float) -> None:
+        """The runner's word that the goal of the reading just checked left at ``t`` (a paced
+        loop's clock): until then the goal before it was in force, which the twin then weighs in."""
+        if self._last is not None:
+            self._lag = max(0.0, t - self._last[0])
 
     def _judge(self, t: float, residual: np.ndarray, timing: Optional[np.ndarray]) -> Optional[Trip]:
         """A prediction's residual over σ into the log and the detector; a trip when it must stop."""
@@ -197,3 +211,6 @@ class Watched:
 
     def logged(self) -> None:
         self.monitor.logged()
+
+    def sent(self, t: float) -> None:
+        self.monitor.sent(t)
