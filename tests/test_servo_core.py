@@ -101,11 +101,12 @@ def test_the_servos_damping_on_its_joint_is_computed_once() -> None:
     assert np.allclose(d.implicit(1e-3), d.armature + 1e-3 * (d.back_emf + d.viscous))
 
 
-def test_the_implicit_friction_law_solves_its_step_and_meets_the_free_and_held_joints_at_its_limits() -> None:
-    """The twin's step of dry friction at 10 ms: the speed that solves A·v + dt·F·tanh(v/(r·ω_ε)) = A·q̇ + dt·rhs,
-    to a hundredth of ω_ε; without friction A⁻¹ times the momentum; sliding fast, the momentum
-    less the friction's impulse; held (momentum under the impulse), no faster than the smoothed law's
-    creep, and the same through step_joints (which refuses a full mass matrix for it)."""
+def test_the_implicit_friction_law_solves_its_step_and_meets_free_and_held_joints_at_its_limits() -> None:
+    """The twin's step of dry friction at 10 ms: the speed that solves
+    A·v + dt·F·tanh(v/(r·ω_ε)) = A·q̇ + dt·rhs, to a hundredth of ω_ε; without friction A⁻¹ times the
+    momentum; sliding fast, the momentum less the friction's impulse; held (momentum under the
+    impulse), no faster than the smoothed law's creep, and the same through step_joints (which
+    refuses a full mass matrix for it)."""
     from drivers.servo.friction import FRICTION_SMOOTHING_RAD_S as W, implicit_smooth_speed
     from drivers.servo.joints import step_joints
 
@@ -117,11 +118,13 @@ def test_the_implicit_friction_law_solves_its_step_and_meets_the_free_and_held_j
     v = implicit_smooth_speed(inertia, momentum, level, scale)
     balance = inertia * v + level * np.tanh(scale * v / W) - momentum
     assert np.all(np.abs(balance) <= 0.01 * W / scale * (inertia + level * scale / W)), balance
-    assert np.allclose(implicit_smooth_speed(inertia, momentum, 0.0 * level, scale), momentum / inertia, rtol=1e-12, atol=0)
+    free = implicit_smooth_speed(inertia, momentum, 0.0 * level, scale)
+    assert np.allclose(free, momentum / inertia, rtol=1e-12, atol=0)
     fast = np.abs(momentum) > 10 * level
     assert np.allclose(v[fast], (momentum - np.sign(momentum) * level)[fast] / inertia[fast], rtol=1e-6)
     held = np.abs(momentum) < level
-    assert held.sum() > 20 and np.all(np.abs(v[held]) <= W / scale[held] * np.arctanh(np.abs(momentum / level)[held]))
+    creep = W / scale[held] * np.arctanh(np.abs(momentum / level)[held])
+    assert held.sum() > 20 and np.all(np.abs(v[held]) <= creep)
     q, qd, rhs = np.zeros(200), rng.normal(0, 1e-3, 200), rng.normal(0, 1.0, 200)
     _, stepped = step_joints(q, qd, 0.01, rhs, inertia, level / 0.01, "implicit", None, shaft_scale=scale)
     assert np.array_equal(stepped, implicit_smooth_speed(inertia, inertia * qd + 0.01 * rhs, level, scale))

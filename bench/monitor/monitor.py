@@ -2,8 +2,9 @@
 
 Each reading the twin (:mod:`bench.monitor.twin`) predicts, every 10 ms, ends the interval it
 stepped under the goals sent since; its residual over σ (the spread the model leaves on clean
-trials; with the twin's timing spread in quadrature where the loop ran late) feeds the per-joint CUSUM (:mod:`bench.monitor.detector`). The log holds it beside that
-reading, NaN beside the readings between. An alarm names the joint, the time on the trial's
+trials; with the twin's timing spread in quadrature where the loop ran late) feeds the per-joint
+CUSUM (:mod:`bench.monitor.detector`). The log holds it beside that reading, NaN beside the
+readings between. An alarm names the joint, the time on the trial's
 clock (seconds since its first reading, the clock of a fault's ``from_s``) and the score. With
 ``action: warn`` it is logged as a ``monitor`` event and the trial goes on; with ``action: stop`` it
 is the trip that takes the safe stop, with the reason ``theta5 behaves unlike its model (…)``.
@@ -161,7 +162,8 @@ class TwinMonitor:
         intervals = np.diff(stamps, prepend=t_prev)
         goals = np.concatenate((goal[None, :], commanded[first:rows - 1]))
         written = first
-        for k, residual, timing in self.twin.advance_rows(goals, position[first:rows], velocity[first:rows], intervals):
+        predictions = self.twin.advance_rows(goals, position[first:rows], velocity[first:rows], intervals)
+        for k, residual, timing in predictions:
             row = first + k
             self._pending.extend([self._unpredicted] * (row - written))
             trip = self._judge(float(times[row]), residual, timing)
