@@ -63,12 +63,13 @@ def step_joints(q: np.ndarray, qd: np.ndarray, dt: float, rhs: np.ndarray, matri
     the smooth law at the step's end speed (A diagonal only; ``shaft_scale``: the shaft's speed per
     joint speed). ``lower`` and ``upper``: hard stops, where a joint stops dead."""
     diagonal = isinstance(matrix, np.ndarray)
-    if dry is not None and law == "implicit":
-        if not diagonal:
-            raise ValueError("implicit friction needs a diagonal mass matrix")
-        qd_new = implicit_smooth_speed(matrix, matrix * qd + dt * rhs, dt * dry, shaft_scale)
-    elif dry is not None:
-        if law == "smooth":
+    qd_new = None
+    if dry is not None:
+        if law == "implicit":
+            if not diagonal:
+                raise ValueError("implicit friction needs a diagonal mass matrix")
+            qd_new = implicit_smooth_speed(matrix, matrix * qd + dt * rhs, dt * dry, shaft_scale)
+        elif law == "smooth":
             rhs = rhs - smooth_friction(dry, qd if speed is None else speed)
         elif law == "stick":
             if not diagonal:
@@ -76,8 +77,7 @@ def step_joints(q: np.ndarray, qd: np.ndarray, dt: float, rhs: np.ndarray, matri
             rhs = rhs + stopping_friction(dry, 0.0, qd, matrix / dt * qd + rhs)
         else:
             raise ValueError(f"unknown friction law {law!r}")
-        qd_new = qd + dt * (rhs / matrix if diagonal else matrix(rhs))
-    else:
+    if qd_new is None:
         qd_new = qd + dt * (rhs / matrix if diagonal else matrix(rhs))
     q_new = q + dt * qd_new
     if lower is not None and _largest(np.maximum(lower - q_new, q_new - upper), axis=None) > 0.0:
