@@ -653,3 +653,37 @@ def test_every_emulated_model_keeps_the_drivers_registers_where_the_one_table_sa
                 (number, name)
         first = other.at(state_block()[0])  # Present Current, or Present Load without current sensing
         assert first is not None and first.size == 2
+
+
+def test_an_instruction_arriving_while_the_physics_catches_up_is_answered_within_a_slice():
+    """After the emulator was held up (a loaded machine: 0.4 s here), its physics has a backlog to
+    catch up; a PING arriving meanwhile is answered after at most a slice of steps, not after the
+    backlog (400 steps of a plant costing 0.1 ms a step: 40 ms before it was sliced)."""
+    from drivers.emulator.clock import SLICE_STEPS
+
+    class HeavyPlant(InertiaPlant):
+        def step(self, dt, torque):
+            end = time.perf_counter() + 1e-4  # a heavy physics engine's step
+            while time.perf_counter() < end:
+                pass
+            super().step(dt, torque)
+
+    with DynamixelBusEmulator({1: ServoModel(registers=FAST)}, HeavyPlant(1)) as bus:
+        port = open_port(bus)
+        try:
+            ping = build_instruction(1, Instruction.PING)
+            assert raw_transaction(port, ping)[1] == COMM_SUCCESS
+            waits = []
+            for _ in range(3):
+                with bus.lock:  # the serving thread held up; the physics falls 0.4 s behind
+                    time.sleep(0.4)
+                time.sleep(0.002)  # the catch-up has begun
+                t0 = time.perf_counter()
+                rx, result = raw_transaction(port, ping, timeout_ms=200.0)
+                waits.append(time.perf_counter() - t0)
+                assert result == COMM_SUCCESS
+        finally:
+            port.closePort()
+    # the best of three (a loaded machine may hold up one answer for reasons of its own)
+    assert min(waits) < 0.01, f"answers took {[f'{1e3 * w:.1f} ms' for w in waits]} behind the backlog"
+    assert SLICE_STEPS * 1e-4 < 0.01

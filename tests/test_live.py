@@ -39,6 +39,8 @@ MISSED_SHARE = 0.01
 #: ... and on a machine other work loads (two CPU hogs on two cores): the serial port's kernel work
 #: then waits behind them, a few cycles a second, page or no page.
 LOADED_MISSED_SHARE = 0.03
+#: ... and, where the machine missed more than that without the page too, what the page may add.
+PAGE_MISSED_SHARE = 0.01
 #: How long an emulated trial may take to connect, home and draw its first rows (ms): a wait for the
 #: trial to start, not a bound on how fast it starts (beside two CPU hogs and the suite's other worker
 #: it has taken over 30 s).
@@ -63,6 +65,13 @@ def _start_live_trial(out: Path) -> tuple[subprocess.Popen, str]:
             break
     proc.kill()
     raise AssertionError(f"no live view line; stderr: {line!r}")
+
+
+def _trial_without_page(out: Path) -> dict:
+    """The loop timing of the same emulated-rig trial with no live view."""
+    done = subprocess.run([HILBENCH, "trial", str(LAB), "--emulate", "--out", str(out / "no-page"), "--json"],
+                          capture_output=True, text=True, timeout=300)
+    return json.loads(done.stdout)["loop_timing"]
 
 
 @pytest.fixture()
@@ -132,7 +141,16 @@ def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(t
         warnings.warn(f"the machine was loaded by other work when the trial started: {tm['missed']} of "
                       f"{tm['cycles']} deadlines missed is held to {LOADED_MISSED_SHARE:.0%}, not "
                       f"{MISSED_SHARE:.0%}")
-    assert tm["missed"] <= (LOADED_MISSED_SHARE if loaded else MISSED_SHARE) * tm["cycles"], tm
+    bound = (LOADED_MISSED_SHARE if loaded else MISSED_SHARE) * tm["cycles"]
+    if tm["missed"] > bound:
+        # Over the bound: the same trial without the page says whether the page or this machine
+        # (other work on it, a hypervisor taking its cores) held the loop up.
+        alone = _trial_without_page(tmp_path)
+        assert alone["missed"] > bound, (f"the page made the loop miss {tm['missed']} of {tm['cycles']} "
+                                         f"deadlines; without it {alone['missed']} of {alone['cycles']}")
+        warnings.warn(f"this machine did not keep the loop's time even without the page ({alone['missed']} "
+                      f"of {alone['cycles']} missed): the page is held to {PAGE_MISSED_SHARE:.0%} more")
+        assert tm["missed"] <= alone["missed"] + PAGE_MISSED_SHARE * tm["cycles"], (tm, alone)
     assert result["loop_timing"]["priority"] == "nice -10" or "refused" in result["loop_timing"]["priority"]
     times = [float(line.split(" s ")[0]) for line in page.inner_text("#events").splitlines()]
     assert times == sorted(times)  # the events in time order

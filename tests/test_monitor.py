@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from bench.monitor.detector import Cusum, CusumParams
+from paced import until_paced
 
 REPO = Path(__file__).resolve().parents[1]
 HILBENCH = str(Path(sys.executable).with_name("hilbench"))
@@ -308,11 +309,14 @@ def test_a_contact_on_the_emulated_rig_is_named_on_its_joint_and_the_clean_rig_r
     """The real driver on the emulated bus, the contact in the emulator's physics: the same alarm."""
     lab = REPO / "hil_configs" / "lab_real.yaml"
     clean = _config(tmp_path, lab, name="rig-clean", monitor={"model": "datasheet", "action": "warn"})
-    out = json.loads(_run("trial", str(clean), "--emulate", "--json", "--out", str(tmp_path / "r")).stdout)
-    assert out["passed"] and out["monitor"]["alarms"] == [], out["monitor"]
+    out = until_paced(lambda: json.loads(_run("trial", str(clean), "--emulate", "--json", "--out",
+                                              str(tmp_path / "r")).stdout),
+                      lambda out: [out["loop_timing"]], "the clean emulated rig")
+    assert out["passed"] and out["monitor"]["alarms"] == [], (out["monitor"], out["loop_timing"])
     touched = _config(tmp_path, lab, name="rig-contact", monitor={"model": "datasheet", "action": "stop"},
                       faults=[{"name": "contact", "joints": ["theta5"], "torque_nm": 0.3, "from_s": 2.0}])
-    res = _run("trial", str(touched), "--emulate", "--json", "--out", str(tmp_path / "r"))
+    res = until_paced(lambda: _run("trial", str(touched), "--emulate", "--json", "--out", str(tmp_path / "r")),
+                      lambda res: [json.loads(res.stdout)["loop_timing"]], "the emulated rig with a contact")
     out = json.loads(res.stdout)
     assert res.returncode == 1 and "theta5 behaves unlike its model" in out["reason"], out
     assert [a["joint"] for a in out["monitor"]["alarms"]] == ["theta5"] and 2.0 < out["monitor"]["first_alarm_s"] <= 2.25

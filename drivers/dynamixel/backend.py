@@ -231,7 +231,7 @@ class DynamixelActuators(ActuatorsBase):
                 if self._read(sv.id, "Torque Enable"):
                     self._warn(f"servo ID {sv.id} ({sv.joint}): torque off to write "
                                f"{', '.join(changes)} (EEPROM)")
-                    self._write(sv.id, "Torque Enable", 0)
+                self._write(sv.id, "Torque Enable", 0)  # written whatever was read: EEPROM needs it off
                 for k, v in changes.items():
                     self._write(sv.id, k, v)
             for gain, value in zip(("Position P Gain", "Position I Gain", "Position D Gain"), sv.gains):

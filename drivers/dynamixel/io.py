@@ -262,6 +262,13 @@ class BlockingPortHandler(PortHandler):
         return bytes(buf)
 
 
+#: After a failed register access, the line must be silent this long before the next try (s): longer
+#: than a loaded host holds up a servo's answer (an emulated rig beside other work: tens of ms) ...
+SETTLE_QUIET_S = 0.05
+#: ... but never more than this in all, so a babbling peer cannot hold the host.
+SETTLE_MAX_S = 0.5
+
+
 class RegisterAccess:
     """Register reads and writes on one port, each retried, each reply checked by the handler.
 
@@ -287,16 +294,38 @@ class RegisterAccess:
         return None, why
 
     def read(self, sid: int, address: int, size: int, what: str, signed: bool = False) -> int:
-        result = COMM_TX_FAIL
-        for _ in range(self.tries):
+        """The register's value. After a failed try the line is left to fall quiet for longer than
+        a transaction's timeout, and a value counts only once two reads in a row agree: a servo that
+        was held up (a loaded host, a busy bus) answers the failed try late, and Protocol 2.0's
+        status names no register, so a 1-byte register's late answer passes for another's. A wrong
+        Torque Enable or Operating Mode decides what set-up writes."""
+        result, failed, candidate = COMM_TX_FAIL, False, None
+        for _ in range(self.tries + 1):  # the one more is a confirmation's
             data, result, err = self.ph.readTxRx(self.port, sid, address, size)
             if result == COMM_SUCCESS and err & 0x7F:  # refused: the parameters are not the register
                 raise BackendSetupError(f"servo ID {sid}: reading {what} refused: "
                                         f"{self.ph.getRxPacketError(err)}")
-            if result == COMM_SUCCESS:
-                return int.from_bytes(bytes(data), "little", signed=signed)
-        raise CommunicationError(f"servo ID {sid}: reading {what} failed after {self.tries} "
-                                 f"tries: {self._why(result)}")
+            if result != COMM_SUCCESS:
+                failed, candidate = True, None
+                self._settle()
+                continue
+            value = int.from_bytes(bytes(data), "little", signed=signed)
+            if not failed or value == candidate:
+                return value
+            candidate = value
+            self._settle()
+        why = ("its answers after a failed try did not agree" if result == COMM_SUCCESS
+               else self._why(result))
+        raise CommunicationError(f"servo ID {sid}: reading {what} failed after {self.tries} tries: {why}")
+
+    def _settle(self) -> None:
+        """Wait (bounded) for a quiet line: a late answer to an earlier try is read and dropped."""
+        ser = getattr(self.port, "ser", None)
+        if ser is not None:
+            try:
+                drain_until_quiet(ser.fileno(), SETTLE_QUIET_S, SETTLE_MAX_S)
+            except (OSError, ValueError):
+                pass
 
     def says_emulated(self, sid: int) -> bool:
         """Whether servo ``sid`` answers the identity READ as only the emulator does (one try:
@@ -314,6 +343,7 @@ class RegisterAccess:
                     raise BackendSetupError(f"servo ID {sid}: writing {what} = {value} refused: "
                                              f"{self.ph.getRxPacketError(err)}")
                 return
+            self._settle()
         raise CommunicationError(f"servo ID {sid}: writing {what} failed after {self.tries} "
                                  f"tries: {self._why(result)}")
 

@@ -266,6 +266,14 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
     def _fds(self) -> tuple[int, ...]:
         return (self._master, self._slave, self._wake_r, self._wake_w)
 
+    def _input_waiting(self) -> bool:
+        if not self.realtime:
+            return False
+        try:
+            return bool(select.select([self._master], [], [], 0)[0])
+        except (OSError, ValueError):
+            return False
+
     def unplug(self) -> None:
         """Cable out: the servos neither hear nor answer anything."""
         with self.lock:

@@ -17,6 +17,9 @@ _READ_WAITS_FOR_STEPS = 3
 #: Present Position range (ticks) within which a servo counts as still: the hunt of a
 #: holding servo is ±1 tick.
 _STILL_TICKS = 3
+#: Physics steps run between two looks at the port while the physics catches up: an instruction
+#: that arrives meanwhile waits for at most this many steps (~0.1 ms each), not for the backlog.
+SLICE_STEPS = 2
 
 
 class PhysicsClock:
@@ -38,12 +41,24 @@ class PhysicsClock:
         return steps
 
     def _catch_up(self, now: float) -> None:
+        """Run the steps due by ``now``, a slice at a time; an instruction waiting on the port ends
+        the catch-up (the rest stays due, for the next pass): after the process was held up (a
+        loaded or slow machine), the backlog would otherwise keep the servos from answering."""
         steps = self._due_steps(now)
         if steps <= 0:
             return
         if self.max_batch_s is not None:  # the rest is due at the next pass
             steps = min(steps, max(1, int(self.max_batch_s / self.physics_dt)))
-        self._run_physics(steps)
+        while steps > 0:
+            n = min(steps, SLICE_STEPS)
+            self._run_physics(n)
+            steps -= n
+            if steps and self._input_waiting():
+                return
+
+    def _input_waiting(self) -> bool:
+        """Whether bytes from the host wait to be read (the bus says; a bare clock never has any)."""
+        return False
 
     def _catch_up_for_read(self, instant: float) -> None:
         """Run the steps due by a state read's ``instant``, so its answer is at most one step old."""
