@@ -134,3 +134,41 @@ class LoopPriority:
     def __exit__(self, *exc: object) -> None:
         if self._before is not None and os.getpriority(os.PRIO_PROCESS, 0) != self._before:
             _set_nice(self._before)
+
+
+def _run_delay_s() -> float | None:
+    """The calling thread's time so far runnable but waiting for a CPU (Linux schedstat), s."""
+    try:
+        with open("/proc/thread-self/schedstat") as f:
+            return int(f.read().split()[1]) * 1e-9
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _stolen_s() -> float | None:
+    """The time so far a hypervisor ran something else on this machine's CPUs, per CPU, s."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK") / (os.cpu_count() or 1)
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+class CpuWithheld:
+    """How long, over a ``with`` block, the CPU was withheld from the calling thread: ``waited_s``
+    runnable but waiting for a CPU (other work on the machine ran), and ``stolen_s`` taken by a
+    hypervisor from this virtual machine (per CPU). None where the OS does not say. A loop that
+    missed its deadlines while either was large was held up by the machine, not by its own work."""
+
+    waited_s: float | None = None
+    stolen_s: float | None = None
+
+    def __enter__(self) -> "CpuWithheld":
+        self._waited, self._stolen = _run_delay_s(), _stolen_s()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        waited, stolen = _run_delay_s(), _stolen_s()
+        self.waited_s = None if waited is None or self._waited is None else waited - self._waited
+        self.stolen_s = None if stolen is None or self._stolen is None else stolen - self._stolen

@@ -29,9 +29,14 @@ def until_paced(run: Callable[[], T], timings: Callable[[T], Iterable[dict]], wh
                 warnings.warn(f"{what}: run {attempt} of {TRIES} kept time; before it the loop missed "
                               f"{'; '.join(missed)}")
             return out
-        missed.append(", ".join(f"{t['missed']} of {t['cycles']} deadlines" for t in late))
+        missed.append(", ".join(f"{t['missed']} of {t['cycles']} deadlines{_withheld(t)}" for t in late))
     raise AssertionError(f"{what}: the loop missed over 1 % of its deadlines in each of {TRIES} runs on "
                          f"this machine ({'; '.join(missed)}): its figures are not the rig's")
+
+
+def _withheld(timing: dict) -> str:
+    waited, stolen = timing.get("cpu_waited_s"), timing.get("cpu_stolen_s")
+    return "" if waited is None else f" (waited {waited:.2f} s for a CPU, {stolen or 0:.2f} s stolen)"
 
 
 def logged_timings(run_dirs: Iterable[Path]) -> list[dict]:

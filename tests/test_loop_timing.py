@@ -61,6 +61,48 @@ def test_missed_deadlines_are_counted_with_the_worst_and_when():
     assert "3 of 200 deadlines missed (1.5 %), the worst 3.00 ms late at 1.50 s (insert)" in tm.summary_line()
 
 
+def test_a_late_loop_says_what_the_machine_withheld_from_it():
+    """The verdict names the machine's part where it was large: the loop waiting for a CPU other work
+    held, a hypervisor taking the machine's CPUs (both recorded by the trial, from Linux's counts)."""
+    lates = [-0.006] * 200
+    lates[10:15] = [0.004] * 5
+    log = _timed_log(lates)
+    log.metadata.update(loop_cpu_waited_s=0.42, loop_cpu_stolen_s=0.03)
+    tm = loop_timing(log)
+    assert tm.verdict_note() == ("the loop missed 5 of 200 deadlines (2.5 %, over 1 %); it waited 0.42 s "
+                                 "for a CPU other work held")
+    log.metadata.update(loop_cpu_stolen_s=0.25)
+    assert loop_timing(log).verdict_note().endswith("held and the hypervisor took 0.25 s of each CPU")
+    assert loop_timing(log).as_dict()["cpu_waited_s"] == 0.42
+
+
+def test_the_cpu_a_loop_waited_for_is_measured_beside_a_spinning_process_on_its_core():
+    """A busy loop beside another, both pinned to one core: it waits about half its time for a CPU."""
+    import os
+    import subprocess
+    import time
+
+    from drivers.timing import CpuWithheld
+
+    if not os.path.exists("/proc/thread-self/schedstat"):
+        pytest.skip("this OS keeps no scheduler statistics")
+    before = os.sched_getaffinity(0)
+    core = sorted(before)[0]
+    hog = subprocess.Popen(["taskset", "-c", str(core), sys.executable, "-c", "while True: pass"])
+    os.sched_setaffinity(0, {core})
+    try:
+        time.sleep(0.2)  # the other process is spinning
+        with CpuWithheld() as withheld:
+            end = time.monotonic() + 0.6
+            while time.monotonic() < end:
+                pass
+    finally:
+        hog.kill()
+        hog.wait()
+        os.sched_setaffinity(0, before)
+    assert withheld.waited_s is not None and 0.15 < withheld.waited_s < 0.6, withheld.waited_s
+
+
 def test_a_cycle_not_timed_is_left_out_not_counted_as_kept():
     log = _timed_log([-0.005] * 10)
     log.append(5.2, 1, [0.0], [0.0], [0.0], [0.0], [0.0])  # e.g. the hold after a trip: no time_cycle

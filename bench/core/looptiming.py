@@ -51,6 +51,10 @@ class LoopTiming:
     sim_s: Optional[float] = None  #: not paced: the simulated time it covered
     #: paced: the priority the loop ran at (``nice -10``, or the one kept and why), as recorded
     priority: Optional[str] = None
+    #: paced: how long the loop was runnable but waited for a CPU (other work on the machine ran)
+    cpu_waited_s: Optional[float] = None
+    #: paced: how long a hypervisor took this machine's CPUs meanwhile (per CPU)
+    cpu_stolen_s: Optional[float] = None
 
     @property
     def late(self) -> bool:
@@ -62,7 +66,16 @@ class LoopTiming:
         if not self.late:
             return ""
         return (f"the loop missed {self.missed} of {self.cycles} deadlines "
-                f"({100 * self.missed_share:.1f} %, over {100 * MISSED_SHARE_LIMIT:g} %)")
+                f"({100 * self.missed_share:.1f} %, over {100 * MISSED_SHARE_LIMIT:g} %){self._withheld()}")
+
+    def _withheld(self) -> str:
+        """What the machine withheld from the loop, where it was enough to say (a tenth of a second)."""
+        said = []
+        if self.cpu_waited_s is not None and self.cpu_waited_s >= 0.1:
+            said.append(f"it waited {self.cpu_waited_s:.2f} s for a CPU other work held")
+        if self.cpu_stolen_s is not None and self.cpu_stolen_s >= 0.1:
+            said.append(f"the hypervisor took {self.cpu_stolen_s:.2f} s of each CPU")
+        return f"; {' and '.join(said)}" if said else ""
 
     def summary_line(self) -> str:
         """One line for the console."""
@@ -84,7 +97,8 @@ class LoopTiming:
         if not self.missed:
             return f"no missed deadline in {self.cycles} cycles"
         return (f"{self.missed} of {self.cycles} deadlines missed ({100 * self.missed_share:.1f} %), the "
-                f"worst {_ms(self.worst_late_s)} late at {self.worst_at_s:.2f} s ({self.worst_segment})")
+                f"worst {_ms(self.worst_late_s)} late at {self.worst_at_s:.2f} s ({self.worst_segment})"
+                f"{self._withheld()}")
 
     def _speed(self) -> str:
         words = "a simulated clock has no wall-clock deadline"
@@ -140,8 +154,10 @@ def loop_timing(log: TrialLog, period_s: Optional[float] = None) -> LoopTiming:
     start, late, bus = log.loop_start, log.loop_late, log.bus_s
     timed = np.isfinite(late)
     cycles = int(timed.sum())
+    withheld = {k: meta.get(f"loop_{k}") if isinstance(meta.get(f"loop_{k}"), (int, float)) else None
+                for k in ("cpu_waited_s", "cpu_stolen_s")}
     if not cycles:
-        return LoopTiming("paced", period_s, priority=_priority(meta))
+        return LoopTiming("paced", period_s, priority=_priority(meta), **withheld)
     both = np.isfinite(start[1:]) & np.isfinite(start[:-1])
     periods = np.diff(start)[both]
     buses = bus[np.isfinite(bus)]
@@ -160,7 +176,7 @@ def loop_timing(log: TrialLog, period_s: Optional[float] = None) -> LoopTiming:
                       float(periods.max()) if periods.size else None,
                       float(np.median(buses)) if buses.size else None, _p(buses, 99),
                       n_missed, n_missed / cycles, worst, worst_at, worst_seg, first,
-                      priority=_priority(meta))
+                      priority=_priority(meta), **withheld)
 
 
 def _priority(meta: dict) -> Optional[str]:

@@ -32,7 +32,7 @@ from bench.trial.plan import aimed_plan
 from bench.trial.record import finish_record, trial_metadata
 from drivers import ActuatorError, Actuators
 from drivers.capabilities import SafeStopReport, ServoInfo, StartWarnings, find_capability
-from drivers.timing import LoopPriority
+from drivers.timing import CpuWithheld, LoopPriority
 
 __all__ = ["TrialHooks", "run_trial"]
 
@@ -105,9 +105,15 @@ def _loop_priority(prep: PreparedTrial, log: TrialLog):
     if prep.config.backend.kind != "dynamixel":
         yield
         return
+    withheld = CpuWithheld()  # what the machine withheld from the loop: the record says it
     with LoopPriority() as priority:
         log.metadata["loop_priority"] = priority.got
-        yield
+        try:
+            with withheld:
+                yield
+        finally:
+            log.metadata["loop_cpu_waited_s"] = withheld.waited_s
+            log.metadata["loop_cpu_stolen_s"] = withheld.stolen_s
 
 
 def _build(prep: PreparedTrial, hooks: TrialHooks, run_dir: Path, log: TrialLog, out: Path,

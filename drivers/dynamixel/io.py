@@ -262,9 +262,9 @@ class BlockingPortHandler(PortHandler):
         return bytes(buf)
 
 
-#: After a failed register access, the line must be silent this long before the next try (s): longer
-#: than a loaded host holds up a servo's answer (an emulated rig beside other work: tens of ms) ...
-SETTLE_QUIET_S = 0.05
+#: After a failed register access, the line must be silent this long before the next try (s), a
+#: late answer dropped meanwhile; one later still is caught by the confirming read ...
+SETTLE_QUIET_S = 0.02
 #: ... but never more than this in all, so a babbling peer cannot hold the host.
 SETTLE_MAX_S = 0.5
 
