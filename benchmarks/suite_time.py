@@ -69,6 +69,9 @@ def main() -> None:
     if done.returncode:
         failed = [ln for ln in lines if ln.startswith(("FAILED", "ERROR"))]
         print("\n".join(failed[:20]))
+        kept = Path(tempfile.mkstemp(prefix="ci-output-", suffix=".txt")[1])
+        kept.write_text(out)
+        print(f"the run's whole output: {kept}")
     if args.write_table:
         key = "ci.serial" if args.serial else ("suite.hogs" if args.hogs else "ci.quiet")
         what = {"ci.serial": "the suite one file after another",

@@ -687,3 +687,33 @@ def test_an_instruction_arriving_while_the_physics_catches_up_is_answered_within
     # the best of three (a loaded machine may hold up one answer for reasons of its own)
     assert min(waits) < 0.01, f"answers took {[f'{1e3 * w:.1f} ms' for w in waits]} behind the backlog"
     assert SLICE_STEPS * 1e-4 < 0.01
+
+
+def test_a_state_read_after_the_emulator_was_held_up_answers_the_state_now():
+    """A servo swinging its load to a far goal; the emulator held up 20 ms: the next Present Position
+    is where the shaft is now (within a few ticks), not where it was before the hold-up (tens of
+    ticks behind): the steps due run before a state read is answered."""
+    with DynamixelBusEmulator({1: ServoModel(registers=FAST)}, InertiaPlant(1, inertia=0.01)) as bus:
+        port = open_port(bus)
+        handler = StuffingPacketHandler()
+        tick = 2 * np.pi / 4096
+        try:
+            seen = []
+            for goal in (4000, 100, 4000):
+                assert handler.write1ByteTxRx(port, 1, TORQUE, 1)[0] == COMM_SUCCESS
+                assert handler.write4ByteTxRx(port, 1, GOAL_POS, goal)[0] == COMM_SUCCESS
+                time.sleep(0.1)  # under way
+                before, result, _ = handler.read4ByteTxRx(port, 1, PRESENT_POS)
+                with bus.lock:  # the serving thread held up
+                    time.sleep(0.02)
+                answered, result, _ = handler.read4ByteTxRx(port, 1, PRESENT_POS)
+                assert result == COMM_SUCCESS
+                with bus.lock:  # where the shaft is (the steps due since run after the answer)
+                    now = float(bus.plant.position()[0]) / tick + 2048
+                seen.append((abs(s32(answered) - s32(before)), abs(s32(answered) - now)))
+                time.sleep(0.5)  # at its goal
+        finally:
+            port.closePort()
+    assert all(moved > 30 for moved, _ in seen), seen  # the hold-up was worth tens of ticks
+    # the best of three (a loaded machine may hold the serving thread up again on its own)
+    assert min(off for _, off in seen) <= 5, seen

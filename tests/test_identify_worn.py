@@ -78,15 +78,32 @@ def worn(tmp_path_factory):
     assert res.returncode == 0, res.stderr
     fit = json.loads(res.stdout)
 
+    compared = []
+
     def compare() -> subprocess.CompletedProcess:
         res = _run("compare", str(_config(tmp, "lab_real")), "--emulate", "--repeats", "2", "--sim-model",
                    str(model), "--json", "--out", str(tmp / "cmp"))
         assert res.returncode in (0, 1), res.stderr
+        compared.append(json.loads(res.stdout))
         return res
 
-    res = until_paced(compare, lambda res: logged_timings(
-        sorted((Path(json.loads(res.stdout)["report"]).parent / "real").iterdir())), "the worn rig's repeats")
-    return {"fit": fit, "model": model, "compare": json.loads(res.stdout)}
+    try:
+        until_paced(compare, lambda res: logged_timings(
+            sorted((Path(json.loads(res.stdout)["report"]).parent / "real").iterdir())),
+            lambda res: _predicts(json.loads(res.stdout)), "the worn rig's repeats")
+    except AssertionError:
+        pass  # the test that holds the prediction says what failed
+    return {"fit": fit, "model": model, "compare": compared[-1]}
+
+
+def _predicts(compared: dict) -> None:
+    pred = compared["prediction"]
+    print(pred)
+    assert len(pred["tip_error_mm"]["per_repeat"]) == 2
+    assert pred["tracking_gap_ratio"] <= 0.2, pred
+    ideal = float(np.linalg.norm(compared["tip_deviation_mm"]["mean"]))
+    assert ideal > 1.0  # the worn rig sags millimetres where the ideal motors do not
+    assert pred["tip_error_mm"]["mean"] <= min(0.5, ideal / 5), (pred, ideal)
 
 
 def test_the_worn_rigs_friction_is_recovered_or_said_not_observable(worn):
@@ -123,14 +140,9 @@ def test_the_identified_sim_predicts_the_worn_rig_on_target_1(worn):
     placed by its host loop on an ultrasonic reading of whole millimetres with a millimetre of
     noise, and the rig does not repeat its own train to better than a quarter of a millimetre of
     arc. Per repeat, 0.05 to 0.30 mm over twelve repeats here (quiet and beside two CPU hogs),
-    0.28 and 0.42 on a CI run: a mean of two such is not a figure to hold at 0.3."""
-    pred = worn["compare"]["prediction"]
-    print(pred)
-    assert len(pred["tip_error_mm"]["per_repeat"]) == 2
-    assert pred["tracking_gap_ratio"] <= 0.2, pred
-    ideal = float(np.linalg.norm(worn["compare"]["tip_deviation_mm"]["mean"]))
-    assert ideal > 1.0  # the worn rig sags millimetres where the ideal motors do not
-    assert pred["tip_error_mm"]["mean"] <= min(0.5, ideal / 5), (pred, ideal)
+    0.28 and 0.42 on a CI run: a mean of two such is not a figure to hold at 0.3. (The fixture runs
+    the compare again where it failed with a repeat whose loop missed over 1 % of its deadlines.)"""
+    _predicts(worn["compare"])
 
 
 def test_the_identified_model_watches_the_worn_rig_without_an_alarm(worn, tmp_path):
@@ -159,5 +171,7 @@ def test_the_identified_model_watches_the_worn_rig_without_an_alarm(worn, tmp_pa
         assert res.returncode in (0, 1), res.stderr
         return json.loads(res.stdout)
 
-    out = until_paced(watched, lambda out: [out["loop_timing"]], "the worn rig watched by its model")
-    assert out["monitor"]["alarms"] == [], (out["monitor"], out["loop_timing"])
+    def quiet(out: dict) -> None:
+        assert out["monitor"]["alarms"] == [], (out["monitor"]["alarms"], out["loop_timing"])
+
+    until_paced(watched, lambda out: [out["loop_timing"]], quiet, "the worn rig watched by its model")

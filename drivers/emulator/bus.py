@@ -33,11 +33,13 @@ A servo's firmware runs its 1 ms loop while bytes are on the wire, and nothing
 the host sends can take effect before the wire is free; so with the wire-time
 model the physics steps falling due while the wire is modelled busy run during
 that stretch, each only if it ends before the stretch does, instead of after
-every answer. Before a state read is answered every step due by the read's
-instant has run, so the answer is at most one step old, as a real servo's
-(unless the physics has fallen more than a few steps behind real time: then
-the answer goes first, as without wire timing); between instructions the
-physics otherwise waits until it is two steps behind.
+every answer; between instructions the physics otherwise waits until it is two
+steps behind. With or without the wire-time model, before a state read is
+answered every step due by the read's instant has run, so the answer is at most
+one step old, as a real servo's, also after the emulator was held up (unless
+the physics has fallen more than 30 steps behind real time: the answer then
+goes first). A catch-up otherwise runs two steps at a time and yields to an
+instruction waiting on the port.
 
 The bus is cut at its seams: this module is the transport (the pty, the serving
 thread, framing and dispatch); :mod:`.instructions` executes each instruction,
@@ -349,7 +351,8 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
         # Answer first, then catch the physics up: the idle loop steps the physics
         # every millisecond, so an answer's state is at most about that old, and
         # the host does not wait for the emulator's arithmetic as it would not for
-        # a servo's. With the wire-time model the physics keeps to the stretches
+        # a servo's. (A state read after a hold-up first runs the steps due, up to a
+        # few ms of arithmetic: its answer is the state now, not before the hold-up.) With the wire-time model the physics keeps to the stretches
         # where the wire is modelled busy instead (see the module docstring).
         now = time.perf_counter()
         try:
@@ -373,8 +376,10 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
             for event in events:
                 if self.wire_timing and isinstance(event, Packet):
                     self._answer_on_wire(event, now)
-                else:
-                    self._handle(event)
+                    continue
+                if self.realtime and isinstance(event, Packet) and event.instruction in STATE_READS:
+                    self._catch_up_for_read(time.perf_counter())  # the state now, after a hold-up too
+                self._handle(event)
             self._flush(now)
         elif self._parser.pending and now - self._last_rx > self.frame_timeout_s:
             self._parser.reset()  # inter-byte timeout: drop the partial frame

@@ -11,9 +11,11 @@ from drivers.dynamixel.units import POSITION_MODES
 
 __all__ = ["PhysicsClock"]
 
-#: Due physics steps a state read waits for; a longer backlog means the physics is not
-#: keeping real time, and it is then caught up after the answer, as without wire timing.
-_READ_WAITS_FOR_STEPS = 3
+#: Due physics steps a state read waits for (a few ms of the emulator's arithmetic at most): after
+#: a hold-up of up to this many ms the answer is still the servos' state now, not as it was before
+#: the hold-up (a slide at insertion speed is a tick off in well under 1 ms). A longer backlog means
+#: the physics is not keeping real time, and it is then caught up after the answer.
+_READ_WAITS_FOR_STEPS = 30
 #: Present Position range (ticks) within which a servo counts as still: the hunt of a
 #: holding servo is ±1 tick.
 _STILL_TICKS = 3
@@ -61,7 +63,8 @@ class PhysicsClock:
         return False
 
     def _catch_up_for_read(self, instant: float) -> None:
-        """Run the steps due by a state read's ``instant``, so its answer is at most one step old."""
+        """Run the steps due by a state read's ``instant``, so its answer is at most one step old
+        (unless the backlog is over :data:`_READ_WAITS_FOR_STEPS`: the physics is not keeping up)."""
         steps = self._due_steps(instant)
         if 0 < steps <= _READ_WAITS_FOR_STEPS:
             self._run_physics(steps)
