@@ -32,15 +32,17 @@ def until_paced(run: Callable[[], T], timings: Callable[[T], Iterable[dict]], ch
             late = [t for t in timings(out) if t.get("late")]
             if not late:
                 raise  # the loop kept time: the figure is the rig's, and it failed
-            late_runs.append(", ".join(f"{t['missed']} of {t['cycles']} deadlines{_withheld(t)}" for t in late))
+            late_runs.append(", ".join(f"{t['missed']} of {t['cycles']} deadlines{_withheld(t)}"
+                                       for t in late))
             last = failure
             continue
         if late_runs:
             warnings.warn(f"{what}: run {attempt} of {TRIES} held its figures; before it the loop missed "
                           f"{'; '.join(late_runs)}")
         return out
-    raise AssertionError(f"{what}: the figures failed in each of {TRIES} runs, each with a loop that missed over "
-                         f"1 % of its deadlines on this machine ({'; '.join(late_runs)}); the last: {last}")
+    raise AssertionError(f"{what}: the figures failed in each of {TRIES} runs, each with a loop that "
+                         f"missed over 1 % of its deadlines on this machine ({'; '.join(late_runs)}); "
+                         f"the last: {last}")
 
 
 def _withheld(timing: dict) -> str:

@@ -313,8 +313,11 @@ def test_a_contact_on_the_emulated_rig_is_named_on_its_joint_and_the_clean_rig_r
     def quiet(out: dict) -> None:
         assert out["passed"] and out["monitor"]["alarms"] == [], (out["monitor"], out["loop_timing"])
 
-    until_paced(lambda: json.loads(_run("trial", str(clean), "--emulate", "--json", "--out", str(tmp_path / "r")).stdout),
-                lambda out: [out["loop_timing"]], quiet, "the clean emulated rig")
+    def trial(config: Path) -> subprocess.CompletedProcess:
+        return _run("trial", str(config), "--emulate", "--json", "--out", str(tmp_path / "r"))
+
+    until_paced(lambda: json.loads(trial(clean).stdout), lambda out: [out["loop_timing"]], quiet,
+                "the clean emulated rig")
     touched = _config(tmp_path, lab, name="rig-contact", monitor={"model": "datasheet", "action": "stop"},
                       faults=[{"name": "contact", "joints": ["theta5"], "torque_nm": 0.3, "from_s": 2.0}])
 
@@ -324,8 +327,8 @@ def test_a_contact_on_the_emulated_rig_is_named_on_its_joint_and_the_clean_rig_r
         assert [a["joint"] for a in out["monitor"]["alarms"]] == ["theta5"], out["monitor"]
         assert 2.0 < out["monitor"]["first_alarm_s"] <= 2.25, (out["monitor"], out["loop_timing"])
 
-    res = until_paced(lambda: _run("trial", str(touched), "--emulate", "--json", "--out", str(tmp_path / "r")),
-                      lambda res: [json.loads(res.stdout)["loop_timing"]], named, "the emulated rig with a contact")
+    res = until_paced(lambda: trial(touched), lambda res: [json.loads(res.stdout)["loop_timing"]], named,
+                      "the emulated rig with a contact")
     out = json.loads(res.stdout)
     assert out["safe_stop"] and "NOT" not in out["safe_stop"]
 

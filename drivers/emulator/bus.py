@@ -352,8 +352,9 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
         # every millisecond, so an answer's state is at most about that old, and
         # the host does not wait for the emulator's arithmetic as it would not for
         # a servo's. (A state read after a hold-up first runs the steps due, up to a
-        # few ms of arithmetic: its answer is the state now, not before the hold-up.) With the wire-time model the physics keeps to the stretches
-        # where the wire is modelled busy instead (see the module docstring).
+        # few ms of arithmetic: its answer is the state now, not before the hold-up.)
+        # With the wire-time model the physics keeps to the stretches where the wire
+        # is modelled busy instead (see the module docstring).
         now = time.perf_counter()
         try:
             self._answer(data, now)
