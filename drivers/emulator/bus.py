@@ -36,9 +36,9 @@ that stretch, each only if it ends before the stretch does, instead of after
 every answer; between instructions the physics otherwise waits until it is two
 steps behind. With or without the wire-time model, before a state read is
 answered every step due by the read's instant has run, so the answer is at most
-one step old, as a real servo's, also after the emulator was held up (unless
-the physics has fallen more than 30 steps behind real time: the answer then
-goes first). A catch-up otherwise runs two steps at a time and yields to an
+one step old, as a real servo's (without the wire-time model, two: the idle
+loop's last), also after the emulator was held up (unless the physics has
+fallen more than 30 steps behind real time: the answer then goes first). A catch-up otherwise runs two steps at a time and yields to an
 instruction waiting on the port.
 
 The bus is cut at its seams: this module is the transport (the pty, the serving
@@ -379,7 +379,8 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
                     self._answer_on_wire(event, now)
                     continue
                 if self.realtime and isinstance(event, Packet) and event.instruction in STATE_READS:
-                    self._catch_up_for_read(time.perf_counter())  # the state now, after a hold-up too
+                    # after a hold-up, the state now; otherwise the idle loop's last step, as before
+                    self._catch_up_for_read(time.perf_counter(), from_steps=2)
                 self._handle(event)
             self._flush(now)
         elif self._parser.pending and now - self._last_rx > self.frame_timeout_s:

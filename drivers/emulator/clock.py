@@ -62,11 +62,12 @@ class PhysicsClock:
         """Whether bytes from the host wait to be read (the bus says; a bare clock never has any)."""
         return False
 
-    def _catch_up_for_read(self, instant: float) -> None:
-        """Run the steps due by a state read's ``instant``, so its answer is at most one step old
-        (unless the backlog is over :data:`_READ_WAITS_FOR_STEPS`: the physics is not keeping up)."""
+    def _catch_up_for_read(self, instant: float, from_steps: int = 1) -> None:
+        """Run the steps due by a state read's ``instant`` where ``from_steps`` or more are, so its
+        answer is at most that many steps old (unless the backlog is over
+        :data:`_READ_WAITS_FOR_STEPS`: the physics is not keeping up)."""
         steps = self._due_steps(instant)
-        if 0 < steps <= _READ_WAITS_FOR_STEPS:
+        if from_steps <= steps <= _READ_WAITS_FOR_STEPS and steps > 0:
             self._run_physics(steps)
 
     def _catch_up_before(self, deadline: float) -> None:
