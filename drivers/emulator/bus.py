@@ -269,8 +269,6 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
         return (self._master, self._slave, self._wake_r, self._wake_w)
 
     def _input_waiting(self) -> bool:
-        if not self.realtime:
-            return False
         try:
             return bool(select.select([self._master], [], [], 0)[0])
         except (OSError, ValueError):

@@ -51,12 +51,7 @@ class PhysicsClock:
             return
         if self.max_batch_s is not None:  # the rest is due at the next pass
             steps = min(steps, max(1, int(self.max_batch_s / self.physics_dt)))
-        while steps > 0:
-            n = min(steps, SLICE_STEPS)
-            self._run_physics(n)
-            steps -= n
-            if steps and self._input_waiting():
-                return
+        self._run_physics(steps, yield_to_port=True)
 
     def _input_waiting(self) -> bool:
         """Whether bytes from the host wait to be read (the bus says; a bare clock never has any)."""
@@ -67,7 +62,7 @@ class PhysicsClock:
         answer is at most that many steps old (unless the backlog is over
         :data:`_READ_WAITS_FOR_STEPS`: the physics is not keeping up)."""
         steps = self._due_steps(instant)
-        if from_steps <= steps <= _READ_WAITS_FOR_STEPS and steps > 0:
+        if max(1, from_steps) <= steps <= _READ_WAITS_FOR_STEPS:
             self._run_physics(steps)
 
     def _catch_up_before(self, deadline: float) -> None:
@@ -92,10 +87,22 @@ class PhysicsClock:
         if now - self._sim_wall >= 2 * self.physics_dt:
             self._catch_up(now)
 
-    def _run_physics(self, steps: int) -> None:
-        """Advance the physics by ``steps`` and update the estimate of one step's wall time."""
+    def _run_physics(self, steps: int, yield_to_port: bool = False) -> None:
+        """Advance the physics by ``steps`` and update the estimate of one step's wall time; with
+        ``yield_to_port``, :data:`SLICE_STEPS` at a time, stopping early for an instruction waiting
+        on the port (the steps not run stay due)."""
         t0 = time.perf_counter()
-        self._physics(steps)
+        if yield_to_port:
+            done = 0
+            while done < steps:
+                n = min(steps - done, SLICE_STEPS)
+                self._physics(n)
+                done += n
+                if done < steps and self._input_waiting():
+                    break
+            steps = done
+        else:
+            self._physics(steps)
         self._sim_wall += steps * self.physics_dt
         self._step_costs.append((time.perf_counter() - t0) / steps)
         self._step_cost = 1.25 * sorted(self._step_costs)[len(self._step_costs) // 2]
