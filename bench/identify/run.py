@@ -23,7 +23,7 @@ from bench.identify.errors import IdentifyError
 from bench.identify.fit import FitResult, JointFit, fit_servos, goal_moving
 from bench.identify.logs import LoggedRun, RigSetup, load_runs
 from bench.identify.report import write_report
-from bench.monitor.build import default_sigma
+from bench.monitor.build import default_sigma, encoder_tick
 from bench.monitor.spread import twin_spread
 from bench.monitor.twin import TwinSetup
 from bench.paths import robot_urdf
@@ -140,13 +140,27 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
                           sources=[LogSource(run=str(r.run_dir), sha256=r.sha256) for r in runs], notes=notes)
 
 
-def spread_of(setup: RigSetup, runs: Sequence[LoggedRun], model: ServoModelFile) -> dict[str, float]:
+def spread_of(setup: RigSetup, runs: Sequence[LoggedRun], model: ServoModelFile,
+              fitted: Sequence[str]) -> dict[str, float]:
     """Per joint its servo drives by its own goals (the train on its sensor aside), the spread the
-    identified model's twin leaves on these logs: what the monitor divides its residual by."""
+    identified model's twin leaves on these logs: what the monitor divides its residual by.
+
+    A joint the logs did not move (not among ``fitted``) has its peers' physics, and the logs
+    measured nothing of how far those are from its own: its σ is the largest its fitted peers left,
+    in encoder ticks through its transmission (a slide at insertion speed drifts by the borrowed
+    model's error, not by the tick it sat still within)."""
     params = with_physics(setup.datasheet, [model.physics_of(n) for n in setup.joint_names])
     twin = TwinSetup(str(robot_urdf(setup.robot)), setup.joint_names, params, setup.ratio, setup.offset,
                      setup.lower, setup.upper)
-    sigma = twin_spread(twin, ((r.time, r.goal, r.q, r.qd) for r in runs), default_sigma(setup.ratio, setup.kinds))
+    floor = default_sigma(setup.ratio, setup.kinds)
+    sigma = twin_spread(twin, ((r.time, r.goal, r.q, r.qd) for r in runs), floor)
+    tick = encoder_tick(setup.ratio)
+    moved = [j for j, n in enumerate(setup.joint_names)
+             if n in fitted and j != setup.train and np.isfinite(sigma[j])]
+    if moved:
+        borrowed = max(sigma[j] / tick[j] for j in moved)  # ticks
+        still = [j for j, n in enumerate(setup.joint_names) if n not in fitted]
+        sigma[still] = np.maximum(sigma[still], borrowed * tick[still])
     return {n: float(s) for j, (n, s) in enumerate(zip(setup.joint_names, sigma))
             if j != setup.train and np.isfinite(s)}
 
@@ -221,7 +235,7 @@ def identify(run_dirs: Sequence[Path], out: Path, *, workers: int = 0, generatio
     model = model_file_of(setup, runs, fit)
     if progress:
         progress("the twin's spread", 0.9)
-    model = model.model_copy(update={"twin_sigma": spread_of(setup, runs, model)})
+    model = model.model_copy(update={"twin_sigma": spread_of(setup, runs, model, list(fit.joints))})
     write_model_file(model, out)
     report_path = None
     if report:

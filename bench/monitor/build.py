@@ -19,7 +19,8 @@ from bench.monitor.monitor import TwinMonitor
 from bench.monitor.twin import ServoTwin, TwinSetup
 from drivers.dynamixel.control_table import x_series_table
 
-__all__ = ["DEFAULT_SIGMA_TICKS", "MonitorSetup", "build_monitor", "default_sigma", "monitor_setup"]
+__all__ = ["DEFAULT_SIGMA_TICKS", "MonitorSetup", "build_monitor", "default_sigma", "encoder_tick",
+           "monitor_setup"]
 
 #: The residual's spread (σ) of a datasheet model, in encoder ticks through each joint's
 #: transmission, revolute and prismatic: the quantisation's own (0.3 tick) and the model's error
@@ -41,11 +42,15 @@ class MonitorSetup:
     loop_period_s: Optional[float] = None  #: the trial's control period, when the readings are due
 
 
+def encoder_tick(ratio) -> np.ndarray:
+    """Per joint one encoder tick through its transmission (rad or m)."""
+    return np.abs(np.asarray(ratio, dtype=float)) * x_series_table()["Present Position"].scale
+
+
 def default_sigma(ratio, kinds) -> np.ndarray:
     """Per joint the datasheet model's σ (:data:`DEFAULT_SIGMA_TICKS` through its transmission), the
     floor of an identified one."""
-    tick = np.abs(np.asarray(ratio, dtype=float)) * x_series_table()["Present Position"].scale
-    return tick * np.array([DEFAULT_SIGMA_TICKS[k] for k in kinds])
+    return encoder_tick(ratio) * np.array([DEFAULT_SIGMA_TICKS[k] for k in kinds])
 
 
 def monitor_setup(config: TrialConfig, robot) -> Optional[MonitorSetup]:
