@@ -56,7 +56,8 @@ def _peak(result: dict) -> float:
     log, _ = load_record(Path(result["run_dir"]))
     c = result["monitor"]["cusum"]
     params = CusumParams(c["drift_sigma"], c["threshold_sigma"])
-    return float(np.nanmax(Cusum(log.twin_z.shape[1], params).sums(log.twin_z)))
+    z = log.twin_columns  # position and current, as the detector ran them
+    return float(np.nanmax(Cusum(z.shape[1], params).sums(z)))
 
 
 def _contact(joint: str, torque: float) -> dict:

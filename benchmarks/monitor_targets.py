@@ -136,9 +136,13 @@ def calibrated(model: Path, runs: list[dict], stage: Path, name: str = "worn-cal
 
     setup = prepare(load_trial_config(stage / "trial-00000.yaml")).monitor
     logs = [TrialLog.load(Path(r["run_dir"]) / "trial.npz") for r in runs]
-    sigma = twin_spread(setup.twin, ((g.time, g.q_cmd, g.q, g.qd) for g in logs), setup.sigma)
+    per_amp = setup.twin.reported_kt / setup.twin.ratio  # effort per amp, as the backend reads it
+    sigma, amps = twin_spread(setup.twin, ((g.time, g.q_cmd, g.q, g.qd, g.effort / per_amp) for g in logs),
+                              setup.sigma, setup.current_sigma)
     data = load_servo_model_file(model).model_dump(mode="json", exclude_none=True)
-    data["twin_sigma"] = {n: float(sigma[j]) for j, n in enumerate(setup.twin.joint_names) if setup.monitored[j]}
+    names = [(j, n) for j, n in enumerate(setup.twin.joint_names) if setup.monitored[j]]
+    data["twin_sigma"] = {n: float(sigma[j]) for j, n in names}
+    data["twin_sigma_current"] = {n: float(amps[j]) for j, n in names}
     out = stage / f"{name}.yaml"
     out.write_text(yaml.safe_dump(data))
     return out
@@ -169,7 +173,7 @@ def _peak(result: dict) -> float:
     from bench.monitor.detector import DEFAULT_CUSUM, Cusum
 
     log = TrialLog.load(Path(result["run_dir"]) / "trial.npz")
-    z = log.twin_z
+    z = log.twin_columns  # position and current, as the detector ran them
     return float(np.nanmax(Cusum(z.shape[1], DEFAULT_CUSUM).sums(z))) / DEFAULT_CUSUM.threshold
 
 

@@ -172,6 +172,11 @@ def test_the_identified_model_watches_the_worn_rig_without_an_alarm(worn, tmp_pa
     # (the largest they left, in ticks through its 10 mm pinion), not the tick it sat still within
     peers = max(v for j, v in ticks.items() if j != "d10")
     assert ticks["d10"] == pytest.approx(peers, abs=0.02), ticks
+    # the current's σ beside it (A): never under the datasheet's 20 mA, the slide's its peers' too
+    amps = model.twin_sigma_current
+    print("twin current sigma (mA):", {j: round(1e3 * a, 1) for j, a in amps.items()})
+    assert set(amps) == set(model.twin_sigma) and min(amps.values()) >= 0.02 * 0.999, amps
+    assert amps["d10"] == pytest.approx(max(a for j, a in amps.items() if j != "d10")), amps
 
     def watched() -> dict:
         res = _run("trial", str(_config(tmp_path, "lab_real")), "--emulate", "--monitor", str(worn["model"]),

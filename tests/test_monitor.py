@@ -4,6 +4,8 @@ moves, and a record that never reads the model file again."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import shutil
 import subprocess
@@ -62,6 +64,12 @@ def test_a_clean_servo_sim_trial_raises_no_alarm_and_says_what_it_watched(tmp_pa
     predicted = np.isfinite(z[:, 1:]).all(axis=1)
     assert np.isnan(z[:, 0]).all() and not np.isfinite(z[~predicted, 1:]).any()
     assert np.abs(z[predicted, 1:]).max() < 2.0
+    # the current's beside it (the sim's servos report theirs): its spread well within its σ, and the
+    # detector on both signals never half way to its threshold
+    zc = log.twin_current_z
+    assert m["signals"] == ["position", "current"] and np.isnan(zc[:, 0]).all()
+    assert np.std(zc[predicted, 1:], axis=0).max() < 1.0, np.std(zc[predicted, 1:], axis=0)
+    assert Cusum(2 * 9, CusumParams(2.0, 12.0)).sums(log.twin_columns).max() < 6.0
     # every 10 ms on the sim's 500 Hz loop, as on a rig's 100 Hz one: every fifth reading
     assert np.allclose(np.diff(log.time[predicted]), 0.01) and predicted.sum() >= len(z) // 5 - 1
     plain = _run("trial", str(SERVO_SIM), "--out", str(tmp_path / "runs"))
@@ -122,7 +130,7 @@ def test_a_block_scanned_whole_is_its_rows_checked_one_by_one_and_a_trip_ends_it
     rows = (time, log.q[every], log.qd[every], log.effort[every], log.q_cmd[every])  # as scan takes them
     for action in ("warn", "stop"):
         setup = prepare(load_trial_config(cfg)).monitor
-        setup = type(setup)(setup.twin, setup.sigma, setup.monitored, setup.model, action, 0.01)
+        setup = dataclasses.replace(setup, action=action, loop_period_s=0.01)
         one, block = build_monitor(setup), build_monitor(setup)
         seen = []
         for k in range(len(time)):
@@ -192,7 +200,8 @@ def test_a_weak_joint_is_named_and_the_stop_action_takes_the_safe_stop(tmp_path)
     # where a user looks: the report's section and figure, and the listing of runs
     run = Path(warn["run_dir"])
     md = (run / "report.md").read_text()
-    assert "## The twin" in md and f"| theta4 | {warn['monitor']['first_alarm_s']:.3f} | position |" in md
+    first = warn["monitor"]["alarms"][0]
+    assert "## The twin" in md and f"| theta4 | {first['t_s']:.3f} | {first['signal']} |" in md
     assert (run / "twin.png").stat().st_size > 20_000 and "data:image/png" in (run / "report.html").read_text()
     listed = _run("runs", "--out", str(tmp_path / "w"))
     assert f"the twin's alarms: theta4 at {warn['monitor']['first_alarm_s']:.2f} s" in listed.stdout
@@ -204,13 +213,17 @@ def test_a_weak_joint_is_named_and_the_stop_action_takes_the_safe_stop(tmp_path)
     with open(bag, "rb") as f:
         for _, channel, message, decoded in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
             if channel.topic == "/twin/residual":
-                residual.append((list(decoded.name), list(decoded.position)))
+                residual.append((list(decoded.name), list(decoded.position), list(decoded.effort)))
             elif channel.topic == "/twin/alarm":
                 alarm.append((message.log_time, decoded.data))
     z = log.twin_z[:, [log.joint(n) for n in warn["monitor"]["joints"]]]
     predicted = np.isfinite(z).any(axis=1)  # the readings the twin predicted, every 10 ms
     assert len(residual) == predicted.sum() > len(log) // 6 and residual[0][0] == warn["monitor"]["joints"]
-    assert np.allclose([p for _, p in residual][5], z[predicted][5])
+    assert np.allclose([p for _, p, _ in residual][5], z[predicted][5])
+    # the current's residual beside it, in effort (the sim's servos report their current)
+    zc = log.twin_current_z[:, [log.joint(n) for n in warn["monitor"]["joints"]]]
+    assert np.allclose([e for _, _, e in residual][5], zc[predicted][5]) and warn["monitor"]["signals"] == [
+        "position", "current"]
     assert len(alarm) == 1 and alarm[0][1].startswith("theta4 behaves unlike its model")
     cfg = _config(tmp_path, name="weak", faults=[{"name": "torque_limit", "joints": ["theta4"], "scale": 0.3}],
                   monitor={"model": "datasheet", "action": "stop"})
@@ -220,7 +233,8 @@ def test_a_weak_joint_is_named_and_the_stop_action_takes_the_safe_stop(tmp_path)
     first = out["monitor"]["alarms"][0]
     assert first["joint"] == "theta4" and first["t_s"] == out["monitor"]["first_alarm_s"]
     assert abs(first["t_s"] - warn["monitor"]["first_alarm_s"]) < 1e-9  # the same twin, the same cycle
-    assert not out["completed"] and "theta4 behaves unlike its model (position CUSUM" in out["reason"]
+    assert not out["completed"]
+    assert f"theta4 behaves unlike its model ({first['signal']} CUSUM" in out["reason"]
     assert out["safe_stop"] == "holding the measured position"
     log, _ = load_record(Path(out["run_dir"]))
     stop_t = log.time[0] + first["t_s"]
@@ -276,6 +290,24 @@ def test_the_twins_residuals_travel_in_the_log_and_its_journal_and_an_infinite_o
     plain = TrialLog(["a"], ["s"])
     plain.append(0.0, 0, [0], [0], [0], [0], [0])
     assert read_log_file(plain.save(tmp_path / "plain.npz")).twin_z is None  # unmonitored: none
+    assert read_log_file(saved).twin_current_z is None  # a monitor that watched no current
+
+    # the current's residuals beside the position's, through the journal and the saved log alike
+    both = TrialLog(["a", "b"], ["s"], metadata={"control_period": 0.01})
+    both.start_twin(current=True)
+    run = tmp_path / "both"
+    run.mkdir()
+    both.journal_to(run)
+    for k in range(3):
+        both.append(0.01 * k, 0, [0, 0], [0, 0], [0, 0], [0, 0], [0, 0])
+    both.twin_rows(1, np.array([[0.5, np.nan, 2.5, np.nan], [1.5, np.nan, -4.0, np.nan]]))
+    both.flush()
+    for back in (read_journal(run), read_log_file(both.save(tmp_path / "both.npz"))):
+        assert back.twin_z[2, 0] == 1.5 and back.twin_current_z[2, 0] == -4.0 and back.twin_current
+        assert np.array_equal(back.twin_current_z, both.twin_current_z, equal_nan=True)
+    both.twin_rows(2, np.array([[0.0, 0.0, -np.inf, 0.0]]))
+    with pytest.raises(RunDirError, match="twin_current_z holds an infinity at row 2"):
+        read_log_file(both.save(tmp_path / "bad_current.npz"))
 
 
 def test_a_monitored_rig_config_compares_against_the_ideal_sim_unwatched_and_a_servo_sim_watched():

@@ -131,6 +131,10 @@ class ServoModelFile(Strict):
         default_factory=dict, max_length=32,
         description="per joint, the spread (σ, rad or m) of the twin's residual on the logs the model "
                     "was identified from: what the monitor divides by (identified files)")
+    twin_sigma_current: dict[str, Annotated[float, Field(ge=0, le=10)]] = Field(
+        default_factory=dict, max_length=32,
+        description="per joint, the spread (σ, A at the motor) of the twin's current residual on those "
+                    "logs (identified files)")
     notes: list[str] = Field(default_factory=list, max_length=100,
                              description="where the numbers came from (logs, fit, by hand)")
     servo: Optional[str] = Field(default=None, max_length=64,

@@ -40,15 +40,21 @@ ENCODER_SERIES = "q_encoder"
 #: clean trials (σ): what the monitor's detector accumulates. NaN where a joint is not watched or
 #: a cycle was not (the first, the hold after a trip). Only in a monitored trial's log.
 TWIN_SERIES = "twin_z"
-JOURNAL_ROWS = "trial.journal"  # float64 records: time, segment, q_cmd qd_cmd q qd effort[, timing][, encoder][, twin]
+#: The same of the joints' current (their effort as the backend reads it), where the monitor watches
+#: it too (a backend that reports its servos' current).
+TWIN_CURRENT_SERIES = "twin_current_z"
+#: float64 records: time, segment, q_cmd qd_cmd q qd effort[, timing][, encoder][, twin[, twin current]]
+JOURNAL_ROWS = "trial.journal"
 JOURNAL_META = "trial.journal.json"  # joint and segment names, metadata, events
 FLUSH_EVERY_S = 0.5
 
 
-def journal_row_width(joints: int, timed: bool, encoder: bool, twin: bool = False) -> int:
+def journal_row_width(joints: int, timed: bool, encoder: bool, twin: bool = False,
+                      twin_current: bool = False) -> int:
     """Doubles in one journal row (see :data:`JOURNAL_ROWS`): what every reader of a journal (the
     recovery, the live view, a test counting rows) derives from its metadata, in one place."""
-    return 2 + 5 * joints + (len(TIMING_SERIES) if timed else 0) + (1 if encoder else 0) + (joints if twin else 0)
+    return (2 + 5 * joints + (len(TIMING_SERIES) if timed else 0) + (1 if encoder else 0)
+            + (joints if twin else 0) + (joints if twin and twin_current else 0))
 
 
 @dataclass
@@ -83,7 +89,7 @@ class TrialLog:
         self._timing: dict[str, np.ndarray] | None = None  # TIMING_SERIES once timing started
         self.encoder_joint: str | None = None  # the joint of ENCODER_SERIES once it started
         self._encoder: np.ndarray | None = None
-        self._twin: np.ndarray | None = None  # TWIN_SERIES once the monitor started it
+        self._twin: np.ndarray | None = None  # TWIN_SERIES (then TWIN_CURRENT_SERIES) once the monitor starts
         self._journal = None  # (rows file, meta path) while journaling
         self._journaled = 0
         self._meta_dirty = True
@@ -110,7 +116,7 @@ class TrialLog:
             grown[: self._n] = self._encoder[: self._n]
             self._encoder = grown
         if self._twin is not None:
-            grown = np.full((cap, len(self.joint_names)), np.nan)
+            grown = np.full((cap, self._twin.shape[1]), np.nan)
             grown[: self._n] = self._twin[: self._n]
             self._twin = grown
 
@@ -131,18 +137,33 @@ class TrialLog:
         """The encoder's reading (joint units) of the cycle last appended."""
         self._encoder[self._n - 1] = position
 
-    def start_twin(self) -> None:
-        """Record the twin's residual (:data:`TWIN_SERIES`) from the first row on (a monitored
-        trial); a log that already holds rows is refused."""
+    def start_twin(self, current: bool = False) -> None:
+        """Record the twin's residual (:data:`TWIN_SERIES`, and with ``current``
+        :data:`TWIN_CURRENT_SERIES`) from the first row on (a monitored trial); a log that already
+        holds rows is refused."""
         if self._n:
             raise ValueError(f"the twin's channel starts with the first cycle; this log has {self._n} rows")
-        self._twin = np.full((len(self._t), len(self.joint_names)), np.nan)
+        self._twin = np.full((len(self._t), len(self.joint_names) * (2 if current else 1)), np.nan)
         self._meta_dirty = True
         if self._journal is not None:
             self._write_meta()
 
+    @property
+    def twin_columns(self) -> np.ndarray | None:
+        """The residuals as the monitor's detector has its columns: each joint's position, then
+        (where the current was watched) each joint's current; None in a log without a monitor."""
+        if self._twin is None:
+            return None
+        return self._twin[: self._n]
+
+    @property
+    def twin_current(self) -> bool:
+        """Whether the log holds the twin's current residual beside its position's."""
+        return self._twin is not None and self._twin.shape[1] > len(self.joint_names)
+
     def twin_rows(self, first: int, z: np.ndarray) -> None:
-        """The twin's normalised residuals of rows ``first`` on (rows already appended)."""
+        """The twin's normalised residuals of rows ``first`` on (rows already appended): per row the
+        joints' position residuals, then (a log that holds it) their current residuals."""
         self._twin[first:first + len(z)] = z
 
     def start_timing(self) -> None:
@@ -289,7 +310,10 @@ class TrialLog:
             return None if enc is None else enc[: self.__dict__["_n"]]
         if name == TWIN_SERIES:  # None in a log without a monitor
             twin = self.__dict__["_twin"]
-            return None if twin is None else twin[: self.__dict__["_n"]]
+            return None if twin is None else twin[: self.__dict__["_n"], : len(self.__dict__["joint_names"])]
+        if name == TWIN_CURRENT_SERIES:  # None in a log whose monitor watched no current
+            twin, n = self.__dict__["_twin"], len(self.__dict__["joint_names"])
+            return None if twin is None or twin.shape[1] == n else twin[: self.__dict__["_n"], n:]
         raise AttributeError(name)
 
     def joint(self, name: str) -> int:
@@ -311,6 +335,8 @@ class TrialLog:
                 timing[ENCODER_SERIES] = self.q_encoder
             if self._twin is not None:
                 timing[TWIN_SERIES] = self.twin_z
+            if self.twin_current:
+                timing[TWIN_CURRENT_SERIES] = self.twin_current_z
             np.savez_compressed(f, time=self.time, segment=self.segment,
                                 **{k: getattr(self, k) for k in SERIES[2:]}, **timing,
                                 meta=np.array(json.dumps(meta, default=_json_default)))
@@ -320,7 +346,8 @@ class TrialLog:
     def _meta(self) -> dict:
         return {"joint_names": self.joint_names, "segment_names": self.segment_names,
                 "events": [e.as_dict() for e in self.events], "metadata": self.metadata,
-                "timing": self.timed, "encoder_joint": self.encoder_joint, "twin": self._twin is not None}
+                "timing": self.timed, "encoder_joint": self.encoder_joint, "twin": self._twin is not None,
+                "twin_current": self.twin_current}
 
     @classmethod
     def load(cls, path: Path) -> "TrialLog":
@@ -345,8 +372,11 @@ class TrialLog:
                 log.start_encoder(meta["encoder_joint"])
                 log._encoder[:n] = z[ENCODER_SERIES]
             if TWIN_SERIES in z.files and meta.get("twin"):
-                log.start_twin()
-                log._twin[:n] = z[TWIN_SERIES]
+                current = TWIN_CURRENT_SERIES in z.files and bool(meta.get("twin_current"))
+                log.start_twin(current)
+                log._twin[:n, : len(log.joint_names)] = z[TWIN_SERIES]
+                if current:
+                    log._twin[:n, len(log.joint_names):] = z[TWIN_CURRENT_SERIES]
             log._n = n
         return log
 

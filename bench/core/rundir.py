@@ -24,8 +24,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 
 from bench.config.base import describe_validation_error
-from bench.core.log import (ENCODER_SERIES, JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES, TWIN_SERIES, Event,
-                            TrialLog, journal_row_width)
+from bench.core.log import (ENCODER_SERIES, JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES,
+                            TWIN_CURRENT_SERIES, TWIN_SERIES, Event, TrialLog, journal_row_width)
 from bench.core.record import sha256_of
 from drivers.errors import RunDirError
 
@@ -84,6 +84,7 @@ class _LogMeta(BaseModel):
     timing: StrictBool = False  # the loop's timing follows each row (TIMING_SERIES): a paced trial
     encoder_joint: Optional[str] = None  # the joint whose servo encoder follows (ENCODER_SERIES)
     twin: StrictBool = False  # the twin's residual follows each row (TWIN_SERIES): a monitored trial
+    twin_current: StrictBool = False  # and its current's (TWIN_CURRENT_SERIES): a monitor that watched it
 
 
 class _ConfigView(BaseModel):
@@ -312,22 +313,26 @@ def _check_encoder(where: object, name: str, meta: _LogMeta, rows: int, arrays: 
 
 
 def _check_twin(where: object, name: str, meta: _LogMeta, rows: int, arrays: dict[str, np.ndarray]) -> None:
-    """The twin's residual, when the log has it: a float per row and joint, no infinity (NaN: a
-    joint or cycle not watched). A log without it (an unmonitored trial's, an older one) reads as before."""
-    has = TWIN_SERIES in arrays
-    if has != meta.twin:
-        raise _refuse(where, f"{name}: " + (f"{TWIN_SERIES} without twin: true in its metadata" if has else
-                                             f"twin: true without {TWIN_SERIES}"))
-    if not has:
-        return
-    a, n = arrays[TWIN_SERIES], len(meta.joint_names)
-    if a.dtype.kind != "f" or a.shape != (rows, n):
-        raise _refuse(where, f"{name}: {TWIN_SERIES} is {a.dtype} of shape {a.shape}, not float of shape "
-                             f"({rows}, {n})")
-    if np.any(np.isinf(a)):
-        i = _first_bad(np.isinf(a))
-        raise _refuse(where, f"{name}: {TWIN_SERIES} holds an infinity at row {i}; a residual is finite "
-                             f"(NaN where not watched)")
+    """The twin's residuals, when the log has them: a float per row and joint, no infinity (NaN: a
+    joint or cycle not watched). A log without them (an unmonitored trial's, an older one) reads as before."""
+    if meta.twin_current and not meta.twin:
+        raise _refuse(where, f"{name}: twin_current: true without twin: true in its metadata")
+    for series, said, what in ((TWIN_SERIES, meta.twin, "twin"), (TWIN_CURRENT_SERIES, meta.twin_current,
+                                                                   "twin_current")):
+        has = series in arrays
+        if has != said:
+            raise _refuse(where, f"{name}: " + (f"{series} without {what}: true in its metadata" if has else
+                                                 f"{what}: true without {series}"))
+        if not has:
+            continue
+        a, n = arrays[series], len(meta.joint_names)
+        if a.dtype.kind != "f" or a.shape != (rows, n):
+            raise _refuse(where, f"{name}: {series} is {a.dtype} of shape {a.shape}, not float of shape "
+                                 f"({rows}, {n})")
+        if np.any(np.isinf(a)):
+            i = _first_bad(np.isinf(a))
+            raise _refuse(where, f"{name}: {series} holds an infinity at row {i}; a residual is finite "
+                                 f"(NaN where not watched)")
 
 
 def _build(meta: _LogMeta, arrays: dict[str, np.ndarray]) -> TrialLog:
@@ -346,8 +351,12 @@ def _build(meta: _LogMeta, arrays: dict[str, np.ndarray]) -> TrialLog:
         log.encoder_joint = meta.encoder_joint
         encoder[: len(log)] = arrays[ENCODER_SERIES]
     if meta.twin:
-        log._twin = np.full((len(log._t), len(log.joint_names)), np.nan)  # its rows are in: filled directly
-        log._twin[: len(log)] = arrays[TWIN_SERIES]
+        n = len(log.joint_names)
+        # its rows are in: filled directly
+        log._twin = np.full((len(log._t), n * (2 if meta.twin_current else 1)), np.nan)
+        log._twin[: len(log), :n] = arrays[TWIN_SERIES]
+        if meta.twin_current:
+            log._twin[: len(log), n:] = arrays[TWIN_CURRENT_SERIES]
     return log
 
 
@@ -358,7 +367,8 @@ def _npy_headers(where: object, name: str, zf: zipfile.ZipFile) -> None:
     missing = [m.removesuffix(".npy") for m in want if m not in members]
     if missing:
         raise _refuse(where, f"{name} has no {', '.join(missing)}: not a trial log")
-    timing = [f"{k}.npy" for k in (*TIMING_SERIES, ENCODER_SERIES, TWIN_SERIES) if f"{k}.npy" in members]
+    timing = [f"{k}.npy" for k in (*TIMING_SERIES, ENCODER_SERIES, TWIN_SERIES, TWIN_CURRENT_SERIES)
+              if f"{k}.npy" in members]
     total = 0
     for m in want + timing:
         with zf.open(members[m]) as f:
@@ -383,7 +393,8 @@ def read_log_file(path: Path, where: Optional[object] = None) -> TrialLog:
         with zipfile.ZipFile(path) as zf:
             _npy_headers(where, path.name, zf)
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in (*SERIES, *TIMING_SERIES, ENCODER_SERIES, TWIN_SERIES) if k in z.files}
+            arrays = {k: z[k] for k in (*SERIES, *TIMING_SERIES, ENCODER_SERIES, TWIN_SERIES,
+                                        TWIN_CURRENT_SERIES) if k in z.files}
             raw_meta = z["meta"]
     except RunDirError:
         raise
@@ -439,7 +450,7 @@ def read_journal(run_dir: Path) -> TrialLog:
         raise _refuse(run_dir, f"{JOURNAL_ROWS} is larger than any trial's log")
     n = len(meta.joint_names)
     timed = len(TIMING_SERIES) if meta.timing else 0
-    width = journal_row_width(n, bool(timed), meta.encoder_joint is not None, meta.twin)
+    width = journal_row_width(n, bool(timed), meta.encoder_joint is not None, meta.twin, meta.twin_current)
     raw = np.frombuffer(rows_path.read_bytes(), dtype="<f8")
     rows = raw[: len(raw) // width * width].reshape(-1, width)
     seg = rows[:, 1]
@@ -456,7 +467,10 @@ def read_journal(run_dir: Path) -> TrialLog:
     if encoder:
         arrays[ENCODER_SERIES] = rows[:, 2 + 5 * n + timed].copy()
     if meta.twin:
-        arrays[TWIN_SERIES] = rows[:, 2 + 5 * n + timed + encoder:].copy()
+        first = 2 + 5 * n + timed + encoder
+        arrays[TWIN_SERIES] = rows[:, first:first + n].copy()
+        if meta.twin_current:
+            arrays[TWIN_CURRENT_SERIES] = rows[:, first + n:first + 2 * n].copy()
     _check_series(run_dir, JOURNAL_ROWS, meta, arrays)
     _check_timing(run_dir, JOURNAL_ROWS, len(rows), arrays)
     _check_encoder(run_dir, JOURNAL_ROWS, meta, len(rows), arrays)

@@ -104,7 +104,7 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
         last_segment = None
         timing = zip(TIMING_TOPICS, (log.loop_late, log.bus_s)) if log.timed else ()
         timing = [(topic, series, np.isfinite(log.loop_late)) for topic, series in timing]
-        twin = log.twin_z
+        twin, current = log.twin_z, log.twin_current_z  # the current's in the effort field
         monitor = log.metadata.get("monitor") or {}
         watched = [log.joint(n) for n in monitor.get("joints", [])] if twin is not None else []
         for i, ns in enumerate(stamps):
@@ -124,7 +124,8 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
                                 {"data": float(margins.gantry[i])}, ns, ns, i)
             if watched and np.isfinite(twin[i, watched]).any():  # a reading the twin predicted
                 w.write_message(TWIN_TOPICS[0], schema["joint"],
-                                _joint_state([names[j] for j in watched], stamp, twin[i, watched]), ns, ns, i)
+                                _joint_state([names[j] for j in watched], stamp, twin[i, watched], (),
+                                             () if current is None else current[i, watched]), ns, ns, i)
             for topic, series, timed in timing:
                 if timed[i]:
                     w.write_message(topic, schema["float"], {"data": float(series[i])}, ns, ns, i)

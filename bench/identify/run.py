@@ -23,7 +23,7 @@ from bench.identify.errors import IdentifyError
 from bench.identify.fit import FitResult, JointFit, fit_servos, goal_moving
 from bench.identify.logs import LoggedRun, RigSetup, load_runs
 from bench.identify.report import write_report
-from bench.monitor.build import default_sigma, encoder_tick
+from bench.monitor.build import DEFAULT_SIGMA_CURRENT_A, default_sigma, encoder_tick
 from bench.monitor.spread import twin_spread
 from bench.monitor.twin import TwinSetup
 from bench.paths import robot_urdf
@@ -141,28 +141,32 @@ def model_file_of(setup: RigSetup, runs: Sequence[LoggedRun], fit: FitResult) ->
 
 
 def spread_of(setup: RigSetup, runs: Sequence[LoggedRun], model: ServoModelFile,
-              fitted: Sequence[str]) -> dict[str, float]:
+              fitted: Sequence[str]) -> tuple[dict[str, float], dict[str, float]]:
     """Per joint its servo drives by its own goals (the train on its sensor aside), the spread the
-    identified model's twin leaves on these logs: what the monitor divides its residual by.
+    identified model's twin leaves on these logs, of the position and of the current: what the
+    monitor divides its residuals by.
 
     A joint the logs did not move (not among ``fitted``) has its peers' physics, and the logs
     measured nothing of how far those are from its own: its σ is the largest its fitted peers left,
     in encoder ticks through its transmission (a slide at insertion speed drifts by the borrowed
-    model's error, not by the tick it sat still within)."""
+    model's error, not by the tick it sat still within), and in amps of the same motors."""
     params = with_physics(setup.datasheet, [model.physics_of(n) for n in setup.joint_names])
     twin = TwinSetup(str(robot_urdf(setup.robot)), setup.joint_names, params, setup.ratio, setup.offset,
-                     setup.lower, setup.upper)
+                     setup.lower, setup.upper, setup.kt_datasheet)
     floor = default_sigma(setup.ratio, setup.kinds)
-    sigma = twin_spread(twin, ((r.time, r.goal, r.q, r.qd) for r in runs), floor)
+    n = len(setup.joint_names)
+    sigma, amps = twin_spread(twin, ((r.time, r.goal, r.q, r.qd, r.current) for r in runs), floor,
+                              np.full(n, DEFAULT_SIGMA_CURRENT_A))
     tick = encoder_tick(setup.ratio)
-    moved = [j for j, n in enumerate(setup.joint_names)
-             if n in fitted and j != setup.train and np.isfinite(sigma[j])]
+    moved = [j for j, name in enumerate(setup.joint_names)
+             if name in fitted and j != setup.train and np.isfinite(sigma[j])]
     if moved:
-        borrowed = max(sigma[j] / tick[j] for j in moved)  # ticks
-        still = [j for j, n in enumerate(setup.joint_names) if n not in fitted]
-        sigma[still] = np.maximum(sigma[still], borrowed * tick[still])
-    return {n: float(s) for j, (n, s) in enumerate(zip(setup.joint_names, sigma))
-            if j != setup.train and np.isfinite(s)}
+        still = [j for j, name in enumerate(setup.joint_names) if name not in fitted]
+        sigma[still] = np.maximum(sigma[still], max(sigma[j] / tick[j] for j in moved) * tick[still])
+        amps[still] = np.maximum(amps[still], max(amps[j] for j in moved))
+    kept = [j for j in range(n) if j != setup.train and np.isfinite(sigma[j])]
+    return ({setup.joint_names[j]: float(sigma[j]) for j in kept},
+            {setup.joint_names[j]: float(amps[j]) for j in kept if np.isfinite(amps[j])})
 
 
 def peer_values(setup: RigSetup, fit: FitResult, joint: str,
@@ -235,7 +239,8 @@ def identify(run_dirs: Sequence[Path], out: Path, *, workers: int = 0, generatio
     model = model_file_of(setup, runs, fit)
     if progress:
         progress("the twin's spread", 0.9)
-    model = model.model_copy(update={"twin_sigma": spread_of(setup, runs, model, list(fit.joints))})
+    sigma, amps = spread_of(setup, runs, model, list(fit.joints))
+    model = model.model_copy(update={"twin_sigma": sigma, "twin_sigma_current": amps})
     write_model_file(model, out)
     report_path = None
     if report:

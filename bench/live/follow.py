@@ -106,6 +106,7 @@ class RunFollower:
         self._dir: Path | None = None
         self._offset = 0  # bytes of the rows file read so far
         self._width = 0
+        self._signals = 1  # the twin's signals in the journal: position, and current where watched
         self._meta_mtime = -1.0
         self._meta: dict = {}
         self._rows = np.empty((0, 0))
@@ -179,8 +180,9 @@ class RunFollower:
         s.segments = list(meta.get("segment_names", []))
         s.events = [e for e in meta.get("events", []) if isinstance(e, dict)]
         self._timed = meta.get("timing") is True
+        self._signals = 2 if meta.get("twin") and meta.get("twin_current") is True else 1
         self._width = journal_row_width(len(s.joints), self._timed, bool(meta.get("encoder_joint")),
-                                        bool(meta.get("twin")))
+                                        bool(meta.get("twin")), self._signals == 2)
         self._follow_twin(meta)
         if not s.timing:
             s.timing = {"cycles": 0, "missed": 0, "worst_late_s": None}
@@ -207,7 +209,7 @@ class RunFollower:
             self._count_deadlines(rows[:, 2 + 5 * n:2 + 5 * n + len(TIMING_SERIES)])
         sums = None
         if self._cusum is not None and self._twin_at is not None:
-            sums = self._detect(rows[:, self._twin_at:self._twin_at + n])
+            sums = self._detect(rows[:, self._twin_at:self._twin_at + n * self._signals])
         keep, self._next_t = decimate(rows[:, 0], self._next_t)
         rows = rows[keep]
         q_cmd, q = rows[:, 2:2 + n], rows[:, 2 + 2 * n:2 + 3 * n]
@@ -255,17 +257,18 @@ class RunFollower:
             self._watched = [names.index(j) for j in monitor["joints"]]
         except (KeyError, TypeError, ValueError):
             return False
-        self._cusum = Cusum(len(self.snapshot.joints), params)
+        self._cusum = Cusum(len(self.snapshot.joints) * self._signals, params)
         return True
 
     def _detect(self, z: np.ndarray) -> np.ndarray:
         """Every row's residual through the detector (before the page's decimation): the nearest a
         joint has come to its threshold is never skipped. Each row's sums (σ; NaN where a joint is
         not watched), for the page's residual panel."""
-        c = self._cusum
-        sums = np.full(z.shape, np.nan)
-        sums[:, self._watched] = c.sums(z)[:, self._watched]  # NaN in z: a joint or cycle not watched
-        score = c.score
+        c, n = self._cusum, len(self.snapshot.joints)
+        sums = np.full((len(z), n), np.nan)
+        # per joint the larger of its signals' sums (position, and current where it is watched)
+        sums[:, self._watched] = c.sums(z).reshape(len(z), -1, n).max(axis=1)[:, self._watched]
+        score = c.score.reshape(-1, n).max(axis=0)
         j = max(self._watched, key=lambda k: score[k]) if self._watched else 0
         names = self.snapshot.joints
         self.snapshot.twin = {"joint": names[j], "share": float(score[j] / c.params.threshold),
@@ -337,8 +340,9 @@ class RunFollower:
                         "worst_late_s": whole.worst_late_s, "period_s": whole.period_median_s,
                         "bus_s": whole.bus_median_s, "late": whole.late}
         s.twin_sum = []
+        self._signals = 2 if log.twin_current else 1
         if log.twin_z is not None and self._start_detector(log.metadata):  # the saved log's, every row
-            s.twin_sum = self._detect(log.twin_z)[keep].tolist()
+            s.twin_sum = self._detect(log.twin_columns)[keep].tolist()
         s.epoch += 1
         s.time = log.time[keep].tolist()
         s.q_cmd = log.q_cmd[keep].tolist()

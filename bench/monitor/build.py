@@ -28,6 +28,9 @@ __all__ = ["DEFAULT_SIGMA_TICKS", "MonitorSetup", "build_monitor", "default_sigm
 #: model file from ``identify`` carries the σ its detector needs on its logs (``twin_sigma``,
 #: :mod:`bench.monitor.spread`); the larger of the two is the joint's σ.
 DEFAULT_SIGMA_TICKS = {"revolute": 1.0, "prismatic": 2.0}
+#: The current residual's spread (σ, A, at the motor) of a datasheet model: see docs/monitor.md. A
+#: model file from ``identify`` carries its own (``twin_sigma_current``); the larger is the joint's.
+DEFAULT_SIGMA_CURRENT_A = 0.02
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,7 @@ class MonitorSetup:
     model: str
     action: str
     loop_period_s: Optional[float] = None  #: the trial's control period, when the readings are due
+    current_sigma: Optional[np.ndarray] = None  #: per joint the current residual's σ (A); None: not watched
 
 
 def encoder_tick(ratio) -> np.ndarray:
@@ -66,26 +70,31 @@ def monitor_setup(config: TrialConfig, robot) -> Optional[MonitorSetup]:
     names = list(robot.joint_names)
     table = servo_table(config, robot)
     params = servo_params(table, names)
+    reported_kt = params.kt.copy()  # the driver's: Present Current to effort by the datasheet's Kt
     spread: dict[str, float] = {}
+    spread_current: dict[str, float] = {}
     if m.model != "datasheet":
         model = load_servo_model_file(config.resolve(Path(m.model)))
         if model.robot != config.robot:
             raise ConfigError(f"monitor.model: {m.model} is for {model.robot}, not {config.robot}")
         params = with_physics(params, [model.physics_of(n) for n in names])
         spread = model.twin_sigma
+        spread_current = model.twin_sigma_current
     ratio = np.array([table[n].ratio for n in names], dtype=float)
     # the spread the model leaves where identify measured it, never below the encoder's steps
     floor = default_sigma(ratio, [r.kind for r in robot.chain.rows])
     sigma = np.array([max(spread.get(n, 0.0), floor[j]) for j, n in enumerate(names)])
+    current_sigma = np.array([max(spread_current.get(n, 0.0), DEFAULT_SIGMA_CURRENT_A) for n in names])
     sensed = getattr(b, "ultrasonic", None)
     monitored = np.array([not (sensed is not None and n == sensed.joint) for n in names])
     twin = TwinSetup(str(config.robot_urdf), names, params, ratio,
                      np.array([table[n].offset for n in names], dtype=float),
-                     robot.chain.lower, robot.chain.upper)
-    return MonitorSetup(twin, sigma, monitored, m.model, m.action, config.control_period)
+                     robot.chain.lower, robot.chain.upper, reported_kt)
+    return MonitorSetup(twin, sigma, monitored, m.model, m.action, config.control_period, current_sigma)
 
 
 def build_monitor(setup: MonitorSetup, log=None) -> TwinMonitor:
     """A fresh monitor for one run (its alarms logged in ``log``)."""
     return TwinMonitor(ServoTwin(setup.twin), setup.twin.joint_names, setup.sigma, setup.monitored,
-                       setup.model, setup.action, log=log, loop_period_s=setup.loop_period_s)
+                       setup.model, setup.action, log=log, loop_period_s=setup.loop_period_s,
+                       current_sigma=setup.current_sigma)

@@ -33,7 +33,7 @@ __all__ = ["Alarm", "TwinMonitor", "Watched"]
 class Alarm:
     joint: str
     t_s: float  #: since the trial's first reading
-    signal: str  #: what the residual is of ("position")
+    signal: str  #: what the residual is of ("position" or "current")
     score: float  #: the CUSUM's sum when it crossed the threshold (σ)
 
     def as_dict(self) -> dict:
@@ -54,16 +54,27 @@ class TwinMonitor:
     cusum: CusumParams = DEFAULT_CUSUM
     log: Optional[object] = None  #: the trial's log, for the alarms' events
     loop_period_s: Optional[float] = None  #: the period the readings are due at (the twin's timing spread)
+    #: per joint the current residual's spread (A at the motor); None: the current not watched
+    current_sigma: Optional[np.ndarray] = None
     name: str = "monitor"
     alarms: list[Alarm] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        self._detector = Cusum(len(self.joint_names), self.cusum)
+        n = len(self.joint_names)
+        self._current = self.current_sigma is not None
+        #: the detector's columns: each joint's position, then (where watched) each joint's current
+        self.signals = ("position", "current") if self._current else ("position",)
+        self._detector = Cusum(n * len(self.signals), self.cusum)
         inverse = 1.0 / np.asarray(self.sigma, dtype=float)
         self._scale = np.where(self.monitored, inverse, 0.0)  # the detector's: an unwatched joint's z is 0
         self._shown = np.where(self.monitored, inverse, np.nan)  # the log's: NaN where not watched
+        if self._current:
+            self._current_variance = np.asarray(self.current_sigma, dtype=float) ** 2
+            self._current_watched = np.where(self.monitored, 1.0, 0.0)  # the detector's: 0 where not watched
+            self._current_shown = np.where(self.monitored, 1.0, np.nan)  # the log's: NaN where not watched
         self._variance = np.asarray(self.sigma, dtype=float) ** 2
-        self._unpredicted = np.full(len(self.joint_names), np.nan)  # the log's row where the twin predicted nothing
+        # the log's row where the twin predicted nothing
+        self._unpredicted = np.full(n * len(self.signals), np.nan)
         self._t0: Optional[float] = None
         self._last: Optional[tuple[float, np.ndarray]] = None  # (time, goal) of the previous cycle
         self._before: Optional[np.ndarray] = None  # the goal in force until the previous cycle's left
@@ -72,16 +83,17 @@ class TwinMonitor:
         self._cycles = 0  # the cycles checked
         self._written = 0  # the cycles whose residuals are in the log
         if self.log is not None:  # the journal says what is watched, and how, from the start
-            self.log.start_twin()
+            self.log.start_twin(self._current)
             self.log.metadata["monitor"] = self.summary()
 
     def check(self, t: float, measured: JointState, commanded: np.ndarray) -> Optional[Trip]:
         """The residual of the interval this reading ends; a trip when an alarm must stop the trial."""
-        trip = self._step(t, measured.position, measured.velocity, commanded)
+        trip = self._step(t, measured.position, measured.velocity, commanded, measured.effort)
         self.logged()
         return trip
 
-    def _step(self, t: float, position: np.ndarray, velocity: np.ndarray, commanded: np.ndarray) -> Optional[Trip]:
+    def _step(self, t: float, position: np.ndarray, velocity: np.ndarray, commanded: np.ndarray,
+              effort: np.ndarray) -> Optional[Trip]:
         trip = None
         if self._last is None:
             self._t0 = t
@@ -97,7 +109,7 @@ class TwinMonitor:
             if residual is None:  # a reading between the twin's predictions
                 self._pending.append(self._unpredicted)
             else:
-                trip = self._judge(t, residual, self.twin.timing)
+                trip = self._judge(t, residual, self.twin.timing, effort)
         self._before = self._last[1] if self._last is not None else commanded
         self._last = (t, commanded)  # the runner's own row of the plan, never changed after
         self._lag = 0.0
@@ -110,12 +122,21 @@ class TwinMonitor:
         if self._last is not None:
             self._lag = max(0.0, t - self._last[0])
 
-    def _judge(self, t: float, residual: np.ndarray, timing: Optional[np.ndarray]) -> Optional[Trip]:
-        """A prediction's residual over σ into the log and the detector; a trip when it must stop."""
+    def _judge(self, t: float, residual: np.ndarray, timing: Optional[np.ndarray],
+               effort: np.ndarray) -> Optional[Trip]:
+        """A prediction's residuals over σ into the log and the detector; a trip when it must stop."""
         if timing is not None:  # a late loop: σ and the timing spread in quadrature
             residual = residual * np.sqrt(self._variance / (self._variance + timing * timing))
-        self._pending.append(residual * self._shown)
-        hit = self._detector.update(residual * self._scale)
+        if self._current:  # a reading without its current (NaN) leaves that joint's sum as it is
+            twin = self.twin
+            spread = twin.current_timing  # σ and the current's sample moment in quadrature
+            off = (np.nan_to_num(twin.amps(effort) - twin.current, nan=0.0)
+                   / np.sqrt(self._current_variance + spread * spread))
+            self._pending.append(np.concatenate((residual * self._shown, off * self._current_shown)))
+            hit = self._detector.update(np.concatenate((residual * self._scale, off * self._current_watched)))
+        else:
+            self._pending.append(residual * self._shown)
+            hit = self._detector.update(residual * self._scale)
         return self._alarm(t, hit) if hit.size else None
 
     def logged(self) -> None:
@@ -131,14 +152,24 @@ class TwinMonitor:
             self._written = upto
 
     def _alarm(self, t: float, hit: np.ndarray) -> Optional[Trip]:
-        score = self._detector.score
-        new = [Alarm(self.joint_names[j], t - self._t0, "position", float(score[j])) for j in hit]
+        score, n = self._detector.score, len(self.joint_names)
+        width, latched, hits = len(score), self._detector.latched, set(hit.tolist())
+        new, named = [], set()
+        for j in hit:  # a joint whose other signal alarmed already (still latched) is that alarm still
+            other = (j + n) % width
+            if j % n in named or (other != j and latched[other] and other not in hits):
+                continue
+            named.add(j % n)
+            new.append(Alarm(self.joint_names[j % n], t - self._t0, self.signals[j // n], float(score[j])))
+        if not new:
+            return None
         self.alarms.extend(new)
         first = new[0]
-        why = f"{first.joint} behaves unlike its model (position CUSUM {first.score:.1f} σ > {self.cusum.threshold:g} σ)"
+        why = (f"{first.joint} behaves unlike its model ({first.signal} CUSUM {first.score:.1f} σ > "
+               f"{self.cusum.threshold:g} σ)")
         if self.log is not None:
             for a in new:
-                self.log.event(t, "monitor", f"{a.joint} behaves unlike its model (position CUSUM "
+                self.log.event(t, "monitor", f"{a.joint} behaves unlike its model ({a.signal} CUSUM "
                                f"{a.score:.1f} σ at {a.t_s:.3f} s)")
         if self.action == "stop":
             return Trip("monitor", why, t, first.joint, first.score)
@@ -153,7 +184,7 @@ class TwinMonitor:
             return None
         first = 0
         if self._last is None:  # the trial's first reading starts the twin
-            self._step(float(times[0]), position[0], velocity[0], commanded[0])
+            self._step(float(times[0]), position[0], velocity[0], commanded[0], effort[0])
             first = 1
         t_prev, goal = self._last
         stamps = np.asarray(times[first:rows], dtype=float)
@@ -166,7 +197,7 @@ class TwinMonitor:
         for k, residual, timing in predictions:
             row = first + k
             self._pending.extend([self._unpredicted] * (row - written))
-            trip = self._judge(float(times[row]), residual, timing)
+            trip = self._judge(float(times[row]), residual, timing, effort[row])
             self._cycles += row - written + 1
             written = row + 1
             if trip is not None:  # the trial stops here: the rows after it are never the monitor's
@@ -182,6 +213,7 @@ class TwinMonitor:
         self.logged()
         return {"model": self.model, "action": self.action,
                 "joints": [n for n, m in zip(self.joint_names, self.monitored) if m],
+                "signals": list(self.signals),
                 "cusum": {"drift_sigma": self.cusum.drift, "threshold_sigma": self.cusum.threshold},
                 "alarms": [a.as_dict() for a in self.alarms],
                 "first_alarm_s": round(self.alarms[0].t_s, 4) if self.alarms else None}

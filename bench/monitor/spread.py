@@ -1,7 +1,8 @@
 """The spread a servo model leaves: its twin run over clean logs of the rig, and per joint the σ its
 detector needs there.
 
-``hilbench identify`` writes it into the model file (``twin_sigma``): the monitor then divides each
+``hilbench identify`` writes it into the model file (``twin_sigma``, and the current's
+``twin_sigma_current``): the monitor then divides each
 joint's residual by what that model, on that rig, leaves on clean logs, not by a datasheet default.
 A residual is not Gaussian: a worn joint's stick-slip leaves bursts of several encoder ticks
 between stretches of quantisation noise, so its standard deviation says little of what the detector
@@ -11,6 +12,7 @@ over the clean logs, rises to at most :data:`CLEAN_SHARE` of its threshold on ev
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
@@ -18,35 +20,48 @@ import numpy as np
 from bench.monitor.detector import Cusum, CusumParams, DEFAULT_CUSUM
 from bench.monitor.twin import ServoTwin, TwinSetup
 
-__all__ = ["CLEAN_SHARE", "calibrated_sigma", "twin_residuals", "twin_spread"]
+__all__ = ["CLEAN_SHARE", "TwinResiduals", "calibrated_sigma", "twin_residuals", "twin_spread"]
 
 #: The share of the alarm threshold the detector may reach on the clean logs a σ is calibrated on:
 #: the other half is the margin for a trial's motion, which the excitation never covers whole.
 CLEAN_SHARE = 0.5
 
 
-def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """The twin's residual over ``logs`` (each: time, the goals sent, the measured positions and
-    speeds, rows per control cycle), rows of joints, joint units, at the readings it predicted (the
-    rows its detector meets), and beside it the twin's timing spread (0 where the loop was on time,
-    its period each log's median interval); the logs one after another."""
+@dataclass(frozen=True)
+class TwinResiduals:
+    """The twin's residuals over clean logs, rows of joints at the readings it predicted (the rows
+    its detector meets), the logs one after another: position (joint units) and its timing spread
+    (0 where the loop was on time), current (A; NaN where a log has none) and its timing spread."""
+
+    position: np.ndarray
+    timing: np.ndarray
+    current: np.ndarray
+    current_timing: np.ndarray
+
+
+def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, ...]]) -> TwinResiduals:
+    """The twin run over ``logs`` (each: time, the goals sent, the measured positions and speeds,
+    and the motor currents in A or None, rows per control cycle), as the monitor runs it."""
     twin = ServoTwin(setup)
-    residuals, timing = [], []
+    n = len(setup.joint_names)
+    position, timing, current, current_timing = [], [], [], []
     try:
-        for time, goal, q, qd in logs:
+        for time, goal, q, qd, *rest in logs:
+            amps = rest[0] if rest and rest[0] is not None else np.full(q.shape, np.nan)
             if len(time) < 2:
                 continue
             twin.start(q[0], qd[0], float(np.median(np.diff(time))))
             for k in range(len(time) - 1):
                 r = twin.advance(goal[k], q[k + 1], qd[k + 1], time[k + 1] - time[k])
                 if r is not None:
-                    residuals.append(r)
+                    position.append(r)
                     timing.append(0.0 * r if twin.timing is None else twin.timing)
+                    current.append(amps[k + 1] - twin.current)
+                    current_timing.append(twin.current_timing)
     finally:
         twin.close()
-    n = len(setup.joint_names)
-    return np.array(residuals).reshape(-1, n), np.array(timing).reshape(-1, n)
+    rows = [np.array(a).reshape(-1, n) for a in (position, timing, current, current_timing)]
+    return TwinResiduals(*rows)
 
 
 def _peak(residuals: np.ndarray, sigma: np.ndarray, params: CusumParams,
@@ -71,10 +86,15 @@ def calibrated_sigma(residuals: np.ndarray, floor: np.ndarray, params: CusumPara
     return np.where(ok, lo, hi)
 
 
-def twin_spread(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
-                floor: np.ndarray) -> np.ndarray:
-    """Per joint the σ the monitor divides by, calibrated on clean ``logs`` (:func:`calibrated_sigma`)."""
-    residuals, timing = twin_residuals(setup, logs)
-    if not len(residuals):
-        return np.asarray(floor, dtype=float)
-    return calibrated_sigma(residuals, floor, timing=timing)
+def twin_spread(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, ...]], floor: np.ndarray,
+                current_floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per joint the σ the monitor divides by, calibrated on clean ``logs`` (:func:`calibrated_sigma`):
+    of the position (joint units) and of the current (A; the floor where the logs hold none)."""
+    r = twin_residuals(setup, logs)
+    if not len(r.position):
+        return np.asarray(floor, dtype=float), np.asarray(current_floor, dtype=float)
+    sigma = calibrated_sigma(r.position, floor, timing=r.timing)
+    told = ~np.isnan(r.current).all(axis=1)
+    current = (calibrated_sigma(np.nan_to_num(r.current[told]), current_floor, timing=r.current_timing[told])
+               if told.any() else np.asarray(current_floor, dtype=float))
+    return sigma, current

@@ -50,7 +50,7 @@ from drivers.servo import ServoParams
 from drivers.servo.fast import PositionLoop
 from drivers.servo.friction import friction_level
 from drivers.servo.joints import joint_damping, step_joints
-from drivers.servo.model import ServoArray
+from drivers.servo.model import FIRMWARE_PERIOD_S, ServoArray
 from drivers.servo.plant import PyBulletPlant
 
 __all__ = ["CORRECTION_S", "DYNAMICS_TOLERANCE", "PREDICTION_PERIOD_S", "ServoTwin", "TwinSetup"]
@@ -76,6 +76,9 @@ class TwinSetup:
     offset: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
+    #: per joint the motor constant (N·m/A) the backend turns Present Current into effort with
+    #: (the datasheet's; None: the model's own, as the servo-model sim without one)
+    reported_kt: np.ndarray | None = None
 
 
 class ServoTwin:
@@ -116,6 +119,7 @@ class ServoTwin:
         # the armature, and the back-EMF's and viscous damping stepped implicitly, on each joint's
         # inertia; the loop's derivative gain as a damping too, its proportional one at mid-step
         gain, derivative = self._loop.joint_gains()
+        self._amps_per_error = gain * np.abs(self._ratio / p.kt)  # the P term's current per joint unit
         self._implicit = damping.implicit(self.step_s) + self.step_s * derivative
         self._midstep = 0.5 * self.step_s * gain  # N·m·s/rad: the P torque's change over half a step's travel
         self._pose: np.ndarray | None = None
@@ -126,9 +130,20 @@ class ServoTwin:
         self._bias = np.zeros(n)
         self.q = np.zeros(n)
         self.qd = np.zeros(n)
+        kt = p.kt if setup.reported_kt is None else np.asarray(setup.reported_kt, dtype=float)
+        self._amps_per_effort = self._ratio / kt  # effort = reported Kt · current / ratio, as read
+        #: per joint, the motor current (A) the last prediction expects the servo to report, and how
+        #: far the current's sample moment leaves it uncertain (a firmware sample of the P term's change)
+        self.current = np.zeros(n)
+        self.current_timing = np.zeros(n)
+        self._latest = np.zeros(n)  # the goal in force at the last reading (joint values)
 
     def close(self) -> None:
         self._dynamics.close()
+
+    def amps(self, effort: np.ndarray) -> np.ndarray:
+        """The motor currents (A) behind a backend's effort reading (its reported Kt undone)."""
+        return effort * self._amps_per_effort
 
     def _load(self, q: np.ndarray) -> None:
         """Each joint's inertia for the integrator, its coupling to the others and gravity's torques, at pose ``q``."""
@@ -162,6 +177,7 @@ class ServoTwin:
         due, the twin then corrected towards the reading; None between predictions."""
         self._elapsed += interval_s
         self._goal_area += goal * interval_s
+        self._latest = goal
         if self._loop_period is not None:  # how far the loop strayed from its period
             self._stray += abs(interval_s - self._loop_period)
         if self._elapsed < self.period_s - 0.5 * interval_s:
@@ -182,12 +198,14 @@ class ServoTwin:
             if elapsed < period - 0.5 * dt:
                 continue
             self._take(goals[begin:k + 1], intervals[begin:k + 1])
+            self._latest = goals[k]
             self._elapsed = elapsed
             residual = self._predict(q[k], qd[k])
             begin, elapsed = k + 1, 0.0
             yield k, residual, self.timing
         if begin < len(intervals):
             self._take(goals[begin:], intervals[begin:])
+            self._latest = goals[-1]
         self._elapsed = elapsed
 
     def _take(self, goals: np.ndarray, intervals: np.ndarray) -> None:
@@ -227,7 +245,14 @@ class ServoTwin:
                        * self._abs_inv_ratio)
             x, xd = step_joints(x, xd, dt, rhs, matrix, dry, "implicit", speed, self._lower, self._upper,
                                 self._abs_inv_ratio)
-        residual = q - (x + xd * self._behind)  # the prediction carried to the reading's time
+        predicted = x + xd * self._behind  # the prediction carried to the reading's time
+        residual = q - predicted
+        # the current the firmware drove in its last sample, under the goal in force at the reading
+        # (not the interval's mean: a slide at insertion speed sees its goal move 2 mm in 10 ms), from
+        # the encoder as it read it a sample before; known to within a sample of the P term's change
+        loop.set_goal((self._latest - self._offset) * self._inv_ratio)
+        self.current = loop.current_at_joint(predicted - xd * FIRMWARE_PERIOD_S, xd)
+        self.current_timing = self._amps_per_error * np.abs(xd) * FIRMWARE_PERIOD_S
         if self._stray > 1e-4:  # the goals' and the reading's moments known to within the stray
             self.timing = np.maximum(np.abs(qd), np.abs(self._speed)) * self._stray
         else:

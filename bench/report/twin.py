@@ -12,8 +12,9 @@ from bench.monitor.detector import Cusum, CusumParams
 
 __all__ = ["plot_twin", "twin_markdown"]
 
-RESIDUAL_STYLE = {"color": "#9a9a9a", "lw": 0.9, "label": "residual / σ"}
-SCORE_STYLE = {"color": "#1f5fa8", "lw": 1.7, "label": "CUSUM (larger side)"}
+RESIDUAL_STYLE = {"color": "#9a9a9a", "lw": 0.9, "label": "position residual / σ"}
+CURRENT_STYLE = {"color": "#e0a458", "lw": 0.8, "label": "current residual / σ"}
+SCORE_STYLE = {"color": "#1f5fa8", "lw": 1.7, "label": "CUSUM (larger side and signal)"}
 THRESHOLD_STYLE = {"color": "#c0392b", "ls": (0, (5, 3)), "lw": 1.4, "label": "alarm threshold"}
 
 
@@ -26,8 +27,10 @@ def plot_twin(log: TrialLog, summary: dict, path: Path) -> Path:
 
     params = CusumParams(summary["cusum"]["drift_sigma"], summary["cusum"]["threshold_sigma"])
     watched = [log.joint(n) for n in summary["joints"]]
-    z = log.twin_z
-    scores = Cusum(z.shape[1], params).sums(z)  # as the monitor ran them
+    z, zc, both = log.twin_z, log.twin_current_z, log.twin_columns
+    n = z.shape[1]
+    # as the monitor ran them; per joint the larger signal's
+    scores = Cusum(both.shape[1], params).sums(both).reshape(len(z), -1, n).max(axis=1)
     t = log.time - log.time[0]
     cols = 3
     rows = int(np.ceil(len(watched) / cols))
@@ -37,13 +40,15 @@ def plot_twin(log: TrialLog, summary: dict, path: Path) -> Path:
         name = log.joint_names[j]
         predicted = np.isfinite(z[:, j])  # the readings the twin predicted
         ax.plot(t[predicted], z[predicted, j], **RESIDUAL_STYLE)
+        if zc is not None:
+            ax.plot(t[predicted], zc[predicted, j], **CURRENT_STYLE)
         ax.plot(t, scores[:, j], **SCORE_STYLE)
         ax.axhline(params.threshold, **THRESHOLD_STYLE)
         for a in alarms:
             if a["joint"] == name:
                 ax.axvline(a["t_s"], color="#c0392b", lw=1.2, label="alarm")
         # the scale of the threshold: a sum that runs on past an alarm leaves the panel at the top
-        peak = float(np.nanmax(np.abs(z[:, j]), initial=0.0))
+        peak = float(np.nanmax(np.abs(both[:, j::n]), initial=0.0))
         top = params.threshold * 2.5
         ax.set_ylim(-min(max(4.0, 1.1 * peak), top), top)
         if float(np.nanmax(scores[:, j], initial=0.0)) > top:
@@ -75,7 +80,8 @@ def twin_markdown(summary: dict, figure: str | None) -> str:
     c = summary["cusum"]
     alarms = summary.get("alarms") or []
     lines = [f"The servo model (`{Path(summary['model']).name}`) ran beside the trial, corrected "
-             f"towards each reading; per joint, a CUSUM on its residual over σ (drift allowance "
+             f"towards each reading; per joint, a CUSUM on each residual over σ "
+             f"({' and '.join(summary.get('signals', ['position']))}; drift allowance "
              f"{c['drift_sigma']:g} σ, threshold {c['threshold_sigma']:g} σ) raises an alarm when the "
              f"joint stops behaving like its model. Action: {summary['action']}. Watched: "
              f"{', '.join(summary['joints'])}.", ""]

@@ -120,9 +120,17 @@ class PositionLoop:
         present = np.floor(q * self._joint_tick + self._joint_zero)
         return self._joint_kt * self._drive(s, present, qd / self._ratio)
 
-    def _drive(self, s: ServoArray, present: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    def current_at_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """The motor currents (A) the loop drives at joint values ``q`` and speeds ``qd`` under its
+        goal, its state untouched: what a servo at that state reports as Present Current (the fused,
+        primed loop's, as :meth:`step_joint` would take it next)."""
+        present = np.floor(q * self._joint_tick + self._joint_zero)
+        return self._command(self.servos, present, qd / self._ratio)[3]
+
+    def _command(self, s: ServoArray, present: np.ndarray, omega: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The PID and the motor for encoder readings ``present`` (ticks) at shaft speeds ``omega``:
-        the motor currents (A), the array's state advanced (the one copy of the fused loop)."""
+        (error, integral, PWM, current), the array's state read, not changed."""
         error = s.traj - present
         integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
         u = self._kp * error + integral
@@ -133,6 +141,12 @@ class PositionLoop:
             self._volts = np.maximum(s.supply, 1e-6) / s._pwm_full
         current = (pwm * self._volts - self._ke * omega) / self._resistance
         current = np.minimum(np.maximum(current, self._neg_ilim), self._ilim)
+        return error, integral, pwm, current
+
+    def _drive(self, s: ServoArray, present: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """:meth:`_command`, the array's state advanced (the one copy of the fused loop): the motor
+        currents (A)."""
+        error, integral, pwm, current = self._command(s, present, omega)
         s.present, s.omega, s.integral, s.prev_error, s.pwm, s.current = (present, omega, integral, error,
                                                                           pwm, current)
         return current
