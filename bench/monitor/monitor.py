@@ -129,7 +129,7 @@ class TwinMonitor:
             residual = residual * np.sqrt(self._variance / (self._variance + timing * timing))
         if self._current:  # a reading without its current (NaN) leaves that joint's sum as it is
             twin = self.twin
-            spread = twin.current_timing  # σ and the current's sample moment in quadrature
+            spread = twin.current_spread  # σ and what the model cannot tell of the current, in quadrature
             off = (np.nan_to_num(twin.amps(effort) - twin.current, nan=0.0)
                    / np.sqrt(self._current_variance + spread * spread))
             self._pending.append(np.concatenate((residual * self._shown, off * self._current_shown)))

@@ -31,12 +31,13 @@ CLEAN_SHARE = 0.5
 class TwinResiduals:
     """The twin's residuals over clean logs, rows of joints at the readings it predicted (the rows
     its detector meets), the logs one after another: position (joint units) and its timing spread
-    (0 where the loop was on time), current (A; NaN where a log has none) and its timing spread."""
+    (0 where the loop was on time), current (A; NaN where a log has none) and its spread (the
+    twin's ``current_spread``)."""
 
     position: np.ndarray
     timing: np.ndarray
     current: np.ndarray
-    current_timing: np.ndarray
+    current_spread: np.ndarray
 
 
 def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, ...]]) -> TwinResiduals:
@@ -44,7 +45,7 @@ def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, ...]]) -> 
     and the motor currents in A or None, rows per control cycle), as the monitor runs it."""
     twin = ServoTwin(setup)
     n = len(setup.joint_names)
-    position, timing, current, current_timing = [], [], [], []
+    position, timing, current, current_spread = [], [], [], []
     try:
         for time, goal, q, qd, *rest in logs:
             amps = rest[0] if rest and rest[0] is not None else np.full(q.shape, np.nan)
@@ -57,10 +58,10 @@ def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, ...]]) -> 
                     position.append(r)
                     timing.append(0.0 * r if twin.timing is None else twin.timing)
                     current.append(amps[k + 1] - twin.current)
-                    current_timing.append(twin.current_timing)
+                    current_spread.append(twin.current_spread)
     finally:
         twin.close()
-    rows = [np.array(a).reshape(-1, n) for a in (position, timing, current, current_timing)]
+    rows = [np.array(a).reshape(-1, n) for a in (position, timing, current, current_spread)]
     return TwinResiduals(*rows)
 
 
@@ -95,6 +96,6 @@ def twin_spread(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, ...]], floor:
         return np.asarray(floor, dtype=float), np.asarray(current_floor, dtype=float)
     sigma = calibrated_sigma(r.position, floor, timing=r.timing)
     told = ~np.isnan(r.current).all(axis=1)
-    current = (calibrated_sigma(np.nan_to_num(r.current[told]), current_floor, timing=r.current_timing[told])
+    current = (calibrated_sigma(np.nan_to_num(r.current[told]), current_floor, timing=r.current_spread[told])
                if told.any() else np.asarray(current_floor, dtype=float))
     return sigma, current

@@ -53,7 +53,8 @@ from drivers.servo.joints import joint_damping, step_joints
 from drivers.servo.model import FIRMWARE_PERIOD_S, ServoArray
 from drivers.servo.plant import PyBulletPlant
 
-__all__ = ["CORRECTION_S", "DYNAMICS_TOLERANCE", "PREDICTION_PERIOD_S", "ServoTwin", "TwinSetup"]
+__all__ = ["CORRECTION_S", "DYNAMICS_TOLERANCE", "FRICTION_SPREAD", "PREDICTION_PERIOD_S", "ServoTwin",
+           "TwinSetup"]
 
 #: How far the pose moves (Euclidean over the joints, rad and m) before the twin asks PyBullet for
 #: the mass matrix and gravity again: the load moves by about that fraction of the links' weight.
@@ -63,6 +64,12 @@ DYNAMICS_TOLERANCE = 2e-3
 CORRECTION_S = 0.3
 #: The twin predicts a reading at most this often (s); see the module's docstring.
 PREDICTION_PERIOD_S = 0.01
+#: How well a model knows its joints' friction, as a share of each friction torque: identification
+#: holds every friction value it tells to within 15 % (tests/test_identify_worn.py), and the current
+#: that pushes against the friction is known no better. With the firmware sample's change of the P
+#: term, the spread of the current's prediction (:attr:`ServoTwin.current_spread`), which the
+#: monitor adds to σ in quadrature: a datasheet model, without friction, has none of it.
+FRICTION_SPREAD = 0.15
 
 
 @dataclass(frozen=True)
@@ -119,7 +126,8 @@ class ServoTwin:
         # the armature, and the back-EMF's and viscous damping stepped implicitly, on each joint's
         # inertia; the loop's derivative gain as a damping too, its proportional one at mid-step
         gain, derivative = self._loop.joint_gains()
-        self._amps_per_error = gain * np.abs(self._ratio / p.kt)  # the P term's current per joint unit
+        self._amps_per_torque = np.abs(self._ratio / p.kt)  # the motor current a joint torque takes
+        self._amps_per_error = gain * self._amps_per_torque  # the P term's current per joint unit
         self._implicit = damping.implicit(self.step_s) + self.step_s * derivative
         self._midstep = 0.5 * self.step_s * gain  # N·m·s/rad: the P torque's change over half a step's travel
         self._pose: np.ndarray | None = None
@@ -132,10 +140,10 @@ class ServoTwin:
         self.qd = np.zeros(n)
         kt = p.kt if setup.reported_kt is None else np.asarray(setup.reported_kt, dtype=float)
         self._amps_per_effort = self._ratio / kt  # effort = reported Kt · current / ratio, as read
-        #: per joint, the motor current (A) the last prediction expects the servo to report, and how
-        #: far the current's sample moment leaves it uncertain (a firmware sample of the P term's change)
+        #: per joint, the motor current (A) the last prediction expects the servo to report, and what
+        #: the model cannot tell of it there (:data:`FRICTION_SPREAD`, the current's sample moment)
         self.current = np.zeros(n)
-        self.current_timing = np.zeros(n)
+        self.current_spread = np.zeros(n)
         self._latest = np.zeros(n)  # the goal in force at the last reading (joint values)
 
     def close(self) -> None:
@@ -231,6 +239,7 @@ class ServoTwin:
         self._load(self._reading)  # the load where the robot is, not where the twin is
         # each joint feels its neighbours as they were measured moving, not as their models would
         load = self._bias + self._coupling @ self._acceleration
+        dry = None
         for _ in range(samples):
             torque = loop.step_joint(x, xd)
             midstep = self._midstep * loop.unsaturated()
@@ -245,14 +254,20 @@ class ServoTwin:
                        * self._abs_inv_ratio)
             x, xd = step_joints(x, xd, dt, rhs, matrix, dry, "implicit", speed, self._lower, self._upper,
                                 self._abs_inv_ratio)
+        friction = np.zeros(self.n) if dry is None else dry  # at the joints, the last sample's
+        if self._has_viscous:
+            friction = friction + self._viscous * np.abs(xd)
         predicted = x + xd * self._behind  # the prediction carried to the reading's time
         residual = q - predicted
         # the current the firmware drove in its last sample, under the goal in force at the reading
         # (not the interval's mean: a slide at insertion speed sees its goal move 2 mm in 10 ms), from
         # the encoder as it read it a sample before; known to within a sample of the P term's change
+        # and the friction's identification spread
         loop.set_goal((self._latest - self._offset) * self._inv_ratio)
         self.current = loop.current_at_joint(predicted - xd * FIRMWARE_PERIOD_S, xd)
-        self.current_timing = self._amps_per_error * np.abs(xd) * FIRMWARE_PERIOD_S
+        moment = self._amps_per_error * np.abs(xd) * FIRMWARE_PERIOD_S
+        told = FRICTION_SPREAD * friction * self._amps_per_torque
+        self.current_spread = np.sqrt(moment * moment + told * told)
         if self._stray > 1e-4:  # the goals' and the reading's moments known to within the stray
             self.timing = np.maximum(np.abs(qd), np.abs(self._speed)) * self._stray
         else:
