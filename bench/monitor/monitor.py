@@ -70,8 +70,10 @@ class TwinMonitor:
         self._shown = np.where(self.monitored, inverse, np.nan)  # the log's: NaN where not watched
         if self._current:
             self._current_variance = np.asarray(self.current_sigma, dtype=float) ** 2
-            self._current_watched = np.where(self.monitored, 1.0, 0.0)  # the detector's: 0 where not watched
-            self._current_shown = np.where(self.monitored, 1.0, np.nan)  # the log's: NaN where not watched
+            # one row of residuals, position then current, and its scales for the detector and the log
+            self._row = np.zeros(2 * n)
+            self._row_scale = np.concatenate((self._scale, np.where(self.monitored, 1.0, 0.0)))
+            self._row_shown = np.concatenate((self._shown, np.where(self.monitored, 1.0, np.nan)))
         self._variance = np.asarray(self.sigma, dtype=float) ** 2
         # the log's row where the twin predicted nothing
         self._unpredicted = np.full(n * len(self.signals), np.nan)
@@ -128,12 +130,16 @@ class TwinMonitor:
         if timing is not None:  # a late loop: σ and the timing spread in quadrature
             residual = residual * np.sqrt(self._variance / (self._variance + timing * timing))
         if self._current:  # a reading without its current (NaN) leaves that joint's sum as it is
-            twin = self.twin
+            twin, row, n = self.twin, self._row, len(residual)
             spread = twin.current_spread  # σ and what the model cannot tell of the current, in quadrature
-            off = (np.nan_to_num(twin.amps(effort) - twin.current, nan=0.0)
-                   / np.sqrt(self._current_variance + spread * spread))
-            self._pending.append(np.concatenate((residual * self._shown, off * self._current_shown)))
-            hit = self._detector.update(np.concatenate((residual * self._scale, off * self._current_watched)))
+            row[:n] = residual
+            off = row[n:]
+            np.subtract(twin.amps(effort), twin.current, out=off)
+            off /= np.sqrt(self._current_variance + spread * spread)
+            if not off.dot(off) < np.inf:  # a reading without its current (NaN): that joint's sum waits
+                off[np.isnan(off)] = 0.0
+            self._pending.append(row * self._row_shown)
+            hit = self._detector.update(row * self._row_scale)
         else:
             self._pending.append(residual * self._shown)
             hit = self._detector.update(residual * self._scale)

@@ -126,11 +126,13 @@ class ServoTwin:
         # the armature, and the back-EMF's and viscous damping stepped implicitly, on each joint's
         # inertia; the loop's derivative gain as a damping too, its proportional one at mid-step
         gain, derivative = self._loop.joint_gains()
-        self._amps_per_torque = np.abs(self._ratio / p.kt)  # the motor current a joint torque takes
-        self._amps_per_error = gain * self._amps_per_torque  # the P term's current per joint unit
+        amps_per_torque = np.abs(self._ratio / p.kt)  # the motor current a joint torque takes
+        self._amps_per_error_sample = gain * amps_per_torque * FIRMWARE_PERIOD_S  # the P term's, a sample
+        self._amps_per_friction = FRICTION_SPREAD * amps_per_torque
         self._implicit = damping.implicit(self.step_s) + self.step_s * derivative
         self._midstep = 0.5 * self.step_s * gain  # N·m·s/rad: the P torque's change over half a step's travel
         self._pose: np.ndarray | None = None
+        self._still = np.zeros(n)  # the joints' speeds for gravity's torques alone
         self._loop_period: float | None = None
         self._stray = 0.0
         #: per joint, the timing spread of the last prediction (joint units; None: the loop was on time)
@@ -159,9 +161,10 @@ class ServoTwin:
             d = q - self._pose
             if d.dot(d) < DYNAMICS_TOLERANCE ** 2:
                 return
-        M, h = self._dynamics.dynamics(q, np.zeros_like(q))
-        self._diagonal = np.diag(M) + self._implicit
-        self._coupling = M - np.diag(np.diag(M))
+        M, h = self._dynamics.dynamics(q, self._still)
+        self._diagonal = M.diagonal() + self._implicit
+        np.fill_diagonal(M, 0.0)  # M is the twin's own: its off-diagonal part is the coupling
+        self._coupling = M
         self._bias, self._pose = h, q.copy()
 
     def start(self, q: np.ndarray, qd: np.ndarray, loop_period_s: float | None = None) -> None:
@@ -234,7 +237,7 @@ class ServoTwin:
         samples = int(round(span / self.step_s))
         self._behind = span - samples * self.step_s
         loop, dt = self._loop, self.step_s
-        loop.set_goal((goal - self._offset) * self._inv_ratio)
+        loop.set_goal_joint(goal)
         x, xd = self.q, self.qd
         self._load(self._reading)  # the load where the robot is, not where the twin is
         # each joint feels its neighbours as they were measured moving, not as their models would
@@ -254,20 +257,21 @@ class ServoTwin:
                        * self._abs_inv_ratio)
             x, xd = step_joints(x, xd, dt, rhs, matrix, dry, "implicit", speed, self._lower, self._upper,
                                 self._abs_inv_ratio)
-        friction = np.zeros(self.n) if dry is None else dry  # at the joints, the last sample's
-        if self._has_viscous:
-            friction = friction + self._viscous * np.abs(xd)
         predicted = x + xd * self._behind  # the prediction carried to the reading's time
         residual = q - predicted
         # the current the firmware drove in its last sample, under the goal in force at the reading
         # (not the interval's mean: a slide at insertion speed sees its goal move 2 mm in 10 ms), from
         # the encoder as it read it a sample before; known to within a sample of the P term's change
         # and the friction's identification spread
-        loop.set_goal((self._latest - self._offset) * self._inv_ratio)
-        self.current = loop.current_at_joint(predicted - xd * FIRMWARE_PERIOD_S, xd)
-        moment = self._amps_per_error * np.abs(xd) * FIRMWARE_PERIOD_S
-        told = FRICTION_SPREAD * friction * self._amps_per_torque
-        self.current_spread = np.sqrt(moment * moment + told * told)
+        speed = np.abs(xd)
+        self.current = loop.current_at_joint(x + xd * (self._behind - FIRMWARE_PERIOD_S), xd,
+                                             self._latest)
+        spread = self._amps_per_error_sample * speed
+        if self._has_friction or self._has_viscous:  # at the joints, the last sample's
+            friction = self._viscous * speed if dry is None else dry + self._viscous * speed
+            told = self._amps_per_friction * friction
+            spread = np.sqrt(spread * spread + told * told)
+        self.current_spread = spread
         if self._stray > 1e-4:  # the goals' and the reading's moments known to within the stray
             self.timing = np.maximum(np.abs(qd), np.abs(self._speed)) * self._stray
         else:

@@ -68,6 +68,7 @@ class PositionLoop:
         self._transmission = s.transmission(self._ratio, self._offset)
         self._joint_tick, self._joint_zero = self._transmission.tick, self._transmission.zero
         self._joint_kt = self._transmission.kt
+        self._goal_zero = self._joint_zero - 0.5  # a joint goal's ticks: goal · tick + this, rounded
 
     def joint_gains(self) -> tuple[np.ndarray, np.ndarray]:
         """The loop's proportional and derivative gains as torques at the joints, per joint value
@@ -95,6 +96,21 @@ class PositionLoop:
         s.goal = ticks
         s.traj = ticks.copy()
 
+    def set_goal_joint(self, goal: np.ndarray) -> None:
+        """:meth:`set_goal` from joint values, through the transmissions."""
+        if self.servos.version != self._version or not self.fused:
+            self.set_goal((goal - self._offset) / self._ratio)
+            return
+        ticks = self._goal_ticks(goal)
+        self.servos.goal = ticks
+        self.servos.traj = ticks.copy()
+
+    def _goal_ticks(self, goal: np.ndarray) -> np.ndarray:
+        """Joint goals in the ticks the bus writes (a fresh array)."""
+        ticks = np.multiply(goal, self._joint_tick)
+        ticks += self._goal_zero
+        return np.rint(ticks, out=ticks)
+
     def step(self, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """One firmware sample at the shaft state (rad, rad/s); the motor torque (N·m)."""
         s = self.servos
@@ -120,18 +136,21 @@ class PositionLoop:
         present = np.floor(q * self._joint_tick + self._joint_zero)
         return self._joint_kt * self._drive(s, present, qd / self._ratio)
 
-    def current_at_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """The motor currents (A) the loop drives at joint values ``q`` and speeds ``qd`` under its
-        goal, its state untouched: what a servo at that state reports as Present Current (the fused,
+    def current_at_joint(self, q: np.ndarray, qd: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """The motor currents (A) the loop drives at joint values ``q`` and speeds ``qd`` under joint
+        goals ``goal``, its state untouched: what a servo there reports as Present Current (the fused,
         primed loop's, as :meth:`step_joint` would take it next)."""
-        present = np.floor(q * self._joint_tick + self._joint_zero)
-        return self._command(self.servos, present, qd / self._ratio)[3]
+        present = np.multiply(q, self._joint_tick)
+        present += self._joint_zero
+        np.floor(present, out=present)
+        return self._command(self.servos, present, qd / self._ratio, self._goal_ticks(goal))[3]
 
-    def _command(self, s: ServoArray, present: np.ndarray, omega: np.ndarray
+    def _command(self, s: ServoArray, present: np.ndarray, omega: np.ndarray, traj: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The PID and the motor for encoder readings ``present`` (ticks) at shaft speeds ``omega``:
-        (error, integral, PWM, current), the array's state read, not changed."""
-        error = s.traj - present
+        """The PID and the motor for encoder readings ``present`` (ticks) at shaft speeds ``omega``
+        towards the array's trajectory (or ``traj``, ticks): (error, integral, PWM, current), the
+        array's state read, not changed."""
+        error = (s.traj if traj is None else traj) - present
         integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
         u = self._kp * error + integral
         u += self._kd * (error - s.prev_error)

@@ -190,9 +190,11 @@ class PyBulletPlant:
         (joint units), from the URDF: what identification puts around each joint."""
         pb, c = self._pb, self._c
         ql = np.asarray(q, dtype=float).tolist()
-        M = np.array(pb.calculateMassMatrix(self.body, ql, physicsClientId=c))
-        h = np.array(pb.calculateInverseDynamics(self.body, ql, np.asarray(qd, dtype=float).tolist(),
-                                                 self._zeros, physicsClientId=c))
+        n = len(ql)
+        M = np.fromiter(chain.from_iterable(pb.calculateMassMatrix(self.body, ql, physicsClientId=c)), float,
+                        n * n).reshape(n, n)  # from PyBullet's rows without a list of lists' conversion
+        h = np.fromiter(pb.calculateInverseDynamics(self.body, ql, np.asarray(qd, dtype=float).tolist(),
+                                                    self._zeros, physicsClientId=c), float, n)
         return M, h
 
     def _factor(self, q: np.ndarray) -> None:
