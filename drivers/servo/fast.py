@@ -143,15 +143,20 @@ class PositionLoop:
         present = np.multiply(q, self._joint_tick)
         present += self._joint_zero
         np.floor(present, out=present)
-        return self._command(self.servos, present, qd / self._ratio, self._goal_ticks(goal))[3]
+        # the integral as the last sample left it: one sample more adds its gain times the error,
+        # a hundredth of the proportional term's
+        s = self.servos
+        return self._command(s, present, qd / self._ratio, self._goal_ticks(goal), s.integral)[3]
 
-    def _command(self, s: ServoArray, present: np.ndarray, omega: np.ndarray, traj: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _command(self, s: ServoArray, present: np.ndarray, omega: np.ndarray, traj: np.ndarray | None = None,
+                 integral: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The PID and the motor for encoder readings ``present`` (ticks) at shaft speeds ``omega``
-        towards the array's trajectory (or ``traj``, ticks): (error, integral, PWM, current), the
-        array's state read, not changed."""
+        towards the array's trajectory (or ``traj``, ticks), the integral charged by this sample's
+        error (or ``integral`` as given): (error, integral, PWM, current), the array's state read,
+        not changed."""
         error = (s.traj if traj is None else traj) - present
-        integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
+        if integral is None:
+            integral = np.minimum(np.maximum(s.integral + self._ki * error, self._neg_lim), self._lim)
         u = self._kp * error + integral
         u += self._kd * (error - s.prev_error)
         pwm = np.minimum(np.maximum(u, self._neg_cap), self._cap)
