@@ -136,8 +136,8 @@ def calibrated(model: Path, runs: list[dict], stage: Path, name: str = "worn-cal
 
     setup = prepare(load_trial_config(stage / "trial-00000.yaml")).monitor
     logs = [TrialLog.load(Path(r["run_dir"]) / "trial.npz") for r in runs]
-    per_amp = setup.twin.reported_kt / setup.twin.ratio  # effort per amp, as the backend reads it
-    sigma, amps = twin_spread(setup.twin, ((g.time, g.q_cmd, g.q, g.qd, g.effort / per_amp) for g in logs),
+    per_effort = setup.twin.amps_per_effort()  # the logged effort's motor currents
+    sigma, amps = twin_spread(setup.twin, ((g.time, g.q_cmd, g.q, g.qd, g.effort * per_effort) for g in logs),
                               setup.sigma, setup.current_sigma)
     data = load_servo_model_file(model).model_dump(mode="json", exclude_none=True)
     names = [(j, n) for j, n in enumerate(setup.twin.joint_names) if setup.monitored[j]]

@@ -129,7 +129,7 @@ class TwinMonitor:
         """A prediction's residuals over σ into the log and the detector; a trip when it must stop."""
         if timing is not None:  # a late loop: σ and the timing spread in quadrature
             residual = residual * np.sqrt(self._variance / (self._variance + timing * timing))
-        if self._current:  # a reading without its current (NaN) leaves that joint's sum as it is
+        if self._current:
             twin, row, n = self.twin, self._row, len(residual)
             spread = twin.current_spread  # σ and what the model cannot tell of the current, in quadrature
             row[:n] = residual

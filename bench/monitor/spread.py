@@ -47,8 +47,9 @@ def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, ...]]) -> 
     n = len(setup.joint_names)
     position, timing, current, current_spread = [], [], [], []
     try:
-        for time, goal, q, qd, *rest in logs:
-            amps = rest[0] if rest and rest[0] is not None else np.full(q.shape, np.nan)
+        for time, goal, q, qd, amps in logs:
+            if amps is None:
+                amps = np.full(q.shape, np.nan)
             if len(time) < 2:
                 continue
             twin.start(q[0], qd[0], float(np.median(np.diff(time))))

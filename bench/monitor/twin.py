@@ -87,6 +87,12 @@ class TwinSetup:
     #: (the datasheet's; None: the model's own, as the servo-model sim without one)
     reported_kt: np.ndarray | None = None
 
+    def amps_per_effort(self) -> np.ndarray:
+        """Per joint the motor current (A) behind a unit of the backend's effort reading: effort =
+        reported Kt · current / ratio, as the backends read Present Current."""
+        kt = self.params.kt if self.reported_kt is None else np.asarray(self.reported_kt, dtype=float)
+        return np.asarray(self.ratio, dtype=float) / kt
+
 
 class ServoTwin:
     """The servo model of every joint, stepped beside the trial and corrected by its readings.
@@ -119,8 +125,7 @@ class ServoTwin:
             raise ValueError("the twin models the position loop without a profile, deadband or "
                              "current-based mode; a servo of this model has one")
         damping = joint_damping(p, self._ratio)
-        self._inv_ratio = 1.0 / self._ratio
-        self._abs_inv_ratio = np.abs(self._inv_ratio)
+        self._abs_inv_ratio = np.abs(1.0 / self._ratio)
         self._viscous = damping.viscous
         self._has_viscous = bool(self._viscous.any())
         # the armature, and the back-EMF's and viscous damping stepped implicitly, on each joint's
@@ -140,8 +145,7 @@ class ServoTwin:
         self._bias = np.zeros(n)
         self.q = np.zeros(n)
         self.qd = np.zeros(n)
-        kt = p.kt if setup.reported_kt is None else np.asarray(setup.reported_kt, dtype=float)
-        self._amps_per_effort = self._ratio / kt  # effort = reported Kt · current / ratio, as read
+        self._amps_per_effort = setup.amps_per_effort()
         #: per joint, the motor current (A) the last prediction expects the servo to report, and what
         #: the model cannot tell of it there (:data:`FRICTION_SPREAD`, the current's sample moment)
         self.current = np.zeros(n)
