@@ -134,7 +134,7 @@ class TwinMonitor:
             spread = twin.current_spread  # σ and what the model cannot tell of the current, in quadrature
             row[:n] = residual
             off = row[n:]
-            np.subtract(twin.amps(effort), twin.current, out=off)
+            twin.current_residual(twin.amps(effort), out=off)
             off /= np.sqrt(self._current_variance + spread * spread)
             if not off.dot(off) < np.inf:  # a reading without its current (NaN): that joint's sum waits
                 off[np.isnan(off)] = 0.0

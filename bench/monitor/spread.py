@@ -58,7 +58,7 @@ def twin_residuals(setup: TwinSetup, logs: Iterable[tuple[np.ndarray, ...]]) -> 
                 if r is not None:
                     position.append(r)
                     timing.append(0.0 * r if twin.timing is None else twin.timing)
-                    current.append(amps[k + 1] - twin.current)
+                    current.append(twin.current_residual(amps[k + 1]))
                     current_spread.append(twin.current_spread)
     finally:
         twin.close()

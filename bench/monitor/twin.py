@@ -14,6 +14,16 @@ a joint that sags six ticks within 50 ms under a contact its model does not know
 of six ticks, which the correction takes up over a few tenths of a second, while the model's own
 slow drift never builds up. The firmware's integrator is the twin's own, charged by its errors.
 
+Why its integrators are seated on the first current. What the firmware's integrators hold is the
+one state no reading of positions shows. A servo that has held its pose a while against dry
+friction holds it with anything within the friction's band beside gravity's torque, and the
+surplus stays in its integrator: a lean the joint carries through its next moves for as long as
+the integrator takes to unwind, seconds at the rig's integral gain. On the worn emulated rig,
+started as the twin assumed (gravity's torque alone), the wrist ran two ticks off its twin for
+the first second and a half. So the twin starts holding gravity, and at its first prediction
+(:meth:`ServoTwin.current_residual`) shifts its integrators to drive the currents the servos
+report there, under the goal then in force: from then on it knows what they hold.
+
 The robot's mass matrix and gravity's torques (PyBullet's, from the URDF, as the servo-model sim
 and the emulated rig use) are those of the measured pose, where the robot is: a joint far from its
 model then does not load its neighbours' twins as if the arm were where the model would have it.
@@ -60,8 +70,12 @@ __all__ = ["CORRECTION_S", "DYNAMICS_TOLERANCE", "FRICTION_SPREAD", "PREDICTION_
 #: the mass matrix and gravity again: the load moves by about that fraction of the links' weight.
 DYNAMICS_TOLERANCE = 2e-3
 #: The time constant (s) of the twin's correction towards the readings: long beside a servo's
-#: response to a disturbance (tens of ms), short beside the model's drift.
-CORRECTION_S = 0.3
+#: response to a disturbance (tens of ms), short beside the model's drift. A wrist held by its own
+#: static friction against a contact stops, and the residual grows only as its goal leaves it, a
+#: tick in 30 ms: at 0.3 s the correction took up enough of it to flag 0.3 N·m on the worn
+#: emulated rig's θ5 in 0.26 s, at 0.4 s in 0.24 s; at 0.5 s a datasheet model's clean drift
+#: reached half the alarm threshold (docs/monitor.md).
+CORRECTION_S = 0.4
 #: The twin predicts a reading at most this often (s); see the module's docstring.
 PREDICTION_PERIOD_S = 0.01
 #: How well a model knows its joints' friction, as a share of each friction torque: identification
@@ -150,6 +164,8 @@ class ServoTwin:
         #: the model cannot tell of it there (:data:`FRICTION_SPREAD`, the current's sample moment)
         self.current = np.zeros(n)
         self.current_spread = np.zeros(n)
+        self._current_state: tuple[np.ndarray, np.ndarray] = (self.q, self.qd)  # where it was evaluated
+        self._seated = False  # whether the integrators have met a reported current
         self._latest = np.zeros(n)  # the goal in force at the last reading (joint values)
 
     def close(self) -> None:
@@ -158,6 +174,18 @@ class ServoTwin:
     def amps(self, effort: np.ndarray) -> np.ndarray:
         """The motor currents (A) behind a backend's effort reading (its reported Kt undone)."""
         return effort * self._amps_per_effort
+
+    def current_residual(self, amps: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The motor currents (A) the servos reported at the reading just predicted minus the
+        prediction's (:attr:`current`). At the first prediction after :meth:`start`, the twin's
+        integrators are seated on them instead (see the module's docstring): the residual there is
+        nil where a current was reported, NaN where none was."""
+        off = np.subtract(amps, self.current, out=out)
+        if not self._seated:
+            self._seated = True
+            self._loop.seat_integral(*self._current_state, self._latest, amps)
+            off[np.isfinite(off)] = 0.0
+        return off
 
     def _load(self, q: np.ndarray) -> None:
         """Each joint's inertia for the integrator, its coupling to the others and gravity's torques, at pose ``q``."""
@@ -185,6 +213,7 @@ class ServoTwin:
         self._servos.hold(shafts, self._bias * self._ratio)
         self._servos.has_prev[:] = True
         self._loop.refresh()
+        self._seated = False
 
     def advance(self, goal: np.ndarray, q: np.ndarray, qd: np.ndarray, interval_s: float) -> np.ndarray | None:
         """The interval ``interval_s`` that ends at reading ``q``, ``qd``, under ``goal`` (joint values,
@@ -265,11 +294,14 @@ class ServoTwin:
         residual = q - predicted
         # the current the firmware drove in its last sample, under the goal in force at the reading
         # (not the interval's mean: a slide at insertion speed sees its goal move 2 mm in 10 ms), from
-        # the encoder as it read it a sample before; known to within a sample of the P term's change
-        # and the friction's identification spread
+        # the encoder as it read it a sample before: the reading's, not the twin's position, whose
+        # residual the position's signal already holds (taken at the twin's, a worn θ4 creeping through
+        # its Stribeck friction left its current 2 σ off for a second on a clean trial); what the
+        # current then tells beyond the reading is the twin's integrators against the servo's. Known
+        # to within a sample of the P term's change and the friction's identification spread
         speed = np.abs(xd)
-        self.current = loop.current_at_joint(x + xd * (self._behind - FIRMWARE_PERIOD_S), xd,
-                                             self._latest)
+        self._current_state = (q - qd * FIRMWARE_PERIOD_S, qd)
+        self.current = loop.current_at_joint(*self._current_state, self._latest)
         spread = self._amps_per_error_sample * speed
         if self._has_friction or self._has_viscous:  # at the joints, the last sample's
             friction = self._viscous * speed if dry is None else dry + self._viscous * speed
