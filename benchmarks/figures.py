@@ -3,7 +3,8 @@
 ``docs/figures.json`` holds one row per figure: what was measured, the value, the script
 that measured it and when, on what. A benchmark run with ``--write-table`` replaces its own
 rows (:func:`record`) and renders ``docs/figures.md`` again; nobody edits the page by hand
-(``python benchmarks/figures.py --check`` and the test suite compare it with the rows).
+(``python benchmarks/figures.py --check`` and the test suite compare it with the rows). The
+README's table of the twin's figures is rendered from the same rows.
 Prose in the docs links here instead of quoting a number.
 """
 
@@ -20,6 +21,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "docs" / "figures.json"
 PAGE = ROOT / "docs" / "figures.md"
+README = ROOT / "README.md"
+#: The README's table of the twin's figures lies between these lines: the rows whose key starts
+#: with ``monitor.``, rendered as the page renders them, so the front page states them as measured.
+README_BLOCK = ("<!-- The twin's figures: generated from docs/figures.json by benchmarks/figures.py. -->",
+                "<!-- End of the twin's figures. -->")
 FIELDS = ("key", "what", "value", "by", "measured")
 
 HEADER = """# Measured figures
@@ -50,10 +56,26 @@ def _cell(text: str) -> str:
     return text.replace("|", "\\|").replace("\n", " ")
 
 
+def _lines(rows: list[dict]) -> list[str]:
+    return [f"| {_cell(r['what'])} | {_cell(r['value'])} | `{r['by']}` | {_cell(r['measured'])} |"
+            for r in rows]
+
+
 def render(rows: list[dict]) -> str:
     """The page: the header, then one table row per figure."""
-    lines = [f"| {_cell(r['what'])} | {_cell(r['value'])} | `{r['by']}` | {_cell(r['measured'])} |" for r in rows]
-    return HEADER + "\n".join(lines) + "\n"
+    return HEADER + "\n".join(_lines(rows)) + "\n"
+
+
+def render_readme(rows: list[dict], text: str) -> str:
+    """``text`` (the README) with the table between :data:`README_BLOCK`'s lines made from ``rows``."""
+    start, end = README_BLOCK
+    head, found, rest = text.partition(start + "\n")
+    _, closed, tail = rest.partition(end)
+    if not (found and closed):
+        raise ValueError(f"{README.name} has no block of the twin's figures ({start} ... {end})")
+    table = ["| figure | value | measured by | when, on what |", "| --- | --- | --- | --- |",
+             *_lines([r for r in rows if r["key"].startswith("monitor.")])]
+    return head + start + "\n" + "\n".join(table) + "\n" + end + tail
 
 
 def provenance(note: str = "") -> str:
@@ -83,19 +105,24 @@ def record(by: str, figures: dict[str, tuple[str, str]], note: str = "") -> None
             keys.append(key)
     DATA.write_text(json.dumps(rows, indent=2, ensure_ascii=False) + "\n")
     PAGE.write_text(render(rows))
+    if README.exists():
+        README.write_text(render_readme(rows, README.read_text()))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="fail if docs/figures.md is not the rows' rendering")
     args = ap.parse_args()
-    text = render(load())
+    rows = load()
+    text, readme = render(rows), render_readme(rows, README.read_text())
     if args.check:
-        if PAGE.read_text() != text:
-            sys.exit(f"{PAGE.relative_to(ROOT)} is not generated from {DATA.name}; "
-                     f"run python benchmarks/figures.py")
+        for path, want in ((PAGE, text), (README, readme)):
+            if path.read_text() != want:
+                sys.exit(f"{path.relative_to(ROOT)} is not generated from {DATA.name}; "
+                         f"run python benchmarks/figures.py")
         return
     PAGE.write_text(text)
+    README.write_text(readme)
 
 
 if __name__ == "__main__":

@@ -236,9 +236,10 @@ def main() -> None:
     by = lambda kind: [(meta[t], r) for t, r in sorted(results.items()) if meta[t][0] == kind]  # noqa: E731
     clean = {(m[1], m[2]): r for m, r in by("clean")}
     lines, false = _clean_lines(clean, args.draws)
-    faults, moved, flagged, unseen = _fault_lines(by("fault"), clean)
+    faults, moved, flagged, unseen, told_of = _fault_lines(by("fault"), clean)
     contacts, smallest, tripping = _contact_lines(by("contact"))
-    rig_lines, rig_false, rig_n = _emulated_lines(args.emulated, stage) if args.emulated else ([], 0, 0)
+    rig_lines, rig_false, rig_n, rig_contacts = (_emulated_lines(args.emulated, stage) if args.emulated
+                                                  else ([], 0, 0, {}))
     took = time.perf_counter() - began
     lines = [*HEAD, f"Rigs: {args.draws} per model ({args.fault_draws} of them with the faults and contacts), "
              f"the worn model's σ calibrated on {args.calibration} more; {len(tasks)} trials in {took:.0f} s "
@@ -262,11 +263,33 @@ def main() -> None:
                                    f"moved > {MOVED_MM:g} mm from the same rig's clean trial, flagged before "
                                    "the insertion ended", f"{flagged} of {moved}; {flagged} of {moved - unseen} "
                                    "without the encoder bias, which no residual on its own encoder sees"),
+            "monitor.wrist_contact": (
+                "Twin and a contact of 0.3 N·m from 2 s on each wrist joint (theta5 to theta8) of those "
+                "rigs and of the emulated rigs: the trials that named that joint first, and the slowest "
+                "alarm after the contact began", _wrist_value(told_of["wrist"], rig_contacts)),
+            "monitor.friction_growth": (
+                "Twin and friction grown 2.5× on one joint of the worn model's rigs: the trials that named "
+                "that joint first, per joint, and those that named any other", _friction_value(told_of)),
             "monitor.smallest_contact": ("Twin on those rigs: the smallest contact on theta5 (from 2 s) "
                                          "flagged on theta5 in ≥ 95 % of trials, against the smallest that "
                                          "trips an interlock in half of them",
                                          f"{smallest} N·m flagged; {tripping} N·m trips an interlock"),
         })
+
+
+def _wrist_value(wrist: list, emulated: dict) -> str:
+    named, trials, slowest = wrist
+    text = f"sims: {named} of {trials}" + (f", slowest {slowest[0]:.2f} s ({slowest[1]})" if slowest else "")
+    for name, (hit, total, late) in emulated.items():
+        text += (f"; emulated rigs, {name} model: {hit} of {total}"
+                 + (f", slowest {late[0]:.2f} s ({late[1]})" if late else ""))
+    return text
+
+
+def _friction_value(told_of: dict) -> str:
+    parts = [f"{j} {hit} of {total}" for j, (hit, total) in told_of["friction"].items()]
+    return (", ".join(parts) + f"; another joint named in {told_of['friction_others']} (theta3 is held "
+            "still by Target 1: its friction changes nothing the twin or the tip could see)")
 
 
 def _clean_lines(clean: dict, draws: int) -> tuple[list[str], dict[str, int]]:
@@ -284,7 +307,7 @@ def _clean_lines(clean: dict, draws: int) -> tuple[list[str], dict[str, int]]:
             ""], false
 
 
-def _fault_lines(runs_of: list, clean: dict) -> tuple[list[str], int, int, int]:
+def _fault_lines(runs_of: list, clean: dict) -> tuple[list[str], int, int, int, dict]:
     lines = ["## Faults against the tip", "",
              "Each fault on the same rigs, beside each one's clean trial (same physics, same seed): how far "
              "it moved the true tip, and of the trials where that was beyond 2 mm, how many the twin flagged "
@@ -295,6 +318,9 @@ def _fault_lines(runs_of: list, clean: dict) -> tuple[list[str], int, int, int]:
              "joint named first | another joint named | slowest alarm after onset (s) |",
              "|---|---:|---:|---:|---:|---|---:|---:|"]
     moved_total = flagged_total = bias_moved = 0
+    # the wrist contacts (named on their joint, the slowest) and the grown frictions (per joint, named on
+    # it first, and the trials naming another), for the figures
+    told_of = {"wrist": [0, 0, None], "friction": {}, "friction_others": 0}
     for label, fault in FAULTS:
         runs = [(m, r) for m, r in runs_of if m[3] == label]
         if not runs:
@@ -314,6 +340,18 @@ def _fault_lines(runs_of: list, clean: dict) -> tuple[list[str], int, int, int]:
                 flagged += _in_time(r)
             if label.startswith("contact 0.3") and first:
                 delays.append(r["metrics"]["monitor"]["first_alarm_s"] - 2.0)
+            if label.startswith("contact 0.3"):
+                wrist = told_of["wrist"]
+                wrist[0] += first == on
+                wrist[1] += 1
+                if first == on:
+                    late = (r["metrics"]["monitor"]["first_alarm_s"] - 2.0, on[0])
+                    wrist[2] = late if wrist[2] is None else max(wrist[2], late)
+            if fault["name"] == "friction_drift":
+                hit = told_of["friction"].setdefault(on[0], [0, 0])
+                hit[0] += first == on
+                hit[1] += 1
+                told_of["friction_others"] += bool(set(r["metrics"]["monitor"]["joints_named"]) - set(on))
         moved_total += moved
         flagged_total += flagged
         bias_moved += moved - flagged if fault["name"] == "bias" else 0
@@ -322,7 +360,7 @@ def _fault_lines(runs_of: list, clean: dict) -> tuple[list[str], int, int, int]:
         lines.append(f"| {label} | {len(runs)} | {'stopped' if math.isinf(median) else f'{median:.2f}'} | "
                      f"{moved} | {flagged} | {told} | {others if on else ''} | "
                      f"{f'{max(delays):.3f}' if delays else ''} |")
-    return lines + [""], moved_total, flagged_total, bias_moved
+    return lines + [""], moved_total, flagged_total, bias_moved, told_of
 
 
 def _contact_lines(runs_of: list) -> tuple[list[str], float | None, float | None]:
@@ -367,14 +405,14 @@ def _emulated_trial(rig: Path, model, faults: list[dict], seed: int, stage: Path
     return out
 
 
-def _emulated_lines(count: int, stage: Path) -> tuple[list[str], int, int]:
+def _emulated_lines(count: int, stage: Path) -> tuple[list[str], int, int, dict]:
     """Clean trials and wrist contacts on emulated rigs drawn as the sims' rigs are; the worn model's
     σ calibrated on other emulated rigs, as identify calibrates it on the rig's own logs."""
     calibration = [draw_rig(MODELS["worn"], 20_000 + d, stage) for d in range(max(2, count // 3))]
     runs = [_emulated_trial(r, MODELS["worn"], [], 20_000 + d, stage) for d, r in enumerate(calibration)]
     models = {"new": "datasheet", "worn": calibrated(MODELS["worn"], runs, stage, "worn-emulated")}
     sigma = yaml.safe_load(models["worn"].read_text())["twin_sigma"]
-    rows, false, n, behind = [], 0, 0, 0
+    rows, false, n, behind, contacts_of = [], 0, 0, 0, {}
     for name in MODELS:
         alarms, contact, delays = 0, [0, 0], []
         for d in range(count):
@@ -394,6 +432,7 @@ def _emulated_lines(count: int, stage: Path) -> tuple[list[str], int, int]:
                     behind += hit["behind"]
         false += alarms
         n += count
+        contacts_of[name] = (contact[0], contact[1], max(delays) if delays else None)
         rows.append(f"| {name} | {count} | {alarms} | {contact[0]} of {contact[1]} | "
                     f"{'{:.3f} ({})'.format(*max(delays)) if delays else '—'} |")
     return ["## Emulated rigs", "",
@@ -407,7 +446,7 @@ def _emulated_lines(count: int, stage: Path) -> tuple[list[str], int, int]:
             "reading in the firmware's millisecond unknown to the twin, and σ must cover what its rig does. "
             f"Trials whose rig fell behind real time: {behind}.", "",
             "| model | clean trials | with an alarm | 0.3 N·m wrist contacts named on their joint | "
-            "slowest alarm after onset (s) |", "|---|---:|---:|---:|---:|", *rows, ""], false, n
+            "slowest alarm after onset (s) |", "|---|---:|---:|---:|---:|", *rows, ""], false, n, contacts_of
 
 
 if __name__ == "__main__":

@@ -57,6 +57,9 @@ def test_the_figures_page_is_the_rendering_of_the_rows_the_benchmarks_write():
     figures = _figures()
     rows = figures.load()
     assert rows and (REPO / "docs" / "figures.md").read_text() == figures.render(rows)
+    readme = (REPO / "README.md").read_text()  # the front page's table of the twin's figures, too
+    assert readme == figures.render_readme(rows, readme)
+    assert "| Twin on clean Target 1 trials of servo-model sims" in readme
     for row in rows:  # each one written by a script that can write it again
         script = REPO / row["by"]
         assert script.is_file() and "--write-table" in script.read_text(), row["by"]
@@ -67,6 +70,9 @@ def test_record_replaces_a_scripts_rows_and_keeps_the_rest(tmp_path, monkeypatch
     figures = _figures()
     monkeypatch.setattr(figures, "DATA", tmp_path / "figures.json")
     monkeypatch.setattr(figures, "PAGE", tmp_path / "figures.md")
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# A\n\n{figures.README_BLOCK[0]}\n{figures.README_BLOCK[1]}\n\n## B\n")
+    monkeypatch.setattr(figures, "README", readme)
     figures.record("benchmarks/a.py", {"a.one": ("first", "1 s"), "a.two": ("second", "2 s")})
     figures.record("benchmarks/b.py", {"b.one": ("other", "3 s")})
     figures.record("benchmarks/a.py", {"a.one": ("first", "1.5 s")})
@@ -75,6 +81,10 @@ def test_record_replaces_a_scripts_rows_and_keeps_the_rest(tmp_path, monkeypatch
     assert all(r["measured"] for r in rows)
     assert (tmp_path / "figures.md").read_text() == figures.render(rows)
     assert "| first | 1.5 s | `benchmarks/a.py` |" in (tmp_path / "figures.md").read_text()
+    figures.record("benchmarks/m.py", {"monitor.x": ("the twin's", "4 s")})  # the README's: monitor rows
+    text = readme.read_text()
+    assert text.startswith("# A\n\n") and text.endswith(f"{figures.README_BLOCK[1]}\n\n## B\n")
+    assert "| the twin's | 4 s | `benchmarks/m.py` |" in text and "first" not in text
 
 
 def test_the_layout_page_states_the_layers_once_as_the_contract_does():
