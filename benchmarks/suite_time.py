@@ -4,7 +4,7 @@
 
 Clones the checkout's HEAD into a temporary folder (a fresh clone, as CI has), runs its
 `.ci/run` and prints the wall time, the pytest summary line, the run's own ``ci time`` line and
-its 15 slowest tests (the failures, if any); ``--hogs N`` runs N busy
+its 15 slowest tests (the failures and warnings, if any, and the whole output kept); ``--hogs N`` runs N busy
 loops beside it (a shared machine), ``--serial`` the suite one file after another instead.
 With ``--write-table`` the figure goes to docs/figures.json (docs/figures.md).
 """
@@ -66,9 +66,12 @@ def main() -> None:
         print(ci_line)
     if slowest:
         print("slowest:\n  " + "\n  ".join(slowest))
-    if done.returncode:
+    warned = re.search(r"\d+ warnings?\b", summary) is not None
+    if done.returncode or warned:  # a warning is kept too: under load it may be a thread's exception
         failed = [ln for ln in lines if ln.startswith(("FAILED", "ERROR"))]
         print("\n".join(failed[:20]))
+        if warned and "warnings summary" in out:
+            print(out[out.index("warnings summary"):].split("\n-- Docs:")[0][:4000])
         kept = Path(tempfile.mkstemp(prefix="ci-output-", suffix=".txt")[1])
         kept.write_text(out)
         print(f"the run's whole output: {kept}")
