@@ -164,7 +164,6 @@ class ServoTwin:
         #: the model cannot tell of it there (:data:`FRICTION_SPREAD`, the current's sample moment)
         self.current = np.zeros(n)
         self.current_spread = np.zeros(n)
-        self._current_state: tuple[np.ndarray, np.ndarray] = (self.q, self.qd)  # where it was evaluated
         self._seated = False  # whether the integrators have met a reported current
         self._latest = np.zeros(n)  # the goal in force at the last reading (joint values)
 
@@ -181,9 +180,9 @@ class ServoTwin:
         integrators are seated on them instead (see the module's docstring): the residual there is
         nil where a current was reported, NaN where none was."""
         off = np.subtract(amps, self.current, out=out)
-        if not self._seated:
+        if not self._seated:  # the integrators hold what the servos report: the prediction is theirs
             self._seated = True
-            self._loop.seat_integral(*self._current_state, self._latest, amps)
+            self._loop.seat_integral(off)
             off[np.isfinite(off)] = 0.0
         return off
 
@@ -300,8 +299,7 @@ class ServoTwin:
         # current then tells beyond the reading is the twin's integrators against the servo's. Known
         # to within a sample of the P term's change and the friction's identification spread
         speed = np.abs(xd)
-        self._current_state = (q - qd * FIRMWARE_PERIOD_S, qd)
-        self.current = loop.current_at_joint(*self._current_state, self._latest)
+        self.current = loop.current_at_joint(q - qd * FIRMWARE_PERIOD_S, qd, self._latest)
         spread = self._amps_per_error_sample * speed
         if self._has_friction or self._has_viscous:  # at the joints, the last sample's
             friction = self._viscous * speed if dry is None else dry + self._viscous * speed

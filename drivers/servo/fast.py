@@ -148,15 +148,15 @@ class PositionLoop:
         s = self.servos
         return self._command(s, present, qd / self._ratio, self._goal_ticks(goal), s.integral)[3]
 
-    def seat_integral(self, q: np.ndarray, qd: np.ndarray, goal: np.ndarray, amps: np.ndarray) -> None:
-        """Shift the integrators so that :meth:`current_at_joint` at ``q``, ``qd`` under ``goal`` is
-        ``amps`` (A; a NaN leaves its slot as it is): the integrators' charge, which no reading of
-        positions shows, from the currents the servos report. Exact where the PWM and current are
-        inside their limits; clipped to the integrator's as the firmware clips it."""
-        off = np.asarray(amps, dtype=float) - self.current_at_joint(q, qd, goal)
-        off[~np.isfinite(off)] = 0.0
+    def seat_integral(self, off: np.ndarray) -> None:
+        """Shift the integrators so that the loop drives ``off`` (A) more current than it would (a NaN
+        leaves its slot as it is): with ``off`` a reported current less :meth:`current_at_joint`'s,
+        the integrators' charge, which no reading of positions shows, from what the servos report.
+        Exact where the PWM and current are inside their limits; clipped to the integrator's as the
+        firmware clips it."""
+        shift = np.where(np.isfinite(off), off, 0.0) * self._resistance / self._volts
         s = self.servos
-        s.integral = np.clip(s.integral + off * self._resistance / self._volts, self._neg_lim, self._lim)
+        s.integral = np.clip(s.integral + shift, self._neg_lim, self._lim)
 
     def _command(self, s: ServoArray, present: np.ndarray, omega: np.ndarray, traj: np.ndarray | None = None,
                  integral: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
