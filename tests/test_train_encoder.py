@@ -8,6 +8,7 @@ of its range, where the model file takes the peers' friction)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -179,7 +180,7 @@ def test_identify_fits_the_trains_friction_on_its_encoder(tmp_path):
         _the_true_physics_draws_the_logged_current_at_speed(Path(run["run_dir"]))
 
     # the logged current is the rig's, against which the simulator's timing is held, only where the
-    # loop kept time (a CI run beside another emulated rig once left it 0.011 A off, 0.003-0.006 quiet)
+    # loop kept time
     run = until_paced(excite, lambda run: [run["loop_timing"]], logged, "the train's excitation")
     from bench.identify.run import identify
 
@@ -199,7 +200,8 @@ def test_identify_fits_the_trains_friction_on_its_encoder(tmp_path):
 def _the_true_physics_draws_the_logged_current_at_speed(run_dir: Path) -> None:
     """Identification's simulator, given the rig's hidden physics and the loop's latency from the
     log's timing, draws the train's logged current during its fast sweeps: no friction is left
-    for a fit to invent (without the latency it drew about 0.02 A less, in the direction of motion)."""
+    for a fit to invent (a Coulomb level 20 % high draws 0.03 A more; without the latency it draws about
+    0.01 A less, in the direction of motion)."""
     from bench.identify.logs import load_runs
     from bench.identify.simulate import PHYSICS, SlotPhysics, simulate_run
 
@@ -207,13 +209,22 @@ def _the_true_physics_draws_the_logged_current_at_speed(run_dir: Path) -> None:
     run, k = runs[0], setup.joint_names.index("train")
     assert np.all(run.applied - run.sampled >= 0.001)  # the goal lands a firmware sample or more later
     truth = {"kt_scale": 1.0, "armature_kgm2": 0.012, **HIDDEN_T["train"]}
-    _, current, _ = simulate_run(setup, run, SlotPhysics(joint=np.array([k]),
-                                                         values=np.array([[truth[p] for p in PHYSICS]])))
+    physics = SlotPhysics(joint=np.array([k]), values=np.array([[truth[p] for p in PHYSICS]]))
+    _, current, _ = simulate_run(setup, run, physics)
     w = run.qd[:, k] / setup.ratio[k]
     fast = np.abs(w) > 1.0
     assert fast.sum() > 50
-    bias = np.mean(np.sign(w[fast]) * (run.current[fast, k] - current[fast, 0]))
-    assert abs(bias) < 0.01, bias
+
+    def bias(current: np.ndarray) -> float:
+        return float(np.mean(np.sign(w[fast]) * (run.current[fast, k] - current[fast, 0])))
+
+    # the reading is the servo's state at some instant of its read: the loop's timing places it at
+    # the read's start (a servo answers at once); an emulator held up by a loaded machine answers
+    # with its state later in the read (a CI run beside another emulated rig: 0.6-1.7 ms reads,
+    # 0.011 A off at the start and 0.004 at the end; 0.3-0.5 ms and 0.002-0.006 quiet)
+    at_end = simulate_run(setup, dataclasses.replace(run, sampled=run.time), physics)[1]
+    low, high = sorted((bias(current), bias(at_end)))
+    assert low - 0.01 < 0 < high + 0.01, (low, high)
 
 
 def _friction(p: dict, v: float) -> float:
