@@ -4,6 +4,7 @@ SIGKILL leaves a journal that `hilbench report` recovers."""
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import shutil
@@ -169,6 +170,37 @@ def test_a_signal_while_the_command_loads_gives_one_line_and_128_plus_n(tmp_path
             assert "nothing had moved" in lines[0], (delay, err)
         else:  # on a quick machine the trial got going: then it is a trial's own stop
             assert "trial stopped" in lines[0], (delay, err)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_signal_inside_an_import_is_raised_once_the_import_is_done(tmp_path, monkeypatch, sig):
+    """Raised inside an import, a stop signal reaches the loader of a C extension, which turns it
+    into an ImportError with its traceback (numpy's did, 0.15 s into a trial's start beside two CPU
+    hogs: exit 1, not 143). A signal that lands in an import is sent again once the import is done,
+    and raised there: the module loads whole and the stop comes right after it."""
+    from bench.core.interrupts import SignalGuard, TrialInterrupted
+
+    name = f"module_signalled_while_loading_{sig}"
+    (tmp_path / f"{name}.py").write_text(
+        "import os, time\n"
+        f"os.kill(os.getpid(), {int(sig)})\n"
+        "t = time.monotonic()\n"
+        "while time.monotonic() - t < 0.05:  # the handler runs here, inside the import\n"
+        "    pass\n"
+        "LOADED = True\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    loaded = None
+    try:
+        with SignalGuard() as guard, pytest.raises(TrialInterrupted) as stopped:
+            importlib.import_module(name)
+            loaded = time.monotonic()
+            time.sleep(2.0)  # the signal comes again within milliseconds
+        after = time.monotonic() - loaded if loaded is not None else None
+        assert getattr(sys.modules.get(name), "LOADED", False), "the import was cut short"
+        assert after is not None and after < 0.5, after
+        assert stopped.value.signum == sig and guard.signum == sig and guard.repeats == 0
+    finally:
+        sys.modules.pop(name, None)
 
 
 @pytest.mark.parametrize("where", ["in the muted stretch", "between the two calls putting it back"])

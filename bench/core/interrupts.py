@@ -8,7 +8,10 @@ trial also poll :meth:`SignalGuard.check` at every phase boundary and control
 block, so a swallowed exception is still acted on; later signals are counted,
 never raised, so the safe stop and the saving of the log always finish. A signal that lands while
 PyBullet's output is muted (:mod:`drivers.quiet`) is held and sent again once the output is back:
-raised there, it could leave stdout and stderr on /dev/null and the one line would be lost.
+raised there, it could leave stdout and stderr on /dev/null and the one line would be lost. One
+that lands while a module is importing is sent again the moment the import is done: raised
+inside it, the loader of a C extension (numpy's) turns it into an ImportError with its
+traceback, and the command would die of a broken import instead of saying it was stopped.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from contextlib import contextmanager
 from types import FrameType
 from typing import Iterator, Optional
@@ -48,6 +52,34 @@ def _held_while_muted(signum: int) -> bool:
     return quiet is not None and quiet.hold_signal(signum)
 
 
+#: How often (s) a stop signal that landed in an import looks whether the import is done.
+_IMPORT_POLL_S = 0.002
+
+
+def _importing(frame: Optional[FrameType]) -> bool:
+    """Whether the code a signal interrupted runs inside an import (a frame of importlib's loader
+    below it): a module's top level, or the Python a C extension's initialisation calls."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _send_after_import(signum: int) -> None:
+    """Send ``signum`` to this process again once its main thread is out of every import (from
+    a thread of its own: the main thread is busy importing)."""
+    main = threading.main_thread().ident
+
+    def wait() -> None:
+        while _importing(sys._current_frames().get(main)):
+            time.sleep(_IMPORT_POLL_S)
+        if threading.main_thread().is_alive():
+            os.kill(os.getpid(), signum)
+
+    threading.Thread(target=wait, name=f"resend-{signal_name(signum)}", daemon=True).start()
+
+
 def signal_name(signum: int) -> str:
     try:
         return signal.Signals(signum).name
@@ -71,12 +103,15 @@ class SignalGuard:
         self._previous: dict[int, object] = {}
         self._deferring = 0
 
-    def _handle(self, signum: int, frame: Optional[FrameType]) -> None:  # noqa: ARG002
+    def _handle(self, signum: int, frame: Optional[FrameType]) -> None:
         if self.signum is not None:
             self.repeats += 1  # never raise twice: the safe stop in progress must finish
             return
         if _held_while_muted(signum):
             return  # sent again the moment the output is back
+        if not self._deferring and _importing(frame):
+            _send_after_import(signum)  # and handled then, as if it had come at that moment
+            return
         self.signum = signum
         if not self._deferring:
             raise TrialInterrupted(signum, self.source)
