@@ -16,7 +16,6 @@ traceback, and the command would die of a broken import instead of saying it was
 
 from __future__ import annotations
 
-import os
 import signal
 import sys
 import threading
@@ -52,8 +51,10 @@ def _held_while_muted(signum: int) -> bool:
     return quiet is not None and quiet.hold_signal(signum)
 
 
-#: How often (s) a stop signal that landed in an import looks whether the import is done.
+#: How often (s) a stop signal that landed in an import looks whether the import is done, and
+#: then whether the main thread has taken it (sent again if not: see :func:`_send_after_import`).
 _IMPORT_POLL_S = 0.002
+_TAKEN_WAIT_S = 0.02
 
 
 def _importing(frame: Optional[FrameType]) -> bool:
@@ -66,18 +67,29 @@ def _importing(frame: Optional[FrameType]) -> bool:
     return False
 
 
-def _send_after_import(signum: int) -> None:
-    """Send ``signum`` to this process again once its main thread is out of every import (from
-    a thread of its own: the main thread is busy importing)."""
-    main = threading.main_thread().ident
+def _send_after_import(guard: "SignalGuard") -> None:
+    """Send the signal ``guard`` put off in an import to the main thread again once it is out of
+    every import, and again until its handler has taken it (from a thread of its own: the main
+    thread is busy importing).
 
-    def wait() -> None:
-        while _importing(sys._current_frames().get(main)):
-            time.sleep(_IMPORT_POLL_S)
-        if threading.main_thread().is_alive():
-            os.kill(os.getpid(), signum)
+    To the main thread itself: sent to the process, another thread may take it, and a main
+    thread waiting (asleep, on a socket) would act on it only once that wait was over. And again:
+    one that comes as the main thread is about to start a wait is noted by Python and acted on
+    only once the wait is over (seconds, in a test that slept right after its import)."""
+    main = threading.main_thread()
 
-    threading.Thread(target=wait, name=f"resend-{signal_name(signum)}", daemon=True).start()
+    def resend() -> None:
+        while (signum := guard._after_import) is not None and guard._previous and main.is_alive():
+            if _importing(sys._current_frames().get(main.ident)):
+                time.sleep(_IMPORT_POLL_S)
+                continue
+            try:
+                signal.pthread_kill(main.ident, signum)
+            except (OSError, TypeError):  # the main thread has ended meanwhile
+                return
+            time.sleep(_TAKEN_WAIT_S)
+
+    threading.Thread(target=resend, name="resend-after-import", daemon=True).start()
 
 
 def signal_name(signum: int) -> str:
@@ -102,6 +114,8 @@ class SignalGuard:
         self.repeats = 0
         self._previous: dict[int, object] = {}
         self._deferring = 0
+        #: a stop signal that landed inside an import, until its handler takes it after the import
+        self._after_import: Optional[int] = None
 
     def _handle(self, signum: int, frame: Optional[FrameType]) -> None:
         if self.signum is not None:
@@ -110,8 +124,11 @@ class SignalGuard:
         if _held_while_muted(signum):
             return  # sent again the moment the output is back
         if not self._deferring and _importing(frame):
-            _send_after_import(signum)  # and handled then, as if it had come at that moment
+            if self._after_import is None:  # sent again once the import is done, and taken then
+                self._after_import = signum
+                _send_after_import(self)
             return
+        self._after_import = None
         self.signum = signum
         if not self._deferring:
             raise TrialInterrupted(signum, self.source)
@@ -137,11 +154,14 @@ class SignalGuard:
             raise TrialInterrupted(self.signum, self.source)
 
     def request_stop(self, source: str) -> None:
-        """The stop Ctrl-C gives, asked for from another thread of this process (a SIGINT to
-        itself, so it takes the very same path), recorded as coming from ``source``."""
+        """The stop Ctrl-C gives, asked for from another thread of this process (a SIGINT to its
+        main thread, so it takes the very same path and ends a wait the main thread is in),
+        recorded as coming from ``source``."""
         if self.signum is None and self.source is None:
             self.source = source
-        os.kill(os.getpid(), signal.SIGINT)
+        main = threading.main_thread().ident
+        if main is not None:
+            signal.pthread_kill(main, signal.SIGINT)
 
     @property
     def interrupted(self) -> bool:
@@ -166,6 +186,9 @@ class SignalGuard:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)  # type: ignore[arg-type]
         self._previous.clear()
+        pending, self._after_import = self._after_import, None
+        if pending is not None:  # put off in an import and not yet taken: the handler before ours has it
+            signal.raise_signal(pending)
 
 
 class _NoSignals:
