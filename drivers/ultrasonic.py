@@ -7,7 +7,9 @@ all reads the range's top code, ``R5000`` — counted as *no target* and never
 fed to the filter, since it says nothing about where the train is.
 
 The sensor free-runs, so a background thread drains the serial port and
-keeps the latest readings; :meth:`UltrasonicSensor.read` returns the median
+keeps the latest readings (on an emulated line on a virtual clock there is no
+thread: each call takes what has arrived by the clock's time, stamped with
+when it arrived, so the readings are those a thread would have kept); :meth:`UltrasonicSensor.read` returns the median
 of the last few in metres together with the age of the newest one, and
 refuses (:class:`StaleReadingError`) once the stream has been silent longer
 than ``stale_after_s``. Counters say how healthy the stream is: lines missed
@@ -27,13 +29,13 @@ import re
 import select
 import statistics
 import threading
-import time
 from collections import deque
 from dataclasses import dataclass
 
 import serial
 
 from drivers import CommunicationError, BackendSetupError
+from drivers.link import link_of, open_port
 from drivers.errors import StaleReadingError
 
 __all__ = [
@@ -104,7 +106,7 @@ class UltrasonicSensor:
         self.stale_after_s = float(stale_after_s)
         self.range_m = (float(range_m[0]), float(range_m[1]))
         self.expected_rate_hz = float(expected_rate_hz)
-        self.counters = UltrasonicCounters()
+        self._counters = UltrasonicCounters()
         self._window: deque[float] = deque(maxlen=median_window)
         self._last_line_time: float | None = None  # any well-formed line (rate bookkeeping)
         self._last_time: float | None = None  # newest reading accepted into the filter
@@ -113,13 +115,20 @@ class UltrasonicSensor:
         self._stop = threading.Event()
         self._closed = False
         try:
-            self._serial = serial.Serial(port, baudrate=baud, timeout=0)
-        except (serial.SerialException, OSError) as exc:
+            self._serial = open_port(port, baud)
+        except (serial.SerialException, OSError, ValueError) as exc:
             raise CommunicationError(f"cannot open ultrasonic sensor port {port!r}: {exc}") from exc
         self._serial.reset_input_buffer()
-        self._wake_r, self._wake_w = os.pipe()
-        self._thread = threading.Thread(target=self._run, name=f"ultrasonic:{port}", daemon=True)
-        self._thread.start()
+        self._link = link_of(self._serial)
+        self.clock = self._link.clock
+        self._pending = bytearray()
+        self._synced = False  # the first bytes may be the tail of a line sent before we opened
+        self._thread: threading.Thread | None = None
+        self._wake_r = self._wake_w = -1
+        if not self.clock.virtual:  # a virtual line is taken from at each call instead
+            self._wake_r, self._wake_w = os.pipe()
+            self._thread = threading.Thread(target=self._run, name=f"ultrasonic:{port}", daemon=True)
+            self._thread.start()
 
     # -- public API -----------------------------------------------------------------
     def read(self, *, allow_stale: bool = False) -> tuple[float, float]:
@@ -129,13 +138,14 @@ class UltrasonicSensor:
         newest is older than ``stale_after_s`` — unless ``allow_stale``, which
         returns the last value anyway (``nan`` if there never was one).
         """
+        self._take_arrived()
         with self._lock:
             if not self._window:
                 if allow_stale:
                     return float("nan"), float("inf")
                 raise StaleReadingError(f"ultrasonic sensor on {self.port}: no reading received yet")
             distance = statistics.median(self._window)
-            age = time.monotonic() - (self._last_time or 0.0)
+            age = self.clock.now() - (self._last_time or 0.0)
         if age > self.stale_after_s and not allow_stale:
             raise StaleReadingError(
                 f"ultrasonic sensor on {self.port}: newest reading is {age:.3f} s old "
@@ -151,17 +161,29 @@ class UltrasonicSensor:
         """
         if timeout_s is None:
             timeout_s = self.stale_after_s + 1.0 / self.expected_rate_hz
-        if not self._first_reading.wait(timeout_s):
+        if self._thread is None:  # a virtual line: the clock runs until a reading, or the timeout
+            deadline = self.clock.now() + timeout_s
+            while not self._first_reading.is_set() and self._link.wait(deadline):
+                self._take_arrived()
+            self._take_arrived()
+        if not self._first_reading.wait(timeout_s if self._thread is not None else 0):
             raise StaleReadingError(
                 f"ultrasonic sensor on {self.port}: no reading within {timeout_s:.2f} s of opening "
                 f"it (expected {self.expected_rate_hz:g} Hz); is it connected and powered?")
 
     @property
+    def counters(self) -> UltrasonicCounters:
+        """Stream health since the sensor was opened (what has arrived so far counted)."""
+        self._take_arrived()
+        return self._counters
+
+    @property
     def is_stale(self) -> bool:
+        self._take_arrived()
         with self._lock:
             if self._last_time is None:
                 return True
-            return time.monotonic() - self._last_time > self.stale_after_s
+            return self.clock.now() - self._last_time > self.stale_after_s
 
     def close(self) -> None:
         """Stop the reader thread and close the port; idempotent."""
@@ -169,14 +191,15 @@ class UltrasonicSensor:
             return
         self._closed = True
         self._stop.set()
-        try:
-            os.write(self._wake_w, b"x")
-        except OSError:
-            pass
-        self._thread.join(timeout=2.0)
+        if self._thread is not None:
+            try:
+                os.write(self._wake_w, b"x")
+            except OSError:
+                pass
+            self._thread.join(timeout=2.0)
+            for fd in (self._wake_r, self._wake_w):
+                os.close(fd)
         self._serial.close()
-        for fd in (self._wake_r, self._wake_w):
-            os.close(fd)
 
     def __enter__(self) -> "UltrasonicSensor":
         return self
@@ -184,11 +207,10 @@ class UltrasonicSensor:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # -- reader thread ----------------------------------------------------------------
+    # -- reading the line ----------------------------------------------------------------
     def _run(self) -> None:
+        """The reader thread of a real port: sleeps in the kernel until bytes or the wake pipe."""
         fd = self._serial.fileno()
-        pending = bytearray()
-        synced = False  # the first bytes may be the tail of a line sent before we opened
         while not self._stop.is_set():
             try:
                 ready, _, _ = select.select([fd, self._wake_r], [], [], 0.5)
@@ -207,30 +229,40 @@ class UltrasonicSensor:
             if not chunk:
                 self._stop.wait(0.05)
                 continue
-            now = time.monotonic()
-            pending += chunk
-            while b"\r" in pending:
-                line, _, rest = bytes(pending).partition(b"\r")
-                pending[:] = rest
-                if not synced:
-                    synced = True
-                    if not line.startswith(b"R"):
-                        continue
-                self._accept(self._resync(line.strip()), now)
-            if len(pending) > _MAX_LINE:  # no CR for far too long: keep only a last 'R...'
-                start = pending.rfind(b"R")
-                with self._lock:
-                    self.counters.parse_errors += 1
-                del pending[: start if start > 0 else len(pending)]
-                if len(pending) > _MAX_LINE:
-                    pending.clear()
+            self._feed(chunk, self.clock.now())
+
+    def _take_arrived(self) -> None:
+        """On a virtual line (no thread): feed what has arrived, each chunk at its arrival time."""
+        if self._thread is None and not self._closed:
+            for at, chunk in self._link.take_timed():
+                self._feed(chunk, at)
+
+    def _feed(self, chunk: bytes, now: float) -> None:
+        """Bytes that arrived at ``now``: each complete line parsed and accepted."""
+        pending = self._pending
+        pending += chunk
+        while b"\r" in pending:
+            line, _, rest = bytes(pending).partition(b"\r")
+            pending[:] = rest
+            if not self._synced:
+                self._synced = True
+                if not line.startswith(b"R"):
+                    continue
+            self._accept(self._resync(line.strip()), now)
+        if len(pending) > _MAX_LINE:  # no CR for far too long: keep only a last 'R...'
+            start = pending.rfind(b"R")
+            with self._lock:
+                self._counters.parse_errors += 1
+            del pending[: start if start > 0 else len(pending)]
+            if len(pending) > _MAX_LINE:
+                pending.clear()
 
     def _resync(self, line: bytes) -> bytes:
         """A line starts at its last 'R': garbage before it is counted once and dropped."""
         start = line.rfind(b"R")
         if start > 0:
             with self._lock:
-                self.counters.parse_errors += 1
+                self._counters.parse_errors += 1
             return line[start:]
         return line
 
@@ -238,25 +270,25 @@ class UltrasonicSensor:
         match = _LINE.fullmatch(line)
         with self._lock:
             if match is None:
-                self.counters.parse_errors += 1
+                self._counters.parse_errors += 1
                 return
             distance = int(match.group(1)) / 1000.0
             if self._last_line_time is not None:
                 # A gap of k periods means k - 1 missing lines; the +0.25 keeps a
                 # late line (gap ~1.5 periods) from counting as a dropout.
                 periods = math.floor((now - self._last_line_time) * self.expected_rate_hz + 0.25)
-                self.counters.dropouts += max(0, periods - 1)
+                self._counters.dropouts += max(0, periods - 1)
             self._last_line_time = now
             if distance >= self.no_target_m:
-                self.counters.no_target += 1
+                self._counters.no_target += 1
                 return
             low, high = self.range_m
             if not low <= distance <= high:
-                self.counters.out_of_range += 1
+                self._counters.out_of_range += 1
                 return
             if distance == low:
-                self.counters.saturated += 1
-            self.counters.readings += 1
+                self._counters.saturated += 1
+            self._counters.readings += 1
             self._window.append(distance)
             self._last_time = now
         self._first_reading.set()

@@ -11,6 +11,7 @@ import pytest
 from drivers.dynamixel.cycle import SyncCycle
 from drivers.dynamixel.io import StuffingPacketHandler
 from drivers.dynamixel.protocol import FastStatusBlock, build_fast_status, build_status
+from drivers.link import FdLink
 
 IDS = list(range(1, 10))
 
@@ -85,7 +86,7 @@ def respond(cycle: SyncCycle, status: bytes) -> list | None:
     r, w = os.pipe()
     try:
         os.write(w, status)
-        cycle.fd = r
+        cycle.link = FdLink(r)
         cycle._drain = lambda: None  # the answer is already waiting
         cycle._send = lambda packet: None
         return cycle.read_state()

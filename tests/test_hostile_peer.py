@@ -302,7 +302,7 @@ def test_backend_register_access_takes_only_the_answer_it_asked_for(peer, monkey
 def test_control_cycle_takes_only_the_answer_to_this_cycle(peer, fast):
     port = BlockingPortHandler(peer.port)
     assert port.openPort() and port.setBaudRate(BAUD)
-    cycle = SyncCycle(port.ser.fileno(), BAUD, IDS, fast=fast)
+    cycle = SyncCycle(port.link, BAUD, IDS, fast=fast)
     cycle.timeout_s = 0.03  # generous against a loaded machine: a late answer must be the peer's choice
     errors: list[str] = []
     try:

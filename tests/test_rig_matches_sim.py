@@ -2,12 +2,12 @@
 plan, every joint within 0.5° (the train's arc angle and the revolute joints) or 0.5 mm (the racks
 d9 and d10) of the other over the whole trial.
 
-One rig trial, in real time, with its emulator in its own process as ``hilbench trial --emulate``
-runs it. The sim then replays the rig's schedule: each cycle reads at the instant the rig read and
-sends the rig's command when the rig's went out, so a cycle the loaded machine made late is late
-on both sides. A stall longer than 20 ms may have starved the emulator's physics too (it shares the
-machine), so the 0.3 s after one are left out of the comparison; the start, where a servo taking
-up its load kicked the wrist 9° off its command, is held on the rig's own tracking as well.
+One rig trial on the virtual clock, as ``hilbench trial --emulate --clock virtual`` runs it: the
+same on any machine. The sim then replays the rig's schedule: each cycle reads at the instant the
+rig read and sends the rig's command when the rig's went out. A stall longer than 20 ms (which only
+a real-time rig on a held-up machine has) would leave the 0.3 s after it out of the comparison; the
+start, where a servo taking up its load kicked the wrist 9° off its command, is held on the rig's
+own tracking as well.
 
 The train's position is compared through its pinion encoder against the sim's true arc angle (its
 ultrasonic reading is the sensor's, 1 mm noise); every other joint by what the driver read."""
@@ -25,7 +25,7 @@ from bench.config.models import TrialConfig, load_trial_config
 from bench.core.log import TrialLog
 from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_backend
-from bench.rig.emulated import EmulatorProcess
+from bench.rig.emulated import VirtualRig
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
 
@@ -38,9 +38,8 @@ RECOVERY_S = 0.3  # how long the servos take to forget it (their position loop's
 
 
 def _rig_trial(cfg: TrialConfig, out: Path) -> tuple[TrialLog, dict]:
-    # the most retries a config allows: a busy machine's pauses of the emulator do not end the trial
     cfg = cfg.model_copy(update={"backend": cfg.backend.model_copy(update={"retries": EMULATED_RETRIES})})
-    with EmulatorProcess(LAB) as rig:
+    with VirtualRig(cfg) as rig:
         res = run_trial(prepare(cfg).with_config(rig.retarget(cfg)), out, TrialHooks(report=False))
     assert res.completed, res.reason
     return TrialLog.load(res.log_path), rig.stats
@@ -91,9 +90,7 @@ def _compared_rows(rig: TrialLog) -> np.ndarray:
 def test_emulated_rig_and_servo_sim_agree_within_half_a_degree(tmp_path):
     cfg = load_trial_config(LAB)
     rig, stats = _rig_trial(cfg, tmp_path / "rig")
-    if stats.get("physics_skipped_s", 0.0) > 0:
-        pytest.skip(f"the emulator's physics fell {stats['physics_skipped_s']:.2f} s behind real time: "
-                    f"the machine was too busy for a faithful rig")
+    assert stats["physics_skipped_s"] == 0.0 and rig.metadata["loop_clock"] == "virtual"
     names = rig.joint_names
     assert rig.encoder_joint == "train" and len(rig) > 800  # the whole of Target 1: 8.4 s at 100 Hz
 

@@ -81,6 +81,24 @@ def emit_json(obj: object) -> None:
     sys.stdout.flush()
 
 
+CLOCK_HELP = ("The emulated rig's clock, with --emulate: realtime (the rig's pace; the default unless the "
+              "config's emulator.clock says otherwise) or virtual (time advances when each instant's work "
+              "is done: the same log bit for bit on any machine, as fast as the CPU allows).")
+
+
+def checked_clock(emulate: bool, clock: "str | None") -> "str | None":
+    """``--clock`` as given, or exit 2 with one line: it sets an emulated rig's clock, and a real
+    rig keeps the wall clock."""
+    if clock is None:
+        return None
+    if clock not in ("realtime", "virtual"):
+        fail(f"--clock {clock}: choose realtime or virtual")
+    if not emulate:
+        fail(f"--clock {clock} sets the emulated rig's clock: add --emulate (a real rig keeps the "
+             f"wall clock)")
+    return clock
+
+
 def load_config(path: Path) -> "TrialConfig":
     """The trial config at ``path``, or exit 2 with the one line saying what is wrong in it."""
     from bench.config.models import load_trial_config  # deferred: --help and completion stay fast

@@ -11,7 +11,8 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from bench.cli.common import console, emit_json, err_console, fail, load_config, say, stopped, styled
+from bench.cli.common import (CLOCK_HELP, checked_clock, console, emit_json, err_console, fail, load_config,
+                               say, stopped, styled)
 from bench.cli.live import LIVE_HELP, LIVE_WAIT_HELP, LIVE_WAIT_S, live_view
 from bench.core.interrupts import SignalGuard, TrialInterrupted
 from drivers.errors import (
@@ -53,6 +54,7 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
             repeats: int = typer.Option(5, "--repeats", help="Repeats on each backend (config form)."),
             emulate: bool = typer.Option(False, "--emulate", help="Run the real backend against the "
                                                                   "emulated servo bus and sensor."),
+            clock: Optional[str] = typer.Option(None, "--clock", metavar="realtime|virtual", help=CLOCK_HELP),
             retries: Optional[int] = typer.Option(None, "--retries", help="Rig repeats that lose the bus or "
                                                   "the sensor are run again this often (default 3 "
                                                   "emulated, 0 real)."),
@@ -69,6 +71,7 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
     """Compare sim and real tracking: run a config's plan on both backends N times, or compare two runs."""
     if align not in ("motion", "xcorr"):
         fail(f"--align must be 'motion' or 'xcorr', got {align!r}")
+    clock = checked_clock(emulate, clock)
     if _is_config(first):
         if second is not None:
             fail(f"{second}: a second argument only goes with a run as the first (got a config, {first})")
@@ -85,12 +88,13 @@ def compare(first: Path = typer.Argument(..., help="A trial config (.yaml) with 
                 fail(f"--sim-model: {e}")
             sim_model = str(Path(sim_model).resolve())
         result, out_dir, predicted, stop, live_url = _from_config(first, repeats, emulate, retries, align,
-                                                                   out, sim_model, as_json, live, live_wait)
+                                                                   out, sim_model, as_json, live, live_wait,
+                                                                   clock)
     else:
         if second is None:
             fail(f"{first}: give two runs to compare (RUN_A RUN_B), or a trial config (.yaml)")
-        if emulate or repeats != 5 or retries is not None or sim_model is not None or live:
-            fail("--repeats, --emulate, --retries, --sim-model and --live go with a config, not with two "
+        if emulate or repeats != 5 or retries is not None or sim_model is not None or live or clock:
+            fail("--repeats, --emulate, --clock, --retries, --sim-model and --live go with a config, not with two "
                  "saved runs")
         result, out_dir = _from_runs(first, second, align, out)
         predicted, stop, live_url = None, "", None
@@ -154,7 +158,7 @@ def _deviation_lines(summary: dict) -> list[str]:
 
 def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int], align: str, out: Path,
                  sim_model: Optional[str] = None, as_json: bool = False, live: bool = False,
-                 live_wait: float = 0.0):
+                 live_wait: float = 0.0, clock: Optional[str] = None):
 
     from bench.compare.session import run_comparison  # deferred: --help and completion stay fast
 
@@ -172,7 +176,8 @@ def _from_config(path: Path, repeats: int, emulate: bool, retries: Optional[int]
         with SignalGuard() as guard, live_view(live, path, out, guard, live_wait, waiting) as server:
             try:
                 res = run_comparison(cfg, out, repeats=repeats, emulate=emulate, retries=retries,
-                                     align=align, progress=progress, interrupts=guard, sim_model=sim_model)
+                                     align=align, progress=progress, interrupts=guard, sim_model=sim_model,
+                                     clock=clock)
             except (CompareError, ConfigError, TrialError, PlanMismatchError, ActuatorError) as e:
                 bar.stop()
                 _refused_or_unconfirmed(e, as_json)

@@ -24,7 +24,8 @@ from rich.status import Status
 from rich.table import Table
 from rich.text import Text
 
-from bench.cli.common import emit_json, err_console, fail, interrupted, load_config, say, signum_of, styled
+from bench.cli.common import (CLOCK_HELP, checked_clock, emit_json, err_console, fail, interrupted, load_config,
+                               say, signum_of, styled)
 from drivers.errors import ActuatorError, BackendSetupError, ExitCode, safe_stop_unconfirmed
 
 if TYPE_CHECKING:
@@ -52,16 +53,21 @@ EMULATE_OPTION = typer.Option(False, "--emulate", help="Work on the config's emu
                                                  "(its own servo bus and sensor) instead of the ports.")
 
 
+CLOCK_OPTION = typer.Option(None, "--clock", metavar="realtime|virtual", help=CLOCK_HELP)
+
+
 @contextlib.contextmanager
-def config_rig(config: Path, cfg: "TrialConfig", emulate: bool) -> Iterator["TrialConfig"]:
-    """The config as given, or pointed at an emulated rig that lives as long as the block."""
+def config_rig(config: Path, cfg: "TrialConfig", emulate: bool,
+               clock: Optional[str] = None) -> Iterator["TrialConfig"]:
+    """The config as given, or pointed at an emulated rig (on ``clock``) that lives as long as the block."""
+    clock = checked_clock(emulate, clock)
     if not emulate:
         yield cfg
         return
-    from bench.rig.emulated import EmulatorProcess  # deferred: --help and completion stay fast
+    from bench.rig.emulated import open_emulated_rig  # deferred: --help and completion stay fast
 
     try:
-        rig = EmulatorProcess(config)
+        rig = open_emulated_rig(config, cfg, clock)
     except RuntimeError as e:
         fail(str(e))
     try:
@@ -147,6 +153,7 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
            verbose: bool = typer.Option(False, "--verbose", "-v",
                                         help="Print every check, the passed ones too."),
            emulate: bool = EMULATE_OPTION,
+           clock: Optional[str] = CLOCK_OPTION,
            as_json: bool = typer.Option(False, "--json",
                                         help='Print {"checks": [...], "ok": bool} as one line.')) -> None:
     """Check a rig before a trial: ports, latency timer, servos, ultrasonic sensor, calibration.
@@ -170,7 +177,7 @@ def doctor(config: Path = typer.Argument(..., help="A config with backend.kind: 
             say(_STATUS[c.status] + "  {}: {}", c.name, c.detail)
 
     try:
-        with config_rig(config, cfg, emulate) as cfg, spinner:
+        with config_rig(config, cfg, emulate, clock) as cfg, spinner:
             checks = run_doctor(cfg, listen_s=listen_s, on_check=show)
     except KeyboardInterrupt as e:
         interrupted(signum_of(e), "doctor stopped; nothing was written to the servos")
@@ -216,6 +223,7 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
                   False, "--accept-large-offsets",
                   help="Write zeros that moved more than 2° (2 mm) from the config's too."),
               emulate: bool = EMULATE_OPTION,
+           clock: Optional[str] = CLOCK_OPTION,
               as_json: bool = typer.Option(False, "--json",
                                            help="Print the result as one JSON line.")) -> None:
     """Calibrate joint zero offsets and the ultrasonic sensor; write a dated calibration file."""
@@ -257,7 +265,7 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
         default = default_output(cfg)
         out = default.with_name("emulated-" + default.name)
     try:
-        with config_rig(config, cfg, emulate) as rig_cfg:
+        with config_rig(config, cfg, emulate, clock) as rig_cfg:
             res = run_calibration(rig_cfg, write=write, stops=stops, samples=samples, out=out,
                                   confirm=confirm, note=note, accept_large=accept_large,
                                   span=math.radians(span_deg) if span_deg is not None else None)
@@ -303,7 +311,8 @@ def calibrate(config: Path = typer.Argument(..., help="A config with backend.kin
 
 
 def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dynamixel."),
-        emulate: bool = EMULATE_OPTION) -> None:
+        emulate: bool = EMULATE_OPTION,
+        clock: Optional[str] = CLOCK_OPTION) -> None:
     """Move one joint at a time in small steps within limits (keys: 1-9, +/-, s, q); torque off on exit."""
 
     from bench.kinematics.registry import get_robot  # deferred: --help and completion stay fast
@@ -324,7 +333,7 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
     reason = "error"
     act = None
     try:
-        with config_rig(config, cfg, emulate) as cfg, \
+        with config_rig(config, cfg, emulate, clock) as cfg, \
                 open_backend(cfg) as act:  # torque off when this block is left, however it is left
             act.enable()
             with RawKeys(sys.stdin.fileno()) as keys, \

@@ -11,7 +11,8 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-from bench.cli.common import console, emit_json, err_console, fail, load_config, say, stopped, styled
+from bench.cli.common import (CLOCK_HELP, checked_clock, console, emit_json, err_console, fail, load_config,
+                               say, stopped, styled)
 from bench.cli.live import LIVE_HELP, LIVE_WAIT_HELP, LIVE_WAIT_S, live_view
 from bench.cli.monitor import MONITOR_HELP, monitor_line, with_monitor
 from bench.core.interrupts import NO_SIGNALS, SignalGuard, TrialInterrupted
@@ -34,6 +35,7 @@ __all__ = ["check", "emulate", "report", "trial"]
 
 def check(config: Path = typer.Argument(..., help="A trial config to check."),
           emulate: bool = typer.Option(False, "--emulate", help="Do not check the configured serial ports (the emulated rig brings its own)."),
+          clock: Optional[str] = typer.Option(None, "--clock", metavar="realtime|virtual", help=CLOCK_HELP),
           as_json: bool = typer.Option(False, "--json", help="Print the checks as one JSON line.")) -> None:
     """Check a config as a trial would before moving, without moving anything.
 
@@ -42,6 +44,8 @@ def check(config: Path = typer.Argument(..., help="A trial config to check."),
     backend. Exit 0 when a trial would start, 2 when it would be refused.
     """
     from bench.trial.check import check_config  # deferred: --help and completion stay fast
+
+    checked_clock(emulate, clock)  # the rig brings its own ports on either clock: nothing else to check
 
     results = check_config(config, emulate=emulate)
     ok = all(r.ok for r in results)
@@ -66,6 +70,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
           gui: bool = typer.Option(False, "--gui", help="Show the PyBullet window (sim backend)."),
           note: str = typer.Option("", "--note", help="Operator note stored in the trial record."),
           emulate: bool = typer.Option(False, "--emulate", help="Run the real backend against the emulated servo bus and sensor."),
+          clock: Optional[str] = typer.Option(None, "--clock", metavar="realtime|virtual", help=CLOCK_HELP),
           live: bool = typer.Option(False, "--live", help=LIVE_HELP),
           live_wait: float = typer.Option(LIVE_WAIT_S, "--live-wait", min=0, help=LIVE_WAIT_HELP),
           monitor: Optional[str] = typer.Option(None, "--monitor", metavar="MODEL", help=MONITOR_HELP),
@@ -80,9 +85,11 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
                                                          or os.environ.get("WAYLAND_DISPLAY")):
         fail("--gui needs a display and DISPLAY is not set; run without --gui (the report has "
              "the pictures) or under xvfb-run")
+    clock = checked_clock(emulate, clock)
     with SignalGuard() as guard:  # first, so no signal can land before it
         try:
-            res, name, live_url = _trial(config, out, gui, note, emulate, guard, live, live_wait, monitor)
+            res, name, live_url = _trial(config, out, gui, note, emulate, guard, live, live_wait, monitor,
+                                         clock)
         except TrialInterrupted as e:
             _interrupted(e, as_json)
     if not res.stop_confirmed:
@@ -115,7 +122,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
 
 
 def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, live: bool = False,
-           live_wait: float = 0.0, monitor: Optional[str] = None):
+           live_wait: float = 0.0, monitor: Optional[str] = None, clock: Optional[str] = None):
     from bench.trial.plan import prepare  # deferred: --help and completion stay fast
 
     cfg = with_monitor(load_config(config), monitor)
@@ -129,10 +136,10 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, 
     guard.check()
     rig = None
     if emulate:
-        from bench.rig.emulated import EmulatorProcess  # deferred: --help and completion stay fast
+        from bench.rig.emulated import open_emulated_rig  # deferred: --help and completion stay fast
 
         try:
-            rig = EmulatorProcess(config)
+            rig = open_emulated_rig(config, cfg, clock)
         except RuntimeError as e:
             fail(str(e))
         prep = prep.with_config(rig.retarget(cfg))

@@ -56,12 +56,13 @@ from bench.core.record import new_run_dir
 from bench.core.result import PreparedTrial, TrialError
 from bench.core.runner import Interruptible
 from bench.rig.backends import make_backend
-from bench.rig.emulated import EmulatorProcess
+from bench.rig.emulated import EmulatorProcess, open_emulated_rig
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
 from drivers import ActuatorError, CommunicationError
 from drivers.capabilities import SafeStopReport, find_capability
 from drivers.errors import CompareError
+from drivers.link import port_usable
 
 __all__ = ["CompareError", "LostAttempt", "SessionResult", "check_real_ports", "home_rig",
            "run_comparison", "sim_counterpart"]
@@ -131,6 +132,8 @@ def check_real_ports(config: TrialConfig) -> None:
     if b.ultrasonic is not None:
         ports.append(("backend.ultrasonic.port", "ultrasonic sensor", b.ultrasonic.port))
     for field_name, what, port in ports:
+        if port_usable(port):
+            continue
         if not os.path.exists(port):
             raise CompareError(f"{field_name}: {what} port {port} not found (is the adapter plugged "
                                f"in?); nothing moved. Rehearse without hardware with --emulate")
@@ -173,7 +176,8 @@ class _Rig:
 def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bool = False,
                    retries: Optional[int] = None, align: str = "motion",
                    progress: Optional[ProgressFn] = None, report: bool = True,
-                   interrupts: Interruptible = NO_SIGNALS, sim_model: Optional[str] = None) -> SessionResult:
+                   interrupts: Interruptible = NO_SIGNALS, sim_model: Optional[str] = None,
+                   clock: Optional[str] = None) -> SessionResult:
     """Run the plan ``repeats`` times on the rig (or its emulator) and on the sim, compare, report.
 
     ``retries`` (default 3 when emulating, 0 on hardware): how often a rig repeat
@@ -186,7 +190,7 @@ def run_comparison(config: TrialConfig, out: Path, repeats: int = 5, emulate: bo
         check_real_ports(config)
     progress = progress or (lambda what, f: None)
     rig = _Rig(Path(out))
-    _run_rig(rig, rig_prep, repeats, emulate, retries, progress, interrupts)
+    _run_rig(rig, rig_prep, repeats, emulate, retries, progress, interrupts, clock)
     found = [(TrialLog.load(p / "trial.npz"), TrialLog.load(h) if h.exists() else None)
              for p, h in zip(rig.runs, rig.homings)]
     runs = {label: _run_sim(cfg, where, found, label, k, len(sides), progress, interrupts)
@@ -236,7 +240,7 @@ def _prepared_sides(config: TrialConfig, sim_model: Optional[str]):
 
 
 def _run_rig(rig: _Rig, prep: PreparedTrial, repeats: int, emulate: bool, retries: int,
-             progress: ProgressFn, interrupts: Interruptible) -> None:
+             progress: ProgressFn, interrupts: Interruptible, clock: Optional[str] = None) -> None:
     """Every rig repeat, each after its homing, the emulator (``emulate``) started once for all;
     the config's safe stop after the last, or whenever the session ends early."""
     w_real = 0.88 / repeats  # rough share of the wall time: the rig runs in real time, the sim ~8x faster
@@ -246,7 +250,7 @@ def _run_rig(rig: _Rig, prep: PreparedTrial, repeats: int, emulate: bool, retrie
     try:
         if emulate:
             progress("starting the emulated rig", 0.0)
-            emulator, prep = _emulated(prep)
+            emulator, prep = _emulated(prep, clock)
         rig.out_dir = new_run_dir(rig.out_dir, f"compare-{prep.config.name}")
         touched = True
         for i in range(repeats):
@@ -274,10 +278,11 @@ def _run_rig(rig: _Rig, prep: PreparedTrial, repeats: int, emulate: bool, retrie
             rig.stats = dict(emulator.stats)
 
 
-def _emulated(prep: PreparedTrial) -> tuple[EmulatorProcess, PreparedTrial]:
-    """The emulated rig (``hilbench emulate`` in a child process) and the trial pointed at it."""
+def _emulated(prep: PreparedTrial, clock: Optional[str] = None) -> tuple[EmulatorProcess, PreparedTrial]:
+    """The emulated rig (``hilbench emulate`` in a child process, or this process's on the virtual
+    clock) and the trial pointed at it."""
     try:
-        emulator = EmulatorProcess(Path(prep.config.source))
+        emulator = open_emulated_rig(Path(prep.config.source), prep.config, clock)
     except RuntimeError as e:
         raise CompareError(str(e)) from None
     cfg = emulator.retarget(prep.config)

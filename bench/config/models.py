@@ -272,6 +272,11 @@ class EmulatorConfig(Strict):
         default_factory=dict, max_length=32,
         description="hidden servo physics by joint name or `all` (a joint's own entry wins)")
     seed: int = Field(default=0, ge=0, le=SEED_MAX, description="seed of the emulator's noise")
+    clock: Literal["realtime", "virtual"] = Field(
+        default="realtime",
+        description="realtime: the rig keeps the wall clock (a rehearsal at the rig's pace, the live "
+                    "view); virtual: time advances when each instant's work is done, the same log bit "
+                    "for bit on any machine, as fast as the CPU allows (`--clock virtual`)")
 
     def physics_of(self, joint: str) -> dict[str, float]:
         """The hidden physics set for ``joint``: its own entry over ``all``, unset keys left out."""

@@ -47,14 +47,17 @@ class LoopTiming:
     worst_at_s: Optional[float] = None  #: when it ran, s into the trial
     worst_segment: Optional[str] = None
     first_missed_at_s: Optional[float] = None
-    wall_s: Optional[float] = None  #: not paced: the run's wall-clock time
-    sim_s: Optional[float] = None  #: not paced: the simulated time it covered
+    wall_s: Optional[float] = None  #: the loop's wall-clock time
+    sim_s: Optional[float] = None  #: the trial time it covered (simulated, or on the rig's clock)
     #: paced: the priority the loop ran at (``nice -10``, or the one kept and why), as recorded
     priority: Optional[str] = None
     #: paced: how long the loop was runnable but waited for a CPU (other work on the machine ran)
     cpu_waited_s: Optional[float] = None
     #: paced: how long a hypervisor took this machine's CPUs meanwhile (per CPU)
     cpu_stolen_s: Optional[float] = None
+    #: paced: the clock the deadlines were on: ``wall``, or ``virtual`` (an emulated rig on the virtual
+    #: clock: a deadline is missed only by the modelled wire time, never by the machine)
+    clock: Optional[str] = None
 
     @property
     def late(self) -> bool:
@@ -85,13 +88,20 @@ class LoopTiming:
             return f"loop timing: not paced: {self._speed()}"
         if not self.cycles:
             return "loop timing: no cycle was timed"
-        line = (f"loop timing{self._at()}: period {_ms(self.period_median_s)} median, {_ms(self.period_p99_s)} p99, "
+        line = (f"loop timing{self._at()}{self._on_clock()}: period {_ms(self.period_median_s)} median, {_ms(self.period_p99_s)} p99, "
                 f"{_ms(self.period_max_s)} max (set {_ms(self.period_s)}); bus {_ms(self.bus_median_s)} "
                 f"median, {_ms(self.bus_p99_s)} p99; ")
         return line + self._missed_words()
 
     def _at(self) -> str:
-        return f" (at {self.priority})" if self.priority else ""
+        return f" (at {self.priority})" if self.priority and self.clock != "virtual" else ""
+
+    def _on_clock(self) -> str:
+        """On the virtual clock: how fast its trial time ran against the wall clock."""
+        if self.clock != "virtual":
+            return ""
+        speed = f", {self.sim_s / self.wall_s:.1f}× real time" if self.wall_s and self.sim_s else ""
+        return f" (virtual clock{speed})"
 
     def _missed_words(self) -> str:
         if not self.missed:
@@ -125,7 +135,10 @@ class LoopTiming:
         if self.missed:
             said += f"; the first at {self.first_missed_at_s:.2f} s"
         said += "."
-        if self.priority:
+        if self.clock == "virtual":
+            said += (f" The deadlines were on the virtual clock: only the modelled wire time can miss "
+                     f"one, never the machine; {self._speed().split('; ', 1)[-1]}.")
+        elif self.priority:
             said += f" The loop ran at {self.priority}."
         if self.late:
             said += (f" **More than {100 * MISSED_SHARE_LIMIT:g} % missed: the loop did not keep time, "
@@ -153,11 +166,15 @@ def loop_timing(log: TrialLog, period_s: Optional[float] = None) -> LoopTiming:
         return LoopTiming("not paced", period_s, wall_s=float(meta["loop_wall_s"]), sim_s=sim_s)
     start, late, bus = log.loop_start, log.loop_late, log.bus_s
     timed = np.isfinite(late)
+    clock = meta.get("loop_clock") if isinstance(meta.get("loop_clock"), str) else None
+    wall = meta.get("loop_wall_s")
+    spans = dict(wall_s=float(wall) if isinstance(wall, (int, float)) else None,
+                 sim_s=float(log.time[-1] - log.time[0]) if len(log) > 1 else None, clock=clock)
     cycles = int(timed.sum())
     withheld = {k: meta.get(f"loop_{k}") if isinstance(meta.get(f"loop_{k}"), (int, float)) else None
                 for k in ("cpu_waited_s", "cpu_stolen_s")}
     if not cycles:
-        return LoopTiming("paced", period_s, priority=_priority(meta), **withheld)
+        return LoopTiming("paced", period_s, priority=_priority(meta), **withheld, **spans)
     both = np.isfinite(start[1:]) & np.isfinite(start[:-1])
     periods = np.diff(start)[both]
     buses = bus[np.isfinite(bus)]
@@ -176,7 +193,7 @@ def loop_timing(log: TrialLog, period_s: Optional[float] = None) -> LoopTiming:
                       float(periods.max()) if periods.size else None,
                       float(np.median(buses)) if buses.size else None, _p(buses, 99),
                       n_missed, n_missed / cycles, worst, worst_at, worst_seg, first,
-                      priority=_priority(meta), **withheld)
+                      priority=_priority(meta), **withheld, **spans)
 
 
 def _priority(meta: dict) -> Optional[str]:

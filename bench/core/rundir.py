@@ -18,7 +18,7 @@ import math
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Literal, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
@@ -135,6 +135,7 @@ class _TrialMetadata(BaseModel):
     control_period: Optional[float] = Field(None, gt=0)
     loop_wall_s: Optional[float] = Field(None, ge=0)  # the run's wall-clock time (a sim's speed)
     loop_priority: Optional[str] = Field(None, max_length=200)  # a paced loop's priority (nice -10)
+    loop_clock: Optional[Literal["wall", "virtual"]] = None  # what a paced loop's deadlines were on
     monitor: Optional[_MonitorView] = None  # the twin's summary, in a monitored trial's log
 
 

@@ -154,6 +154,9 @@ class Runner:
         if bus is not None and not log.timed and not len(log):
             log.start_timing()
         self._bus_time = bus.bus_time if bus is not None and log.timed else None
+        if bus is not None:  # what the deadlines are on: the wall clock, or an emulated rig's virtual one
+            log.metadata["loop_clock"] = "virtual" if getattr(getattr(bus, "clock", None), "virtual",
+                                                              False) else "wall"
         if self._bus_time is not None:
             self._bus_time()  # the set-up's transactions are not the first cycle's
         enc = find_capability(act, SensedEncoder)

@@ -25,7 +25,6 @@ from __future__ import annotations
 import datetime as dt
 import math
 import statistics
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Literal, Optional
@@ -251,7 +250,7 @@ def measure_zeros(config: TrialConfig, robot, confirm: Callable[[str], bool],
             shafts = []
             for _ in range(ZERO_SAMPLES):
                 shafts.append(bus.shaft_angle(sc.id))
-                time.sleep(0.01)
+                bus.clock.sleep(0.01)
             ref = float(reference[robot.joint_names.index(joint)])
             z = JointZero(joint, sc.offset, ref - sc.ratio * statistics.median(shafts), ref)
             zeros[joint] = z
@@ -302,9 +301,10 @@ def _sample(act, sensor, train: int, n: int, timeout_s: float = 10.0) -> tuple[f
 
     distances, angles = [], []
     seen = sensor.counters.readings
-    t0 = next_read = time.monotonic()
+    clock = sensor.clock  # the wall clock; an emulated line's virtual one
+    t0 = next_read = clock.now()
     while len(distances) < n:
-        now = time.monotonic()
+        now = clock.now()
         if now - t0 > timeout_s:
             raise CommunicationError(f"ultrasonic sensor on {sensor.port}: {len(distances)} of {n} "
                                      f"readings in {timeout_s:.0f} s")
@@ -315,7 +315,7 @@ def _sample(act, sensor, train: int, n: int, timeout_s: float = 10.0) -> tuple[f
         if count > seen:
             seen = count
             distances.append(sensor.read(allow_stale=True)[0])
-        time.sleep(0.003)
+        clock.sleep(0.003)
     return float(np.mean(angles)), float(np.mean(distances))
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 import os
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Literal, Optional
@@ -29,6 +28,7 @@ from drivers.dynamixel.backend import latency_timer_ms
 from drivers.dynamixel.bus import PingReply, ServoBus, ServoStatus, open_error
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import BAUD_RATES
+from drivers.link import is_virtual_port, port_usable
 from drivers.ultrasonic import UltrasonicSensor
 
 __all__ = ["Check", "run_doctor"]
@@ -79,8 +79,9 @@ def run_doctor(config: TrialConfig, listen_s: float = 1.0,
 
 
 def _port_check(add: Add, name: str, port: str) -> bool:
-    if os.path.exists(port) and os.access(port, os.R_OK | os.W_OK):
-        add(name, "pass", f"{port} is readable and writable")
+    if port_usable(port):
+        add(name, "pass", f"{port} is an emulated line on the virtual clock" if is_virtual_port(port)
+            else f"{port} is readable and writable")
         return True
     add(name, "fail", open_error(port))
     return False
@@ -91,6 +92,9 @@ def _latency_check(add: Add, port: str, exists: bool) -> None:
     real = os.path.realpath(port)
     if not exists:
         return  # the port check already failed; there is no timer to read
+    if is_virtual_port(port):
+        add("latency timer", "pass", f"skipped: {port} is an emulated line, no USB latency timer")
+        return
     if real.startswith("/dev/pts/"):
         add("latency timer", "pass", f"skipped: {port} is a pseudo-terminal (emulated bus), "
                                      f"no USB latency timer")
@@ -269,15 +273,16 @@ def _ultrasonic_checks(add: Add, config: TrialConfig, listen_s: float, train_q: 
     stamps: list[float] = []
     values: list[float] = []
     with sensor:
-        t0 = time.monotonic()
+        clock = sensor.clock  # the wall clock; an emulated line's virtual one
+        t0 = clock.now()
         seen = 0
-        while time.monotonic() - t0 < listen_s:
+        while clock.now() - t0 < listen_s:
             n = sensor.counters.readings
             if n > seen:
                 seen = n
-                stamps.append(time.monotonic())
+                stamps.append(clock.now())
                 values.append(sensor.read(allow_stale=True)[0])
-            time.sleep(0.002)
+            clock.sleep(0.002)
         counters = sensor.counters
         stale_s = sensor.stale_after_s
     bad = (f"{counters.parse_errors} unreadable line(s), {counters.no_target} no-target "

@@ -18,6 +18,7 @@ from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_dynamixel_backend
 from drivers import Actuators, BackendSetupError
 from drivers.dynamixel.bus import ServoBus, open_error
+from drivers.link import port_usable
 
 __all__ = ["LAB_RETRIES", "check_ports", "check_servos", "open_backend", "require_dynamixel"]
 
@@ -41,7 +42,7 @@ def check_ports(config: TrialConfig, ultrasonic: bool = True) -> None:
     if ultrasonic and b.ultrasonic is not None:
         ports.append(("ultrasonic", b.ultrasonic.port))
     for what, port in ports:
-        if not os.path.exists(port) or not os.access(port, os.R_OK | os.W_OK):
+        if not port_usable(port):
             raise BackendSetupError(f"{what} {open_error(port)}")
 
 

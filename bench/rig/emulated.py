@@ -1,10 +1,17 @@
-"""The emulated rig: the robot's servo bus and ultrasonic sensor on pseudo-terminals.
+"""The emulated rig: the robot's servo bus and ultrasonic sensor on pseudo-terminals, or on
+``virtual://`` lines of this process on a virtual clock.
 
 Built from the same trial config a technician edits for the real rig: the
 servos (IDs, models, modes, transmissions) become emulated X-series servos
 whose plant is the robot in PyBullet under torque control, and the ultrasonic
 sensor reports the train's true d2 (plus the standoff) with the configured
 noise, rate and dropouts. The real driver then talks to it byte for byte.
+
+On the wall clock (``emulator.clock: realtime``) the rig serves ptys from threads (or from a child
+process, :class:`EmulatorProcess`) and keeps real time, as the rig would. On a
+:class:`~drivers.clock.VirtualClock` (``clock: virtual``) the same devices are steps of that clock
+in this process (:mod:`drivers.emulator.virtual`): the driver opens ``virtual://`` URLs, its
+waits advance the clock, and the trial is the same bit for bit on any machine.
 """
 
 from __future__ import annotations
@@ -12,6 +19,7 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import functools
+import itertools
 import json
 import math
 import os
@@ -35,11 +43,17 @@ from bench.rig.backends import with_physics
 from bench.rig.hooks import RemoteRigHooks, RigHooks, follow_commands
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.units import BAUD_RATES, OPERATING_MODES
+from drivers.clock import VirtualClock
 from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
+from drivers.emulator.virtual import VirtualBusEmulator, VirtualUltrasonic
 from drivers.errors import ExitCode
+from drivers.link import is_virtual_port
 from drivers.servo import ServoParams
 from drivers.servo.plant import PyBulletPlant
 from drivers.timing import raise_priority
+
+
+_RIG_NUMBERS = itertools.count(1)
 
 
 @dataclass
@@ -76,12 +90,15 @@ class EmulatedRig:
 
     def __init__(self, config: TrialConfig, initial_position: Optional[np.ndarray] = None,
                  realtime: bool = True, planted: Optional[Planted] = None,
-                 warm_start_s: float = 0.0, rest_after_s: Optional[float] = None) -> None:
+                 warm_start_s: float = 0.0, rest_after_s: Optional[float] = None,
+                 clock: Optional[VirtualClock] = None) -> None:
         """``warm_start_s`` > 0 starts the rig as a previous session left it: the servos
         hold their pose with the config's PID gains written, and the physics has run that
         long (integrators charged, gravity sag gone) before the ports open.
         ``rest_after_s``: pause the physics once nothing has moved or been written for
-        that long (``hilbench emulate`` does, so an idle rig costs no CPU)."""
+        that long (``hilbench emulate`` does, so an idle rig costs no CPU).
+        ``clock``: serve on ``virtual://`` lines as devices of that virtual clock instead of
+        on ptys in real time."""
 
         if config.backend.kind != "dynamixel":
             raise ValueError(f"{config.source}: --emulate needs backend.kind: dynamixel")
@@ -120,10 +137,17 @@ class EmulatedRig:
             servos[sc.id] = ServoModel(models[n], id=sc.id, registers=registers, deadband_ticks=deadband,
                                        motor=self.servo_params.take(j))
             joints[sc.id] = j
-        self.bus = DynamixelBusEmulator(servos, self.plant, joints=joints,
-                                        physics_dt=1.0 / e.physics_hz,
-                                        wire_timing=e.wire_timing, seed=e.seed, realtime=realtime,
-                                        rest_after_s=rest_after_s)
+        self.clock = clock
+        name = f"rig-{next(_RIG_NUMBERS)}"  # in-process lines: unique within it, the same in every run
+        if clock is not None:
+            self.bus = VirtualBusEmulator(servos, self.plant, joints=joints, clock=clock,
+                                          name=f"{name}/servos", physics_dt=1.0 / e.physics_hz,
+                                          seed=e.seed)
+        else:
+            self.bus = DynamixelBusEmulator(servos, self.plant, joints=joints,
+                                            physics_dt=1.0 / e.physics_hz,
+                                            wire_timing=e.wire_timing, seed=e.seed, realtime=realtime,
+                                            rest_after_s=rest_after_s)
         #: What a backend built on this bus carries as its fault hooks: the bus's faults and the plant's.
         self.hooks = RigHooks(self.bus)
         if e.start_torque_on:
@@ -143,11 +167,15 @@ class EmulatedRig:
                     q = self.plant.joint_position()[train]
                 return standoff + d2_of(q)
 
-            self.ultrasonic = UltrasonicEmulator(distance, rate_hz=e.ultrasonic_rate_hz or u.rate_hz,
-                                                 noise_std_m=e.ultrasonic_noise_mm * 1e-3,
-                                                 dropout_prob=e.ultrasonic_dropout, seed=e.seed + 1,
-                                                 offset_m=planted.ultrasonic_offset_m,
-                                                 scale=planted.ultrasonic_scale)
+            sensor = dict(rate_hz=e.ultrasonic_rate_hz or u.rate_hz,
+                          noise_std_m=e.ultrasonic_noise_mm * 1e-3, dropout_prob=e.ultrasonic_dropout,
+                          seed=e.seed + 1, offset_m=planted.ultrasonic_offset_m,
+                          scale=planted.ultrasonic_scale)
+            if clock is not None:
+                self.ultrasonic = VirtualUltrasonic(distance, clock=clock, name=f"{name}/ultrasonic",
+                                                    baud=u.baud, **sensor)
+            else:
+                self.ultrasonic = UltrasonicEmulator(distance, **sensor)
 
     def _d2_function(self):
 
@@ -344,10 +372,66 @@ def _die_with_parent(parent: int) -> None:
             os._exit(ExitCode.ORPHANED)  # or by a subreaper, whichever pid that is)
 
 
+#: The clocks an emulated rig can keep: ``realtime`` (the wall clock) or ``virtual``.
+CLOCKS = ("realtime", "virtual")
+
+
+class VirtualRig:
+    """The emulated rig of one command on a fresh :class:`~drivers.clock.VirtualClock`, in this
+    process: what :class:`EmulatorProcess` is in real time (``retarget``, ``close``, ``stats``)."""
+
+    def __init__(self, config: TrialConfig) -> None:
+        self.clock = VirtualClock()
+        self.rig = EmulatedRig(config, clock=self.clock).start()
+        self.ports = self.rig.ports
+        self.faults = self.rig.hooks
+        #: The bus's counters, read when the rig has stopped.
+        self.stats: dict = {}
+
+    def retarget(self, config: TrialConfig) -> TrialConfig:
+        return retarget(config, self.ports)
+
+    def close(self) -> None:
+        if self.rig is not None:
+            with self.rig.bus.lock:
+                self.stats = dataclasses.asdict(self.rig.bus.stats)
+            self.rig.close()
+            self.rig = None
+
+    def __enter__(self) -> "VirtualRig":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def clock_of(config: TrialConfig, clock: Optional[str]) -> str:
+    """The clock an emulated rig keeps: the command line's ``--clock``, else the config's
+    ``emulator.clock``; an unknown one is refused."""
+    chosen = clock if clock is not None else config.emulator.clock
+    if chosen not in CLOCKS:
+        raise ValueError(f"--clock {chosen}: choose from {', '.join(CLOCKS)}")
+    return chosen
+
+
+def open_emulated_rig(config_path: Path, config: TrialConfig, clock: Optional[str] = None):
+    """The config's emulated rig for one command: in real time a child process
+    (:class:`EmulatorProcess`, its own core), on the virtual clock this process's
+    (:class:`VirtualRig`). Both have ``retarget``, ``close`` and ``stats``."""
+    if clock_of(config, clock) == "virtual":
+        return VirtualRig(config)
+    return EmulatorProcess(config_path)
+
+
 def retarget(config: TrialConfig, ports: RigPorts) -> TrialConfig:
     """The config with its ports pointed at an emulated rig."""
     b = config.backend
     u = b.ultrasonic
+    if is_virtual_port(ports.dynamixel_port):  # on a virtual clock nothing answers late: the
+        backend = b.model_copy(update={          # config's own timeouts, as at the rig
+            "port": ports.dynamixel_port,
+            "ultrasonic": u.model_copy(update={"port": ports.ultrasonic_port}) if u else None})
+        return config.model_copy(update={"backend": backend})
     backend = b.model_copy(update={
         "port": ports.dynamixel_port,
         # The emulator is a Python process sharing the CPU: its answers can come

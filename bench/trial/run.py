@@ -32,6 +32,7 @@ from bench.trial.plan import aimed_plan
 from bench.trial.record import finish_record, trial_metadata
 from drivers import ActuatorError, Actuators
 from drivers.capabilities import SafeStopReport, ServoInfo, StartWarnings, find_capability
+from drivers.link import is_virtual_port
 from drivers.timing import CpuWithheld, LoopPriority
 
 __all__ = ["TrialHooks", "run_trial"]
@@ -102,8 +103,8 @@ def _loop_priority(prep: PreparedTrial, log: TrialLog):
     """A paced trial (a servo bus, real or emulated) runs ahead of the browser and other jobs on the
     bench computer, where the OS allows; the log says what it got. A simulator's loop has no
     deadline, so it keeps its priority and never crowds the machine."""
-    if prep.config.backend.kind != "dynamixel":
-        yield
+    if prep.config.backend.kind != "dynamixel" or is_virtual_port(prep.config.backend.port):
+        yield  # a virtual clock's deadlines do not depend on the machine either
         return
     withheld = CpuWithheld()  # what the machine withheld from the loop: the record says it
     with LoopPriority() as priority:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import time
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -39,6 +38,7 @@ from drivers import (
     JointLimits,
     JointState,
 )
+from drivers.clock import WALL, Clock
 from drivers.dynamixel.control_table import model_spec, x_series_table
 from drivers.dynamixel.cycle import SyncCycle
 from drivers.dynamixel.goals import GoalBounds, GoalOutOfRange, outside_limits
@@ -74,6 +74,10 @@ def latency_timer_ms(port: str) -> Optional[int]:
 class DynamixelActuators(ActuatorsBase):
     """Servos on one bus (and optionally the ultrasonic train sensor)."""
 
+    #: What the backend keeps time by: its port's clock (the wall clock at a rig, an emulated
+    #: line's virtual clock in a rehearsal), set when the port opens.
+    clock: Clock = WALL
+
     def __init__(self, settings: DynamixelSettings) -> None:
         import dynamixel_sdk as sdk  # heavy: loaded only with servos
 
@@ -101,7 +105,7 @@ class DynamixelActuators(ActuatorsBase):
         self._servo_of_joint = np.argsort(self._index)
         self._limits = JointLimits(np.asarray(s.lower, float), np.asarray(s.upper, float),
                                    np.asarray(s.velocity, float), np.asarray(s.effort, float))
-        self._t0 = time.monotonic()
+        self._t0 = 0.0  # the clock's time at start, once the port is open
         self._last: Optional[JointState] = None
         self._lost = False  # the bench lost the train's last reading (HostLoop)
         self._fails = 0
@@ -127,6 +131,8 @@ class DynamixelActuators(ActuatorsBase):
                 raise BackendSetupError(f"cannot open servo port {s.port}" + port_hint(s.port))
             if not self.port.setBaudRate(s.baud):
                 raise BackendSetupError(f"cannot set {s.baud} bps on {s.port}")
+            self.clock = self.port.clock  # the wall clock; an emulated line's virtual one
+            self._t0 = self.clock.now()
             self._check_latency()
             self._check_servos()
             self._configure()
@@ -204,7 +210,7 @@ class DynamixelActuators(ActuatorsBase):
         if faulty and s.reboot_on_hardware_error:
             for sid in faulty:
                 self.ph.reboot(self.port, sid)
-            time.sleep(0.6)
+            self.clock.sleep(0.6)
             still = {sid: decode_hardware_error(self._read(sid, "Hardware Error Status"))
                      for sid in faulty}
             faulty = {k: v for k, v in still.items() if v}
@@ -257,7 +263,7 @@ class DynamixelActuators(ActuatorsBase):
         self._fast = self.settings.fast_sync_read and fw_ok
         if self.settings.fast_sync_read and not fw_ok:
             self._warn(f"Fast Sync Read needs firmware {FAST_SYNC_READ_FIRMWARE}+; using Sync Read")
-        self._cycle = SyncCycle(self.port.ser.fileno(), self.settings.baud, self._ids, fast=self._fast)
+        self._cycle = SyncCycle(self.port.link, self.settings.baud, self._ids, fast=self._fast)
         if self.settings.timeout_s:
             self._cycle.timeout_s = self.settings.timeout_s
 
@@ -280,15 +286,10 @@ class DynamixelActuators(ActuatorsBase):
         return self._limits
 
     def now(self) -> float:
-        return time.monotonic() - self._t0
+        return self.clock.now() - self._t0
 
     def wait_until(self, t: float) -> None:
-        deadline = self._t0 + t
-        remaining = deadline - time.monotonic()
-        if remaining > 0.002:
-            time.sleep(remaining - 0.001)
-        while time.monotonic() < deadline:
-            pass
+        self.clock.sleep_until(self._t0 + t)
 
     def read(self) -> JointState:
         st = self._read_bus()
@@ -375,7 +376,8 @@ class DynamixelActuators(ActuatorsBase):
 
     def _settle(self, goals: np.ndarray) -> None:
         """Wait until every servo holds still at its goal (:func:`~drivers.dynamixel.settle.settle_all`)."""
-        why = settle_all(self.settings, lambda sid: self._read(sid, "Position I Gain"), self._cycle.read_state, goals)
+        why = settle_all(self.settings, lambda sid: self._read(sid, "Position I Gain"), self._cycle.read_state, goals,
+                         self.clock)
         if why:
             self._warn(why)
 

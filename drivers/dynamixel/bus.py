@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import errno
 import os
-import select
-import time
 from dataclasses import asdict, dataclass, field
 from typing import Optional
 
@@ -36,7 +34,7 @@ from drivers.dynamixel.protocol import (
     describe_status_error,
 )
 from drivers.dynamixel.units import BAUD_RATES, MODE_NAMES
-from drivers.timing import drain_until_quiet
+from drivers.link import drain_until_quiet, is_virtual_port, link_of, open_port
 
 
 __all__ = ["PingReply", "ServoBus", "ServoStatus", "open_error"]
@@ -85,6 +83,8 @@ class ServoStatus:
 
 def open_error(port: str, exc: BaseException | None = None) -> str:
     """One line saying why a serial port cannot be used, naming the fix."""
+    if is_virtual_port(port):
+        return f"cannot open {port}: {exc}" if exc else f"cannot open {port}"
     if not os.path.exists(port):
         return f"port {port} not found (is the adapter plugged in? see ls /dev/serial/by-id/)"
     if not os.access(port, os.R_OK | os.W_OK) or (
@@ -102,10 +102,11 @@ class ServoBus:
         self.tries = max(1, int(tries))  # per transaction: a noisy bus or a busy host loses some
         self._models: dict[int, int] = {}
         try:
-            self._ser = serial.Serial(port, baudrate=baud, timeout=0)
+            self._ser = open_port(port, baud)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise BackendSetupError(open_error(port, getattr(exc, "__cause__", None) or exc)) from None
-        self._fd = self._ser.fileno()
+        self._link = link_of(self._ser)
+        self.clock = self._link.clock  # the wall clock; an emulated line's virtual one
         self._byte_s = 10.0 / baud
         self._heard = False  # bytes arrived during the last receive
         self._trailing = False  # and more came after its first status
@@ -149,7 +150,7 @@ class ServoBus:
         self._drain()
         self._send(build_instruction(BROADCAST_ID, Instruction.PING, b""))
         found: dict[int, PingReply] = {}
-        for pkt in self._receive(time.monotonic() + wait):
+        for pkt in self._receive(self.clock.now() + wait):
             if len(pkt.params) == 3 and pkt.id <= max_id:  # a PING answer is exactly 3 bytes
                 found[pkt.id] = PingReply(pkt.id, pkt.params[0] | (pkt.params[1] << 8), pkt.params[2])
         for reply in found.values():
@@ -267,18 +268,18 @@ class ServoBus:
         for _ in range(self.tries if tries is None else max(1, tries)):
             self._drain()
             self._send(packet)
-            replies = self._receive(time.monotonic() + wait, until_any=True)
+            replies = self._receive(self.clock.now() + wait, until_any=True)
             if not replies:
                 problem = "a corrupt reply" if self._heard else "no reply"
                 if self._heard:  # the rest of a broken reply may still be on its way
-                    drain_until_quiet(self._fd, wait, 4 * wait)
+                    drain_until_quiet(self._link, wait, 4 * wait)
                 continue
             pkt = replies[0]
             problem = reply_mismatch(pkt, sid, reply_params) or (
                 "bytes after the status (a duplicated or late reply)"
                 if self._trailing or self._pending() else None)
             if problem is not None:
-                drain_until_quiet(self._fd, wait, 4 * wait)
+                drain_until_quiet(self._link, wait, 4 * wait)
                 continue
             if pkt.error and pkt.error & 0x7F:
                 raise BackendSetupError(f"servo ID {sid} refused {Instruction(instruction).name} "
@@ -291,7 +292,7 @@ class ServoBus:
         return None
 
     def _pending(self) -> bool:
-        return bool(select.select([self._fd], [], [], 0)[0])
+        return self._link.waiting()
 
     def _receive(self, deadline: float, until_any: bool = False) -> list[Packet]:
         """Status packets until the deadline (or the first one, with ``until_any``)."""
@@ -299,13 +300,10 @@ class ServoBus:
         got: list[Packet] = []
         self._heard = self._trailing = False
         while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0 or not select.select([self._fd], [], [], remaining)[0]:
+            if self.clock.now() >= deadline or not self._link.wait(deadline):
                 return got
             try:
-                data = os.read(self._fd, 4096)
-            except BlockingIOError:
-                continue
+                data = self._link.take(4096)
             except OSError as exc:
                 raise CommunicationError(f"reading {self.port} failed: {exc}") from None
             self._heard = self._heard or bool(data)
@@ -318,22 +316,18 @@ class ServoBus:
                         return got
 
     def _send(self, packet: bytes) -> None:
-        view = memoryview(packet)
-        while view:
-            try:
-                view = view[os.write(self._fd, view):]
-            except BlockingIOError:
-                select.select([], [self._fd], [], 0.01)
-            except OSError as exc:
-                raise CommunicationError(f"writing to {self.port} failed: {exc}") from None
+        try:
+            self._link.send(packet)
+        except OSError as exc:
+            raise CommunicationError(f"writing to {self.port} failed: {exc}") from None
 
     def _drain(self) -> None:
-        while select.select([self._fd], [], [], 0)[0]:
-            try:
-                if not os.read(self._fd, 4096):
+        try:
+            while self._link.waiting():
+                if not self._link.take(4096):
                     return
-            except OSError:
-                return
+        except OSError:
+            return
 
 
 def _register(name: str) -> Register:

@@ -4,16 +4,14 @@ The bytes on the wire are exactly those of dynamixel-sdk's ``GroupSyncWrite``
 and ``GroupSyncRead`` (``fastSyncRead``) — a test holds them equal — but built
 and parsed here without the SDK's per-byte list handling, so the driver spends
 a small fraction of the wire time in Python and sleeps in the kernel while it
-waits. Stuffing is applied on send and undone on receive; the Fast Sync Read
+waits (on a real port; on an emulated line on a virtual clock its waits advance
+that clock: :mod:`drivers.link`). Stuffing is applied on send and undone on receive; the Fast Sync Read
 status is not stuffed (as the firmware sends it).
 """
 
 from __future__ import annotations
 
-import os
-import select
 import struct
-import time
 from typing import Sequence
 
 import numpy as np
@@ -23,7 +21,7 @@ from drivers.dynamixel.control_table import state_block, x_series_table
 from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch
 from drivers.dynamixel.protocol import BROADCAST_ID, HEADER, Instruction, build_instruction
 from drivers.dynamixel.protocol import crc16_bytes as _crc
-from drivers.timing import drain_until_quiet
+from drivers.link import FdLink, Link, drain_until_quiet
 
 _STATUS = Instruction.STATUS
 _TRIPLE = b"\xff\xff\xfd"  # a header inside the parameters: the packet needs stuffing
@@ -49,9 +47,10 @@ _SYNC_STATUS = np.dtype({"names": ["head", "err", "cur", "vel", "pos", "crc"],
 class SyncCycle:
     """Goal-position writes and state reads for a fixed set of servo IDs on one port."""
 
-    def __init__(self, fd: int, baud: int, ids: Sequence[int], *,
+    def __init__(self, link: Link | int, baud: int, ids: Sequence[int], *,
                  fast: bool = True, latency_s: float = 0.002) -> None:
-        self.fd = fd
+        self.link = link if isinstance(link, Link) else FdLink(link)  # a port's link, or a descriptor's
+        self.clock = self.link.clock
         self.ids = list(ids)
         self.n = n = len(self.ids)
         self.write_address = GOAL_ADDRESS
@@ -85,13 +84,14 @@ class SyncCycle:
         self.timeout_s = latency_s + 3 * (self._expect + len(self._read_packet)) * self._byte_time + 0.003
         self.last_error = ""
         #: Seconds spent in this cycle's transactions (writes and reads, failed ones included),
-        #: timed here where they happen; the backend hands it to the runner once a cycle.
+        #: timed here where they happen, on the link's clock; the backend hands it to the runner
+        #: once a cycle.
         self.bus_s = 0.0
 
     # -- send -----------------------------------------------------------------
     def write_goals(self, ticks: Sequence[int]) -> None:
         """One Sync Write of Goal Position (4 bytes each) to every servo; no reply."""
-        began = time.perf_counter()
+        began = self.clock.now()
         args = self._goal_args
         args[3::2] = ticks
         params = self._goals.pack(*args)
@@ -104,19 +104,13 @@ class SyncCycle:
         try:
             self._send(packet)
         finally:
-            self.bus_s += time.perf_counter() - began
+            self.bus_s += self.clock.now() - began
 
     def _send(self, packet: bytes) -> None:
-        view = memoryview(packet)
-        while view:
-            try:
-                n = os.write(self.fd, view)
-            except BlockingIOError:
-                select.select([], [self.fd], [], 0.01)
-                continue
-            except OSError as e:
-                raise CommunicationError(f"writing to the servo port failed: {e}") from None
-            view = view[n:]
+        try:
+            self.link.send(packet)
+        except (OSError, ValueError) as e:
+            raise CommunicationError(f"writing to the servo port failed: {e}") from None
 
     # -- receive ----------------------------------------------------------------
     def read_state(self) -> np.ndarray | None:
@@ -127,11 +121,11 @@ class SyncCycle:
         Current (model units). On failure ``last_error`` says what went wrong
         (timeout, CRC, servo error).
         """
-        began = time.perf_counter()
+        began = self.clock.now()
         try:
             return self._transact()
         finally:
-            self.bus_s += time.perf_counter() - began
+            self.bus_s += self.clock.now() - began
 
     def _transact(self) -> np.ndarray | None:
         """The read's request and its status, parsed; a failure waits for a quiet line."""
@@ -146,7 +140,7 @@ class SyncCycle:
                 state = self._resync_fast(raw)  # stray bytes, an echo or a duplicate before it
         else:
             state = self._parse_sync(raw)
-        if state is not None and select.select([self.fd], [], [], 0)[0]:
+        if state is not None and self.link.waiting():
             self.last_error = "more bytes after the status (a late or duplicated reply)"
             state = None
         if state is None:
@@ -154,12 +148,12 @@ class SyncCycle:
             # A late answer to this request must not pass for the next one's: wait for a
             # quiet line, briefly (the cycle's retries must still end well inside a second).
             quiet = min(self.timeout_s / 4, 0.02)
-            drain_until_quiet(self.fd, quiet, 4 * quiet)
+            drain_until_quiet(self.link, quiet, 4 * quiet)
         return state
 
     def _resync_fast(self, raw: bytes) -> np.ndarray | None:
         """Stray bytes before the status: hunt for its header, read the rest, parse from there."""
-        deadline = time.monotonic() + self.timeout_s
+        deadline = self.clock.now() + self.timeout_s
         buf, first_error = raw, self.last_error
         start = 1
         while True:
@@ -190,28 +184,23 @@ class SyncCycle:
 
     def _drain(self) -> None:
         """Drop bytes left from an earlier, failed transaction."""
-        while select.select([self.fd], [], [], 0)[0]:
-            try:
-                if not os.read(self.fd, 4096):
+        try:
+            while self.link.waiting():
+                if not self.link.take(4096):
                     return
-            except (BlockingIOError, OSError):
-                return
+        except OSError:
+            return
 
     def _receive(self, length: int) -> bytes | None:
         """Sleep in the kernel until ``length`` bytes are in, or the timeout."""
         buf = b""
-        deadline = time.monotonic() + self.timeout_s
-        fd = self.fd
+        link = self.link
+        deadline = self.clock.now() + self.timeout_s
         while len(buf) < length:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                break
-            if not select.select([fd], [], [], remaining)[0]:
+            if self.clock.now() >= deadline or not link.wait(deadline):
                 break
             try:
-                chunk = os.read(fd, 4096)
-            except BlockingIOError:
-                continue
+                chunk = link.take(4096)
             except OSError:
                 break
             if not chunk:
@@ -276,7 +265,7 @@ class SyncCycle:
         parser = PacketParser(stuffed=True, resync_on_header=True)
         got: dict[int, bytes] = {}
         data = raw
-        deadline = time.monotonic() + self.timeout_s
+        deadline = self.clock.now() + self.timeout_s
         fed = bytearray()
         while True:
             events = parser.feed(data)
@@ -313,11 +302,10 @@ class SyncCycle:
             data = more
 
     def _receive_more(self, deadline: float) -> bytes:
-        remaining = deadline - time.monotonic()
-        if remaining <= 0 or not select.select([self.fd], [], [], remaining)[0]:
+        if self.clock.now() >= deadline or not self.link.wait(deadline):
             return b""
         try:
-            return os.read(self.fd, 4096)
+            return self.link.take(4096)
         except OSError:
             return b""
 

@@ -16,17 +16,17 @@
   drained until quiet so a late answer cannot pass for the next one.
 * :class:`BlockingPortHandler` — the SDK's ``PortHandler`` opens the port with
   ``timeout=0`` and the packet handler spins on ``readPort`` until the packet
-  deadline, burning a core per bus. This subclass sleeps in ``select`` until
-  bytes arrive or the SDK's packet deadline passes.
+  deadline, burning a core per bus. This subclass waits on the port's
+  :class:`~drivers.link.Link` (the kernel's ``select`` on a real port) until
+  bytes arrive or the SDK's packet deadline passes. It opens the port by URL,
+  so the same handler talks to an emulated line on a virtual clock, whose
+  deadlines are that clock's.
 """
 
 from __future__ import annotations
 
 import os
-import select
-import time
 
-import serial
 from dynamixel_sdk import PortHandler, Protocol2PacketHandler
 from dynamixel_sdk.protocol2_packet_handler import (
     PKT_ERROR,
@@ -55,7 +55,8 @@ from drivers import CommunicationError, BackendSetupError
 from drivers.dynamixel.identity import EMULATED_ADDRESS, EMULATED_LENGTH, is_emulated_reply
 from drivers.dynamixel.parser import Packet, PacketParser, reply_mismatch, reply_params_expected
 from drivers.dynamixel.protocol import HEADER, Instruction, build_instruction
-from drivers.timing import drain_until_quiet
+from drivers.clock import WALL, Clock
+from drivers.link import Link, drain_until_quiet, is_virtual_port, link_of, open_port
 
 __all__ = ["BlockingPortHandler", "RegisterAccess", "StuffingPacketHandler", "port_hint"]
 
@@ -172,23 +173,18 @@ class StuffingPacketHandler(Protocol2PacketHandler):
 
 def _pending(port: PortHandler) -> bool:
     """Bytes already waiting after a reply: a servo sends one status per request, never more."""
-    ser = getattr(port, "ser", None)
-    if ser is None:
-        return False
-    try:
-        return bool(select.select([ser.fileno()], [], [], 0)[0])
-    except (OSError, ValueError):
-        return False
+    link = getattr(port, "link", None)
+    return link is not None and link.waiting()
 
 
 def _quiet_line(port: PortHandler) -> None:
     """After a failed transaction: wait (bounded) for the line to fall silent."""
-    ser = getattr(port, "ser", None)
-    if ser is None:
+    link = getattr(port, "link", None)
+    if link is None:
         return
     quiet_s = max(float(getattr(port, "packet_timeout", 0.0)) / 1000.0, 0.002)
     try:
-        drain_until_quiet(ser.fileno(), quiet_s, 4 * quiet_s)
+        drain_until_quiet(link, quiet_s, 4 * quiet_s)
     except (OSError, ValueError):
         pass
 
@@ -207,13 +203,21 @@ class BlockingPortHandler(PortHandler):
     the packet deadline set by ``setPacketTimeout``/``setPacketTimeoutMillis``
     has passed, whichever is first; with no deadline pending it returns what
     is already buffered. The SDK's timeout arithmetic (per-byte time plus
-    2 x 16 ms latency + 2 ms) is inherited unchanged, on a monotonic clock.
-    Any positive baud rate is accepted (pyserial sets custom rates), so
-    4.5 Mbps works where the SDK's table refuses it.
+    2 x 16 ms latency + 2 ms) is inherited unchanged, on the link's clock (the
+    monotonic clock on a real port). Any positive baud rate is accepted (pyserial
+    sets custom rates), so 4.5 Mbps works where the SDK's table refuses it.
     """
 
+    #: The open port's link (None while closed).
+    link: Link | None = None
+
+    @property
+    def clock(self) -> Clock:
+        """The clock the port keeps time by (the wall clock on a real port)."""
+        return self.link.clock if self.link is not None else WALL
+
     def getCurrentTime(self) -> float:  # noqa: N802 - SDK name
-        return time.monotonic() * 1000.0
+        return self.clock.now() * 1000.0
 
     def getCFlagBaud(self, baudrate: int) -> int:  # noqa: N802 - SDK name
         return int(baudrate) if int(baudrate) > 0 else -1
@@ -221,44 +225,45 @@ class BlockingPortHandler(PortHandler):
     def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802 - SDK name
         if self.is_open:
             self.closePort()
-        self.ser = serial.Serial(
-            port=self.port_name,
-            baudrate=self.baudrate,
-            bytesize=serial.EIGHTBITS,
-            timeout=0,
-        )
+        self.ser = open_port(self.port_name, self.baudrate)
+        self.link = link_of(self.ser)
         self.is_open = True
         self.ser.reset_input_buffer()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
         return True
 
     def _deadline_s(self) -> float:
-        """Monotonic time (s) at which the current packet times out."""
+        """The clock's time (s) at which the current packet times out."""
         return (self.packet_start_time + self.packet_timeout) / 1000.0
 
+    def isPacketTimeout(self) -> bool:  # noqa: N802 - SDK name
+        # At or past the deadline the wait of readPort ended on: a virtual clock lands on it exactly
+        # (the SDK's strict ">" would then never time out), a wall clock just past it.
+        if self.clock.now() >= self._deadline_s():
+            self.packet_timeout = 0
+            return True
+        return False
+
+    def closePort(self) -> None:  # noqa: N802 - SDK name
+        super().closePort()
+        self.link = None
+
     def readPort(self, length: int) -> bytes:  # noqa: N802 - SDK name
-        if length <= 0:
+        if length <= 0 or self.link is None:
             return b""
-        fd = self.ser.fileno()
+        link = self.link
         deadline = self._deadline_s()
         buf = bytearray()
         while len(buf) < length:
-            remaining = deadline - time.monotonic()
-            try:
-                ready, _, _ = select.select([fd], [], [], max(0.0, remaining))
-            except InterruptedError:  # pragma: no cover - PEP 475 retries already
-                continue
-            if not ready:
+            if not link.wait(deadline):
                 break
             try:
-                chunk = os.read(fd, length - len(buf))
-            except BlockingIOError:
-                continue
+                chunk = link.take(length - len(buf))
             except OSError:
-                break  # the other end went away: report what arrived, the SDK times out
-            if not chunk:
                 break
-            buf += chunk  # past the deadline select() no longer waits: drain, then stop
+            if not chunk:
+                break  # the other end went away: report what arrived, the SDK times out
+            buf += chunk  # past the deadline the wait no longer waits: drain, then stop
         return bytes(buf)
 
 
@@ -290,7 +295,7 @@ class RegisterAccess:
             # error bits 1-7: the instruction failed, whatever the parameters say
             why = (f"a reply with error bits ({self.ph.getRxPacketError(err)})"
                    if result == COMM_SUCCESS else self._why(result))
-            time.sleep(0.01 * attempt)  # a bus just plugged in may be slow
+            self.port.clock.sleep(0.01 * attempt)  # a bus just plugged in may be slow
         return None, why
 
     def read(self, sid: int, address: int, size: int, what: str, signed: bool = False) -> int:
@@ -320,10 +325,10 @@ class RegisterAccess:
 
     def _settle(self) -> None:
         """Wait (bounded) for a quiet line: a late answer to an earlier try is read and dropped."""
-        ser = getattr(self.port, "ser", None)
-        if ser is not None:
+        link = getattr(self.port, "link", None)
+        if link is not None:
             try:
-                drain_until_quiet(ser.fileno(), SETTLE_QUIET_S, SETTLE_MAX_S)
+                drain_until_quiet(link, SETTLE_QUIET_S, SETTLE_MAX_S)
             except (OSError, ValueError):
                 pass
 
@@ -355,6 +360,8 @@ class RegisterAccess:
 
 def port_hint(port: str) -> str:
     """What to do about a serial port that would not open (missing, no permission), or ""."""
+    if is_virtual_port(port):
+        return ""
     if not os.path.exists(port):
         return " (is the adapter plugged in? rehearse without hardware with --emulate)"
     if not os.access(port, os.R_OK | os.W_OK):

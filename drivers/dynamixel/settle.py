@@ -9,10 +9,11 @@ load it carried would drop again: Target 1's wrist swung 9° that way.
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING, Callable, Optional, Sequence
 
 import numpy as np
+
+from drivers.clock import WALL, Clock
 
 if TYPE_CHECKING:
     from drivers.dynamixel.settings import DynamixelSettings
@@ -24,17 +25,18 @@ SETTLE_POLL_S = 0.01
 
 
 def settle(read_state: Callable[[], Optional[np.ndarray]], goals: np.ndarray, integrating: np.ndarray,
-           joints: Sequence[str], *, ticks: int, still_s: float, timeout_s: float) -> Optional[str]:
+           joints: Sequence[str], *, ticks: int, still_s: float, timeout_s: float,
+           clock: Clock = WALL) -> Optional[str]:
     """Read the servos (``read_state``: raw rows, Present Position in ticks first, servo order) until
     every servo with an integrator is within ``ticks`` of its goal and none has moved over a tick for
     ``still_s``; a servo without one (it cannot reach its goal under a load) need only be still.
     None once settled, else after ``timeout_s`` what had not settled, in one line."""
     goals = np.asarray(goals, dtype=float)
-    start = time.monotonic()
+    start = clock.now()
     anchor, since, unsettled = None, start, np.ones(len(goals), bool)
     while True:
         raw = read_state()
-        now = time.monotonic()
+        now = clock.now()
         if raw is not None:
             present = np.array(raw[0], dtype=float)
             moved = np.zeros(len(goals), bool) if anchor is None else np.abs(present - anchor) > 1
@@ -48,11 +50,12 @@ def settle(read_state: Callable[[], Optional[np.ndarray]], goals: np.ndarray, in
                    if anchor is not None and unsettled[k]]
             return (f"the servos had not settled {timeout_s:g} s after torque on"
                     + (f": {', '.join(far)} from their goals" if far else " (no reading)"))
-        time.sleep(SETTLE_POLL_S)
+        clock.sleep(SETTLE_POLL_S)
 
 
 def settle_all(settings: "DynamixelSettings", read_i_gain: Callable[[int], int],
-               read_state: Callable[[], Optional[np.ndarray]], goals: np.ndarray) -> Optional[str]:
+               read_state: Callable[[], Optional[np.ndarray]], goals: np.ndarray,
+               clock: Clock = WALL) -> Optional[str]:
     """:func:`settle` for a backend's servos as ``settings`` lists them (nothing when its timeout is
     0): a servo integrates when its configured I gain, or the one it holds (``read_i_gain(id)``), is
     over 0."""
@@ -61,4 +64,4 @@ def settle_all(settings: "DynamixelSettings", read_i_gain: Callable[[int], int],
     i_gains = [sv.gains[1] if sv.gains[1] is not None else read_i_gain(sv.id) for sv in settings.servos]
     return settle(read_state, goals, np.array(i_gains) > 0, [sv.joint for sv in settings.servos],
                   ticks=settings.settle_ticks, still_s=settings.settle_still_s,
-                  timeout_s=settings.settle_timeout_s)
+                  timeout_s=settings.settle_timeout_s, clock=clock)

@@ -224,6 +224,14 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
         #: Exceptions raised while serving (the thread keeps serving); empty in a healthy run.
         self.errors: list[BaseException] = []
 
+        self._open_transport()
+
+        q, v = self.plant.position(), self.plant.velocity()
+        for servo, joint in self._servos:
+            servo.power_on(float(q[joint]), float(v[joint]))
+
+    def _open_transport(self) -> None:
+        """The pty the host opens, and the pipe that wakes the serving thread."""
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         attrs = termios.tcgetattr(self._slave)
@@ -233,9 +241,9 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
         self._port = os.ttyname(self._slave)
         self._wake_r, self._wake_w = os.pipe()
 
-        q, v = self.plant.position(), self.plant.velocity()
-        for servo, joint in self._servos:
-            servo.power_on(float(q[joint]), float(v[joint]))
+    def _bus_now(self) -> float:
+        """The bus's time (s): the wall clock here, the virtual clock's instant on a virtual line."""
+        return time.perf_counter()
 
     # -- public API -----------------------------------------------------------
     @property
@@ -405,7 +413,7 @@ class DynamixelBusEmulator(PtyService, InstructionSet, StatusWire, PhysicsClock)
         """Servos that can hear the host now (baud rate matches, not rebooting), by ID."""
         baud = self._host_baud if self.check_baud else None
         deaf_until = self._deaf_until
-        now = time.perf_counter() if deaf_until else 0.0
+        now = self._bus_now() if deaf_until else 0.0
         out: dict[int, ServoModel] = {}
         for servo_id, servo in sorted([(servo.id, servo) for servo, _ in self._servos], key=_BY_ID):
             if baud is not None and servo.baud_rate != baud:

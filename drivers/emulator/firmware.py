@@ -7,7 +7,14 @@ one slot per servo: the bus steps all its servos' slots at once (:meth:`begin_st
 array's step, :meth:`end_step`), a servo on its own steps a one-slot array. The simulator's
 servo model is the same class, so the emulated rig and the sim cannot drift apart. The
 velocity mode's PI loop, the supervision (voltage, temperature, overload) and the reports
-are the emulator's own."""
+are the emulator's own.
+
+What a step reports (Present Position, Velocity, Current, PWM, the trajectories, Moving, Moving
+Status, the tick, voltage and temperature) is written to the control table when something next
+looks at the servo (a READ, a WRITE, :meth:`get`...), from the step's own values and in the step's
+own order: the table then reads exactly as if each step had written it, at a fraction of the cost
+of writing about a dozen items per servo every millisecond that nobody reads. The loop's inputs
+(the encoder's tick, the drive, the overload timer) run every step."""
 
 from __future__ import annotations
 
@@ -20,6 +27,10 @@ from drivers.servo.model import ServoArray, ServoParams
 __all__ = ["CONTROL_PERIOD_S", "ServoFirmware", "clamp"]
 
 CONTROL_PERIOD_S = 0.001
+#: The items the firmware reports from each step: writing them changes none of the loop's inputs.
+REPORTED = frozenset({"Present Position", "Present Velocity", "Present Current", "Present Load",
+                      "Present PWM", "Present Input Voltage", "Present Temperature", "Realtime Tick",
+                      "Position Trajectory", "Velocity Trajectory", "Moving", "Moving Status"})
 
 
 def clamp(value: float, limit: float) -> float:
@@ -61,6 +72,32 @@ class ServoFirmware:
             getattr(bank, name)[slot] = getattr(old, name)[i]
         self._bank, self._slot = bank, slot
 
+    #: What the last step (and an observation after it) left to report, in order: ("sense",
+    #: position, velocity, sign, time), ("drive", pwm, current, trajectory or None), ...
+    _pending: list[tuple] | None = None
+    #: Items written other than reports (the loop's inputs may have changed), and the key under
+    #: which the slot's inputs were last set: (writes, supply, deadband).
+    _writes = 0
+    _loop_inputs: tuple | None = None
+
+    def _flush_reports(self) -> None:
+        """Write what the last step left to report (see the module's note); a no-op when nothing is."""
+        pending = self._pending
+        if pending is None:
+            return
+        self._pending = None
+        seen = None  # a step's encoder, for its drive's report, where a later sense rewrites it
+        last = len(pending) - 1
+        for k, item in enumerate(pending):
+            if item[0] == "sense":
+                if k + 2 <= last and pending[k + 1][0] == "drive" and pending[k + 2][0] == "sense":
+                    seen = self._sensed(*item[1:4])
+                else:
+                    self._report_sense(*item[1:])
+            else:
+                self._report_step(*item[1:], seen=seen)
+                seen = None
+
     # -- one physics step ---------------------------------------------------------------------
     def step(self, dt: float, position: float, velocity: float) -> float:
         """Run the firmware for ``dt`` s given the shaft state (rad, rad/s); return shaft torque (N·m).
@@ -81,11 +118,23 @@ class ServoFirmware:
         self._time += dt
         sign = -1.0 if values["Drive Mode"] & 1 else 1.0
         self._sign = sign
-        present = self._sense(position, velocity, sign)
+        present = self._encoder(position, sign)
+        # this step's reports replace the last step's, which they rewrite whole
+        self._pending = [("sense", position, velocity, sign, self._time)]
         self._check_supervision()
         b, i = self._bank, self._slot
         b.present[i] = present
         b.omega[i] = sign * velocity  # servo frame
+        mode = values["Operating Mode"]
+        if values["Torque Enable"] == 1 and mode in POSITION_MODES:
+            # the position loop's inputs stand as the last step set them while no item but a
+            # report was written since, and the supply and the deadband are the same
+            key = (self._writes, self.input_voltage, self.deadband_ticks)
+            if key == self._loop_inputs:
+                return
+            self._loop_inputs = key
+        else:
+            self._loop_inputs = None
         b.pid[i] = False
         b.pwm_in[i] = b.current_in[i] = math.nan
         if values["Torque Enable"] != 1:
@@ -93,7 +142,6 @@ class ServoFirmware:
             self._driving = False
             return
         self._driving = True
-        mode = values["Operating Mode"]
         pwm_limit = float(values["PWM Limit"])
         b.pwm_limit[i] = pwm_limit
         b.supply[i] = self.input_voltage
@@ -122,20 +170,34 @@ class ServoFirmware:
         values = self._values
         b, i = self._bank, self._slot
         current = pwm = 0.0
+        trajectory = None
         if self._driving:
             current, pwm = float(b.current[i]), float(b.pwm[i])
             self._check_overload(dt, current)
             if b.pid[i]:
                 self._profile_ongoing = bool(b.ongoing[i])
-                self._report("Position Trajectory", round(float(b.traj[i])))
-                traj_vel = float(b.traj_vel[i]) * self._position_reg.scale  # rad/s
-                self._report("Velocity Trajectory", round(self._velocity_reg.from_si(traj_vel)))
+                trajectory = (float(b.traj[i]), float(b.traj_vel[i]))
         if values["Torque Enable"] != 1:  # overload may just have switched it off
             current, pwm = 0.0, 0.0
-        self._report_drive(pwm, current)
+        drive = ("drive", pwm, current, trajectory)
+        if self._pending is None:
+            self._pending = [drive]
+        else:
+            self._pending.append(drive)
         if self._forced:
+            self._flush_reports()
             self._apply_forced()
         return self._sign * self._kt * current
+
+    def _report_step(self, pwm: float, current: float, trajectory: tuple[float, float] | None,
+                     seen: tuple[int, int] | None = None) -> None:
+        """A step's drive, as the firmware reports it: the trajectory (position loop), PWM, current,
+        moving (``seen``: the step's Present Position and Velocity, where they were not written)."""
+        if trajectory is not None:
+            self._report("Position Trajectory", round(trajectory[0]))
+            traj_vel = trajectory[1] * self._position_reg.scale  # rad/s
+            self._report("Velocity Trajectory", round(self._velocity_reg.from_si(traj_vel)))
+        self._report_drive(pwm, current, seen)
 
     def power_on(self, position: float, velocity: float = 0.0) -> None:
         """Read the absolute encoder as at power-up: one turn, goal = present, torque off."""
@@ -148,8 +210,14 @@ class ServoFirmware:
     def observe(self, position: float, velocity: float) -> None:
         """Refresh the reported state from the shaft without running the controller."""
         sign = -1.0 if self._values["Drive Mode"] & 1 else 1.0
-        self._sense(position, velocity, sign)
+        self._encoder(position, sign)
+        sense = ("sense", position, velocity, sign, self._time)
+        if self._pending is None:
+            self._pending = [sense]
+        else:
+            self._pending.append(sense)
         if self._forced:
+            self._flush_reports()
             self._apply_forced()
 
     def _current_limit_a(self) -> float:
@@ -157,18 +225,40 @@ class ServoFirmware:
             return self._values["Current Limit"] * self._amps_per_unit
         return math.inf
 
-    def _sense(self, position: float, velocity: float, sign: float) -> float:
-        """Update Present Position/Velocity; return the encoder reading in ticks."""
+    def _encoder(self, position: float, sign: float) -> float:
+        """The encoder reading (ticks, Homing Offset added) of a shaft at ``position``."""
         raw = self._position_reg.from_si(sign * position) + self._turn_offset
         self._raw_ticks = raw
-        present = math.floor(raw + 0.5) + self._values["Homing Offset"]
+        return float(math.floor(raw + 0.5) + self._values["Homing Offset"])
+
+    def _sense(self, position: float, velocity: float, sign: float) -> float:
+        """Update Present Position/Velocity now; return the encoder reading in ticks."""
+        self._flush_reports()
+        present = self._encoder(position, sign)
+        self._report_sense(position, velocity, sign, self._time)
+        return present
+
+    def _sensed(self, position: float, velocity: float, sign: float) -> tuple[int, int]:
+        """Present Position and Present Velocity (raw) of a shaft state."""
+        raw = self._position_reg.from_si(sign * position) + self._turn_offset
+        return (math.floor(raw + 0.5) + self._values["Homing Offset"],
+                round(self._velocity_reg.from_si(sign * velocity)))
+
+    _supply_raw: tuple[float, float, int, int] | None = None
+
+    def _report_sense(self, position: float, velocity: float, sign: float, time_s: float) -> None:
+        """What the encoder and the supervision report of a shaft state at ``time_s``."""
+        present, speed = self._sensed(position, velocity, sign)
         self._report("Present Position", present)
-        self._report("Present Velocity", round(self._velocity_reg.from_si(sign * velocity)))
-        self._report("Realtime Tick", int(self._tick_reg.from_si(self._time)) % 32768)
-        self._report("Present Input Voltage", self._voltage_reg.nearest(self.input_voltage))
-        temperature = self._temperature_reg.nearest(self.temperature_c)
-        self._report("Present Temperature", max(0, min(255, temperature)))
-        return float(present)
+        self._report("Present Velocity", speed)
+        self._report("Realtime Tick", int(self._tick_reg.from_si(time_s)) % 32768)
+        supply = self._supply_raw
+        if supply is None or supply[0] != self.input_voltage or supply[1] != self.temperature_c:
+            temperature = max(0, min(255, self._temperature_reg.nearest(self.temperature_c)))
+            supply = self._supply_raw = (self.input_voltage, self.temperature_c,
+                                         self._voltage_reg.nearest(self.input_voltage), temperature)
+        self._report("Present Input Voltage", supply[2])
+        self._report("Present Temperature", supply[3])
 
     def _wrap_turns(self) -> None:
         """Bring the encoder count back into one revolution, as after power-up."""
@@ -257,20 +347,21 @@ class ServoFirmware:
         else:
             self._overload_timer = 0.0
 
-    def _report_drive(self, pwm: float, current: float) -> None:
+    def _report_drive(self, pwm: float, current: float, seen: tuple[int, int] | None = None) -> None:
         values = self._values
+        present, velocity = seen if seen is not None else (values["Present Position"],
+                                                           values["Present Velocity"])
         self._report("Present PWM", round(pwm))
         if self.spec.senses_current:
             self._report("Present Current", round(current / self._amps_per_unit))
         else:
             load = round(self.table["Present Load"].from_si(current / self.spec.motor.stall_current))
             self._report("Present Load", max(-1000, min(1000, load)))
-        velocity = values["Present Velocity"]
         moving = abs(velocity) > values["Moving Threshold"] or self._profile_ongoing
         self._report("Moving", 1 if moving else 0)
         status = 0
         if values["Torque Enable"] == 1 and values["Operating Mode"] in POSITION_MODES:
-            if abs(values["Goal Position"] - values["Present Position"]) <= max(2, self.deadband_ticks):
+            if abs(values["Goal Position"] - present) <= max(2, self.deadband_ticks):
                 status |= 0x01  # in position
             if self._profile_ongoing:
                 status |= 0x02

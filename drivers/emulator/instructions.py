@@ -3,7 +3,6 @@ ACTION, FACTORY RESET, REBOOT, CLEAR, the sync and bulk reads and writes (fast o
 
 from __future__ import annotations
 
-import time
 from typing import Callable
 
 from drivers.dynamixel.identity import EMULATED_ADDRESS, EMULATED_LENGTH, EMULATED_REPLY
@@ -112,7 +111,7 @@ class InstructionSet:
                 self._reply(servo, 0, instruction=pkt.instruction)
             servo.reboot()
             if self.boot_time_s > 0:
-                self._deaf_until[id(servo)] = time.perf_counter() + self.boot_time_s
+                self._deaf_until[id(servo)] = self._bus_now() + self.boot_time_s
 
     def _clear(self, pkt: Packet, listening: dict[int, ServoModel]) -> None:
         targets = list(listening.values()) if pkt.id == BROADCAST_ID else [listening[pkt.id]]

@@ -60,7 +60,7 @@ from typing import Mapping, NoReturn
 from drivers.dynamixel.control_table import XM430_W350, Access, Area, ModelSpec, Register, model_spec
 from drivers.dynamixel.protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
 from drivers.dynamixel.units import BAUD_RATES, OperatingMode
-from drivers.emulator.firmware import CONTROL_PERIOD_S, ServoFirmware
+from drivers.emulator.firmware import CONTROL_PERIOD_S, REPORTED, ServoFirmware
 from drivers.servo.model import ServoParams
 
 __all__ = ["CONTROL_PERIOD_S", "ServoModel"]
@@ -169,6 +169,8 @@ class ServoModel(ServoFirmware):
     # -- register access ------------------------------------------------------
     def get(self, name: str) -> int:
         """Current value of an item (no access rules)."""
+        if self._pending is not None and name in REPORTED:  # only reports wait to be written
+            self._flush_reports()
         try:
             return self._values[name]
         except KeyError:
@@ -176,6 +178,8 @@ class ServoModel(ServoFirmware):
 
     def set(self, name: str, value: int) -> None:
         """Store an item's value directly (no access or range rules; for set-up and physics)."""
+        if self._pending is not None:
+            self._flush_reports()
         try:
             low, high = self._bounds[name]
         except KeyError:
@@ -185,6 +189,8 @@ class ServoModel(ServoFirmware):
             raise ValueError(f"{name} = {value} does not fit {self._fmt[name][1]} byte(s)")
         self._values[name] = value
         self._dirty.add(name)
+        if name not in REPORTED:
+            self._writes += 1
 
     def _report(self, name: str, value: int) -> None:
         """:meth:`set` for what the physics reports: most steps leave most items as they were."""
@@ -194,6 +200,7 @@ class ServoModel(ServoFirmware):
     @property
     def memory(self) -> bytes:
         """The control table as bytes, as a READ sees it."""
+        self._flush_reports()
         self._sync_memory()
         return bytes(self._memory)
 
@@ -212,11 +219,13 @@ class ServoModel(ServoFirmware):
 
     def force(self, name: str, value: int) -> None:
         """Pin a reported item (e.g. a stuck sensor): physics no longer updates it."""
+        self._flush_reports()
         self.set(name, value)
         self._forced[name] = int(value)
 
     def release(self, name: str) -> None:
         """Undo :meth:`force`."""
+        self._flush_reports()
         self._forced.pop(name, None)
 
     # -- identity and bus settings -------------------------------------------
@@ -266,15 +275,18 @@ class ServoModel(ServoFirmware):
         """(error, data) for a READ of ``length`` bytes at ``address``."""
         if not self.table.readable(address, length):
             return StatusError.ACCESS, b""
+        self._flush_reports()
         self._sync_memory()
         return 0, bytes(self._memory[address : address + length])
 
     def check_write(self, address: int, data: bytes) -> int:
         """Error code a WRITE of ``data`` at ``address`` would get (0: accepted)."""
+        self._flush_reports()
         return self._validate(address, bytes(data))[0]
 
     def write(self, address: int, data: bytes) -> int:
         """Apply a WRITE; returns the status error code (0: done, nothing changed otherwise)."""
+        self._flush_reports()
         if address == self._goal_address and len(data) == 4:
             return self._write_goal_position(_INT32.unpack(data)[0])
         error, items = self._validate(address, bytes(data))
@@ -316,6 +328,7 @@ class ServoModel(ServoFirmware):
 
     def register_write(self, address: int, data: bytes) -> int:
         """REG_WRITE: validate now, apply on :meth:`action`."""
+        self._flush_reports()
         error = self.check_write(address, data)
         if error:
             return error
@@ -325,6 +338,7 @@ class ServoModel(ServoFirmware):
 
     def action(self) -> int:
         """ACTION: apply the registered write; Instruction Error if there is none."""
+        self._flush_reports()
         if self._registered is None:
             return StatusError.INSTRUCTION
         address, data = self._registered
@@ -334,6 +348,7 @@ class ServoModel(ServoFirmware):
 
     def reboot(self) -> None:
         """REBOOT: RAM back to defaults, latched faults cleared, EEPROM kept."""
+        self._flush_reports()
         for register in self.table:
             if register.area is Area.RAM:
                 self.set(register.name, register.default)
@@ -344,6 +359,7 @@ class ServoModel(ServoFirmware):
 
     def factory_reset(self, option: int) -> int:
         """FACTORY_RESET: 0xFF everything, 0x01 all but ID, 0x02 all but ID and baud rate."""
+        self._flush_reports()
         if option not in (0xFF, 0x01, 0x02):
             return StatusError.DATA_RANGE
         keep = {"ID": self.get("ID"), "Baud Rate": self.get("Baud Rate")}
@@ -360,6 +376,7 @@ class ServoModel(ServoFirmware):
 
     def clear(self, params: bytes) -> int:
         """CLEAR 0x01: Present Position back into one turn; Result Fail while moving."""
+        self._flush_reports()
         if bytes(params) != _CLEAR_MAGIC:
             return StatusError.DATA_RANGE
         if self.get("Moving"):
@@ -370,6 +387,7 @@ class ServoModel(ServoFirmware):
 
     def raise_hardware_error(self, fault: str | int) -> None:
         """Latch a hardware fault by name (``'overload'``...) or bit; shut down if selected."""
+        self._flush_reports()
         bit = _HW_BIT[fault] if isinstance(fault, str) else int(fault)
         if not 0 <= bit <= 7:
             raise ValueError(f"hardware error bit must be 0..7, got {fault!r}")

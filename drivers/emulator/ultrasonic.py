@@ -79,6 +79,10 @@ class UltrasonicEmulator(PtyService):
         self._paused = threading.Event()
         self._init_service()
         self._lock = threading.Lock()
+        self._open_transport()
+
+    def _open_transport(self) -> None:
+        """The pty the host opens."""
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
