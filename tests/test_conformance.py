@@ -31,6 +31,7 @@ from drivers.capabilities import (
     find_capability,
 )
 from drivers.checker import ContractViolation, check_actuators
+from drivers.clock import VirtualClock
 
 REPO = Path(__file__).resolve().parents[1]
 SIM = REPO / "hil_configs" / "sim_target1.yaml"
@@ -58,7 +59,7 @@ def _servo_sim_backend() -> Actuators:
 @pytest.fixture(scope="module")
 def rig():
     cfg = load_trial_config(LAB)
-    with EmulatedRig(cfg) as r:
+    with EmulatedRig(cfg, clock=VirtualClock()) as r:
         yield r, r.retarget(cfg)
 
 
@@ -135,7 +136,7 @@ def test_the_torque_limit_wrapper_keeps_the_contract_on_the_emulated_rig():
     """On a rig whose limited joint's servo is in current-based position mode (the lab config's
     are not: there torque_limit is refused in one line)."""
     cfg = load_trial_config(LAB)
-    with EmulatedRig(cfg) as r:
+    with EmulatedRig(cfg, clock=VirtualClock()) as r:
         cfg = r.retarget(cfg)
         servos = dict(cfg.backend.servos)
         servos["theta4"] = servos["theta4"].model_copy(update={"mode": "current_based_position"})

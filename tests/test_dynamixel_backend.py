@@ -20,6 +20,7 @@ from bench.rig.emulated import EmulatedRig
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
 from drivers import CommunicationError, BackendSetupError, HardwareFault, NotEnabledError
+from drivers.clock import VirtualClock
 
 REPO = Path(__file__).resolve().parent.parent
 LAB = REPO / "hil_configs" / "lab_real.yaml"
@@ -29,7 +30,7 @@ HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 @pytest.fixture
 def rig():
     cfg = load_trial_config(LAB)
-    with EmulatedRig(cfg) as r:
+    with EmulatedRig(cfg, clock=VirtualClock()) as r:
         yield r, r.retarget(cfg)
 
 
@@ -40,7 +41,7 @@ def backend_for(cfg):
 def test_reads_home_in_si_and_refuses_commands_before_enable(rig):
     r, cfg = rig
     with backend_for(cfg) as act:
-        time.sleep(1.0)  # let the holding servos settle under gravity: the pose is then still
+        r.clock.sleep(1.0)  # let the holding servos settle under gravity: the pose is then still
         st = act.read()
         with r.bus.lock:
             truth = r.plant.joint_position()
@@ -136,7 +137,7 @@ def test_values_that_need_stuffing_reach_the_servo(rig):
         ticks = np.full(9, 2048, dtype=np.int64)
         ticks[0] = -131073  # FF FF FD FF on the wire: must be stuffed
         act._send_goals(ticks)
-        time.sleep(0.05)
+        r.clock.sleep(0.05)  # the rig's own (virtual) time: the instruction crosses the wire
         assert r.bus.servo(1).get("Goal Position") == -131073
         assert r.bus.stats.crc_errors == 0
 
@@ -147,7 +148,7 @@ def test_unplug_mid_trial_aborts_within_a_second_and_keeps_the_log(tmp_path):
     # emulator runs in this process (sharing the GIL), so allow 200 ms a try: 4 tries < 1 s
     cfg = cfg.model_copy(update={"backend": cfg.backend.model_copy(
         update={"fast_sync_read": False, "timeout_ms": 200.0})})
-    with EmulatedRig(cfg) as r:
+    with EmulatedRig(cfg, clock=VirtualClock()) as r:
         res_box, moving = {}, threading.Event()
         hooks = TrialHooks(phase=lambda what: moving.set() if what == "approach" else None)
         t = threading.Thread(target=lambda: res_box.update(res=run_trial(prepare(r.retarget(cfg)), tmp_path,
@@ -180,7 +181,7 @@ def test_unplug_mid_trial_aborts_within_a_second_and_keeps_the_log(tmp_path):
 
 def test_full_unplug_ends_within_one_second(tmp_path):
     cfg = load_trial_config(LAB)
-    with EmulatedRig(cfg) as r:
+    with EmulatedRig(cfg, clock=VirtualClock()) as r:
         cfg2 = r.retarget(cfg)
         prep = prepare(cfg2)
         act = make_dynamixel_backend(prep.config, prep.robot)

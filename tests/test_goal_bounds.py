@@ -20,6 +20,7 @@ from bench.rig.emulated import EmulatedRig, Planted
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
 from drivers import BenchError, BackendSetupError
+from drivers.clock import VirtualClock
 from drivers.dynamixel.settings import ServoSettings
 from drivers.dynamixel.control_table import x_series_table
 from drivers.dynamixel.goals import GoalBounds, GoalOutOfRange, mode_ticks, transmission_problem
@@ -62,7 +63,7 @@ def record_goals(rig: EmulatedRig) -> dict[int, list[int]]:
 ])
 def test_a_transmission_typo_never_reaches_the_bus(tmp_path, joint, change, says):
     cfg = _cold(_servo_changed(load_trial_config(LAB), joint, **change))
-    with EmulatedRig(cfg) as rig:
+    with EmulatedRig(cfg, clock=VirtualClock()) as rig:
         goals = record_goals(rig)
         with pytest.raises(BackendSetupError) as err:
             run_trial(prepare(rig.retarget(cfg)), tmp_path / "runs", TrialHooks(report=False))
@@ -79,7 +80,7 @@ def test_commands_far_beyond_the_limits_reach_the_bus_within_the_joint_band():
     every goal the servos get lies in its joint's band and its mode's range."""
     cfg = load_trial_config(LAB)
     robot = get_robot(cfg.robot)
-    with EmulatedRig(cfg) as rig:
+    with EmulatedRig(cfg, clock=VirtualClock()) as rig:
         goals = record_goals(rig)
         with make_dynamixel_backend(rig.retarget(cfg), robot) as act:
             act.enable()
@@ -91,7 +92,7 @@ def test_commands_far_beyond_the_limits_reach_the_bus_within_the_joint_band():
                     q = home.copy()
                     q[1:] = far[1:]  # the train moves slowly; the sensor steers it
                     act.command(q)
-                    time.sleep(0.02)
+                    rig.clock.sleep(0.02)
             with pytest.raises(GoalOutOfRange, match=r"theta4: goal 2 is 3,35\d ticks, outside the 1,023 "
                                                      r"to 3,073 its joint's limits and its mode allow"):
                 act._goal_ticks(np.where(np.array(NAMES) == "theta4", 2.0, home))  # the guard itself
@@ -113,7 +114,7 @@ def test_commands_far_beyond_the_limits_reach_the_bus_within_the_joint_band():
 def test_a_rig_reading_a_joint_beyond_its_limits_is_refused_before_torque(tmp_path):
     """A zero 1.7 rad out (a wrong offset or calibration): theta4 reads -1.7 rad at home."""
     cfg = _cold(load_trial_config(LAB))
-    with EmulatedRig(cfg, planted=Planted(zero_errors={"theta4": 1.7})) as rig:
+    with EmulatedRig(cfg, clock=VirtualClock(), planted=Planted(zero_errors={"theta4": 1.7})) as rig:
         goals = record_goals(rig)
         with pytest.raises(BackendSetupError, match=r"theta4 reads -1\.(69|70)\d*, outside its limits "
                                                      r"\[-1\.5708, 1\.5708\]; torque not enabled"):
@@ -134,12 +135,12 @@ def test_a_train_resting_on_its_lower_limit_enables_whatever_its_noisy_sensor_re
     home = robot.chain.home.copy()
     home[train] = robot.chain.lower[train]
     below = 0
-    with EmulatedRig(cfg, initial_position=home) as rig:
+    with EmulatedRig(cfg, clock=VirtualClock(), initial_position=home) as rig:
         for _ in range(2):
             with make_dynamixel_backend(rig.retarget(cfg), robot) as act:
                 for _ in range(12):
                     below += act.read().position[train] < act.limits.lower[train] - 0.01
-                    time.sleep(0.025)
+                    rig.clock.sleep(0.025)  # a new reading of the sensor comes on the rig's clock
                 act.enable()
                 assert rig.bus.servo(cfg.backend.servos["train"].id).torque_enabled
     assert below >= 4, below  # the sensor did read the train beyond its limit, and torque came on anyway

@@ -25,6 +25,7 @@ from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_backend, make_dynamixel_backend
 from bench.rig.emulated import EmulatedRig, EmulatorProcess
 from drivers import Actuators, BackendSetupError
+from drivers.clock import VirtualClock
 from trajectories import LSPB
 
 from stand_ins import Kinematic
@@ -349,7 +350,7 @@ def rig(tmp_path_factory):
     """The lab's emulated rig in this process, theta4's gearbox worn (the friction a drift scales)."""
     path = lab_holding(tmp_path_factory.mktemp("rig"), servo_physics={"theta4": WORN_THETA4})
     cfg = load_trial_config(path)
-    with EmulatedRig(cfg) as r:
+    with EmulatedRig(cfg, clock=VirtualClock()) as r:
         yield r, r.retarget(cfg)
 
 

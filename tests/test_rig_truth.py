@@ -31,6 +31,7 @@ from bench.rig.emulated import EmulatedRig
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
 from bench.trial.runs import list_runs
+from drivers.clock import VirtualClock
 
 REPO = Path(__file__).resolve().parent.parent
 LAB = REPO / "hil_configs" / "lab_real.yaml"
@@ -55,7 +56,7 @@ def write(tmp_path: Path, name: str, data: dict) -> Path:
 
 def test_a_campaign_on_an_emulated_rig_drops_status_packets_on_the_bus(tmp_path):
     cfg = load_trial_config(write(tmp_path, "lab", short_lab(tmp_path)))
-    with EmulatedRig(cfg) as rig:
+    with EmulatedRig(cfg, clock=VirtualClock()) as rig:
         base = json.loads(rig.retarget(cfg).model_dump_json())
         spec = {"name": "bus-drops", "base": str(write(tmp_path, "base", base)), "seed": 3,
                 "samples": 1, "repeats": 1, "faults": DROPS}
@@ -127,7 +128,7 @@ def test_calibration_is_read_once_and_the_record_holds_what_was_applied(tmp_path
                 servos={"theta5": ServoCalibration(offset=changed, change=changed)}), cal_path)
 
     stacks = []
-    with EmulatedRig(cfg) as rig:
+    with EmulatedRig(cfg, clock=VirtualClock()) as rig:
         prep = prepare(rig.retarget(cfg))
         res = run_trial(prep, tmp_path / "runs", TrialHooks(
             report=False, phase=rewrite_calibration, wrap=lambda act: stacks.append(act) or act))
@@ -161,7 +162,7 @@ def test_a_backend_built_on_an_emulated_port_gets_its_hooks_and_a_real_port_none
 
     cfg = load_trial_config(write(tmp_path, "lab", short_lab(tmp_path)))
     assert rig_kind(cfg) == "real"
-    with EmulatedRig(cfg) as rig:
+    with EmulatedRig(cfg, clock=VirtualClock()) as rig:
         there = rig.retarget(cfg)
         assert rig_kind(there) == "emulated"
         prep = prepare(there)

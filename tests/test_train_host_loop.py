@@ -14,6 +14,7 @@ from bench.faults.comms import DroppedStatus
 from bench.kinematics.registry import get_robot
 from bench.rig.backends import make_dynamixel_backend
 from bench.rig.emulated import EmulatedRig
+from drivers.clock import VirtualClock
 
 LAB = Path(__file__).resolve().parent.parent / "hil_configs" / "lab_real.yaml"
 PERIOD = 0.02  # s, a lab loop's period
@@ -23,7 +24,7 @@ CYCLES = 25
 @pytest.fixture(scope="module")
 def rig():
     cfg = load_trial_config(LAB)
-    with EmulatedRig(cfg) as r:
+    with EmulatedRig(cfg, clock=VirtualClock()) as r:
         yield r.retarget(cfg)
 
 
