@@ -28,6 +28,7 @@ from bench.monitor.monitor import Watched
 from bench.report.trial import write_trial_report
 from bench.rig.backends import make_backend
 from bench.rig.serving import bus_rig_kind
+from bench.trial.cameras import TrialCaptures, open_cameras
 from bench.trial.plan import aimed_plan
 from bench.trial.record import finish_record, trial_metadata
 from drivers import ActuatorError, Actuators
@@ -155,6 +156,7 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
     stop). Returns the interrupt that stopped it, if one did; other failures are logged."""
     interrupts = hooks.interrupts
     monitor = None if prep.monitor is None else build_monitor(prep.monitor, log)
+    cameras = TrialCaptures(None, log)
     try:
         try:
             interrupts.check()
@@ -165,6 +167,7 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
             warned = find_capability(act, StartWarnings)
             if warned is not None and warned.start_warnings:
                 log.metadata["warnings"] = list(warned.start_warnings)
+            cameras = open_cameras(prep, act, log)
             if not act.enabled:  # torque on first: a joint taking up its load moves while its
                 act.enable()     # servo settles, and the plan starts from where it then holds
             hooks.tell("planning")
@@ -173,14 +176,16 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
             checks = prep.interlocks if monitor is None else Watched(prep.interlocks, monitor)
             runner = Runner(act, prep.config.control_period, interlocks=checks,
                             on_trip=prep.config.safety.on_trip, progress=hooks.progress,
-                            interrupts=interrupts, phase=hooks.phase)
-            runner.run(segments, log)
+                            interrupts=interrupts, phase=cameras.phase(hooks.phase))
+            if runner.run(segments, log).completed:
+                cameras.settled(log)
         finally:
             with interrupts.deferred():  # the safe stop always runs to its end
                 act.close()
                 if monitor is not None:
                     log.metadata["monitor"] = monitor.summary()
                     monitor.close()
+                cameras.finish(run_dir)
     except KeyboardInterrupt as e:
         _abort_once(log, abort_reason(e))
         return e
