@@ -26,6 +26,8 @@ __all__ = ["EmulatedCamera", "Fiducial", "RenderedScene", "gl_matrices"]
 #: Clipping planes of the renderer (m): the room is within a few metres of any camera.
 NEAR_M, FAR_M = 0.05, 5.0
 _LIGHT = [0.3, -0.5, 1.0]
+#: The room's resolution against the camera's (it is rendered once, and enlarged).
+ROOM_SCALE = 0.5
 #: Pixels between the points where the lens's inverse is solved (interpolated between).
 _MAP_STEP = 8
 
@@ -169,14 +171,29 @@ class RenderedScene:
         return (np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[:, :, :3],
                 np.asarray(depth, dtype=np.float32).reshape(h, w))
 
+    def _room(self, intrinsics: Intrinsics, pose: CameraPose) -> tuple[np.ndarray, np.ndarray]:
+        """The room from ``pose`` at ``ROOM_SCALE`` of the resolution, enlarged to the camera's
+        (the colour linearly, the depth to the nearest pixel): it never moves and no fiducial is on
+        it, and a quarter of the pixels is a quarter of the renderer's time."""
+        import cv2  # heavy: OpenCV, only when a camera is used
+
+        w, h = intrinsics.width, intrinsics.height
+        sw, sh = max(1, round(w * ROOM_SCALE)), max(1, round(h * ROOM_SCALE))
+        kx, ky = sw / w, sh / h
+        small = Intrinsics(sw, sh, intrinsics.fx * kx, intrinsics.fy * ky, (intrinsics.cx + 0.5) * kx - 0.5,
+                           (intrinsics.cy + 0.5) * ky - 0.5)  # the same view, pixels k times larger
+        rgb, depth = self._image(self.room, small, pose)
+        return (cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR),
+                cv2.resize(depth, (w, h), interpolation=cv2.INTER_NEAREST))
+
     def render(self, intrinsics: Intrinsics, pose: CameraPose) -> np.ndarray:
         """The ideal pinhole image (H × W × 3, uint8, RGB) from ``pose``: the robot where it was
         last posed over the room, each pixel the nearer of the two (the renderer's own depth test).
-        The room (with the robot's fixed base) is rendered once per camera; the moving links only
-        in the window they can cover."""
+        The room (with the robot's fixed base) is rendered once per camera, at half the resolution;
+        the moving links and the fiducials at the full resolution, in the window they can cover."""
         key = (intrinsics, pose.rotation.tobytes(), pose.translation.tobytes())
         if key not in self._rooms:
-            self._rooms[key] = self._image(self.room, intrinsics, pose)
+            self._rooms[key] = self._room(intrinsics, pose)
         room, room_depth = self._rooms[key]
         x0, y0, x1, y1 = self._window(intrinsics, pose)
         part = Intrinsics(x1 - x0, y1 - y0, intrinsics.fx, intrinsics.fy, intrinsics.cx - x0,
