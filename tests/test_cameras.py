@@ -240,3 +240,46 @@ def test_pose_follows_opencv():
     assert np.allclose(pose.rotation @ np.zeros(3) + pose.translation, [0.0, 0.0, 1.0])
     assert np.allclose(pose.centre, [1.0, 0.0, 0.0])
     assert View("v", Intrinsics(16, 16, 10, 10, 8, 8), pose).name == "v"
+
+
+def test_cameras_calibrate_emulate_writes_a_dated_file_the_trial_measures_with(tmp_path):
+    """`hilbench cameras calibrate CONFIG --emulate`: intrinsics from ChArUco views, poses from the
+    board at its place on the bed, a dated file with the reprojection errors; measured with that
+    file, the tip is still within a millimetre."""
+    import json
+    import subprocess
+    import sys
+
+    hilbench = str(Path(sys.executable).with_name("hilbench"))
+    out = subprocess.run([hilbench, "cameras", "calibrate", str(REPO / "hil_configs" / "lab_real.yaml"),
+                          "--emulate", "--views", "6", "--out", str(tmp_path), "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    path = Path(res["file"])
+    assert path.parent == tmp_path and path.name.startswith("cameras-20") and path.suffix == ".json"
+    for cam in res["cameras"]:
+        assert cam["intrinsics_rms_px"] < 0.5 and cam["pose_rms_px"] < 1.0, cam
+        assert cam["against_config"]["position_mm"] < 6.0 and cam["against_config"]["angle_deg"] < 0.5, cam
+    cfg = load_trial_config(SIM, {"cameras": {**yaml.safe_load(SIM.read_text())["cameras"],
+                                              "calibration": str(path)}})
+    q = ROBOT.ik(TARGET_1)
+    cams = TrialCameras(cfg.cameras, "emulated", cfg.robot_urdf, ROBOT.joint_names, cfg.resolve(cfg.urdf_dir),
+                        lambda: q, calibration=cfg.resolve(cfg.cameras.calibration))
+    try:
+        assert cams.views[0].intrinsics != cams.true_views[0].intrinsics  # measured with the file's
+        cams.capture("still", 0.0)
+        cap = cams.finish(tmp_path)["captures"]["still"]
+    finally:
+        cams.close()
+    assert cap["problem"] == "" and np.linalg.norm(np.asarray(cap["tip_m"]) - ROBOT.needle(q).tip) < 1e-3
+
+
+def test_a_calibration_beyond_the_bound_is_refused():
+    from bench.cameras.session import calibrate_emulated
+    from drivers.camera import CameraError
+
+    cfg = load_trial_config(SIM)
+    with pytest.raises(CameraError, match=r"reproject .* px rms, beyond 0.02 px: refused"):
+        calibrate_emulated(cfg.cameras, cfg.robot_urdf, ROBOT.joint_names, cfg.resolve(cfg.urdf_dir),
+                           held_views=4, max_reprojection_px=0.02)

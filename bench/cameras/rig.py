@@ -19,6 +19,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from bench.cameras.calibrate import read_calibration
 from bench.cameras.fiducial import emulated_fiducials, tip_in_holder
 from bench.cameras.measure import View, find_balls, measure_tip
 from bench.config.cameras import CameraConfig, CamerasConfig
@@ -60,9 +61,19 @@ class TrialCameras:
     ``truth`` (emulated cameras): the joints' true positions now; ``seed``: the noise's."""
 
     def __init__(self, cameras: CamerasConfig, source: str, urdf: Path, joint_names, urdf_dir: Path,
-                 truth: Optional[Callable[[], np.ndarray]] = None, seed: int = 0) -> None:
+                 truth: Optional[Callable[[], np.ndarray]] = None, seed: int = 0,
+                 calibration: Optional[Path] = None) -> None:
         self.config, self.source = cameras, source
-        self.views = [view_of(c) for c in cameras.views]
+        #: The cameras as configured (an emulated camera renders from there) and as the metrology
+        #: knows them: from the calibration file when the config names one.
+        self.true_views = [view_of(c) for c in cameras.views]
+        self.views = list(self.true_views)
+        if calibration is not None:
+            calibrated = read_calibration(calibration)
+            missing = [v.name for v in self.views if v.name not in calibrated]
+            if missing:
+                raise CameraError(f"{calibration}: no calibration for camera(s) {missing}")
+            self.views = [calibrated[v.name] for v in self.views]
         self._pending: dict[str, list] = {}
         self._scene = None
         self._cams: list = []
@@ -77,7 +88,7 @@ class TrialCameras:
             self._truth = truth
             self._scene = RenderedScene(urdf, joint_names, default_scene(urdf_dir), emulated_fiducials())
             self._state = {"q": None, "t": 0.0}
-            for k, (c, v) in enumerate(zip(cameras.views, self.views)):
+            for k, (c, v) in enumerate(zip(cameras.views, self.true_views)):
                 self._cams.append(EmulatedCamera(
                     c.name, self._scene, lambda: (self._state["q"], self._state["t"]), v.intrinsics,
                     v.pose, noise=c.emulated.noise, blur_px=c.emulated.blur_px, seed=seed * 16 + k))
@@ -90,6 +101,15 @@ class TrialCameras:
                 raise
             self._threads = ThreadPoolExecutor(max_workers=len(self._cams))
         self._spent(began)
+
+    @property
+    def cameras(self) -> list:
+        return list(self._cams)
+
+    def park(self) -> None:
+        """Emulated cameras: pose the scene where ``truth`` says (the robot parked), now."""
+        self._state["q"], self._state["t"] = np.array(self._truth(), dtype=float), 0.0
+        self._scene.pose(self._state["q"])
 
     def capture(self, label: str, t: float) -> None:
         """Take ``label``'s frames now (a real camera) or note what they will show (emulated)."""

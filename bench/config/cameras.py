@@ -4,6 +4,7 @@ rendering of the scene on the sim and the emulated rig (bench.cameras, drivers/c
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal, Optional, Union
 
 from pydantic import Field, field_validator, model_validator
@@ -106,6 +107,10 @@ class CamerasConfig(Strict):
     pixel_sigma: float = Field(default=0.3, gt=0, le=20,
                                description="the calibration's pixel error (rms, pixels), carried "
                                            "into the tip's uncertainty")
+    calibration: Optional[Path] = Field(
+        default=None, description="a file from `hilbench cameras calibrate`: the intrinsics and poses "
+                                  "measured with (relative: beside the config, else the shipped data's); "
+                                  "none: those above")
 
     @field_validator("views")
     @classmethod

@@ -15,14 +15,38 @@ from bench.cameras.rig import TrialCameras, camera_source
 from bench.core.log import TrialLog
 from bench.core.result import PreparedTrial
 from bench.rig.serving import rig_kind
-from drivers import Actuators
+import numpy as np
+
+from drivers import Actuators, ActuatorsWrapper, JointState
 from drivers.camera import CameraError
 from drivers.capabilities import TruePosition, find_capability
 
-__all__ = ["TrialCaptures", "open_cameras"]
+__all__ = ["BackendReading", "TrialCaptures", "open_cameras"]
 
 #: The capture taken as each segment starts: the robot has settled at the end of the one before.
 CAPTURE_AT = {"insert": "entry", "retract": "insert"}
+
+
+class BackendReading(ActuatorsWrapper):
+    """Keeps the backend's own last reading, beneath the fault wrappers (a recorder, not a fault).
+
+    On an emulated rig the plant runs in the emulator's process and says nothing of itself but
+    through its servos: the rendered cameras show the joints where the emulated encoders read them
+    (to a tick), which the bench's encoder faults do not touch, as a camera would see them."""
+
+    def __init__(self, actuators: Actuators) -> None:
+        super().__init__(actuators)
+        self.position: np.ndarray | None = None
+
+    def read(self) -> JointState:
+        st = self.actuators.read()
+        self.position = np.array(st.position, dtype=float)
+        return st
+
+    def last(self) -> np.ndarray:
+        if self.position is None:
+            raise CameraError("the backend has not been read yet")
+        return self.position
 
 
 class TrialCaptures:
@@ -73,18 +97,20 @@ class TrialCaptures:
             self.cameras.close()
 
 
-def open_cameras(prep: PreparedTrial, act: Actuators, log: TrialLog) -> TrialCaptures:
-    """The config's cameras on this backend: rendered where its true joints are (sim, emulated
-    rig), or the devices (real rig)."""
+def open_cameras(prep: PreparedTrial, act: Actuators, log: TrialLog,
+                 reading: Optional[BackendReading] = None) -> TrialCaptures:
+    """The config's cameras on this backend: rendered where its true joints are (the sim's
+    ``TruePosition``; an emulated rig's own servos' reading, ``reading``), or the devices (real rig)."""
     cfg = prep.config
     if cfg.cameras is None:
         return TrialCaptures(None, log)
     source = camera_source(cfg.cameras, log.metadata.get("rig") or rig_kind(cfg))
     truth = find_capability(act.unwrapped, TruePosition)
+    where = truth.true_position if truth is not None else None if reading is None else reading.last
     try:
+        calibration = None if cfg.cameras.calibration is None else cfg.resolve(cfg.cameras.calibration)
         cams = TrialCameras(cfg.cameras, source, cfg.robot_urdf, prep.robot.joint_names,
-                            cfg.resolve(cfg.urdf_dir), None if truth is None else truth.true_position,
-                            seed=cfg.seed)
+                            cfg.resolve(cfg.urdf_dir), where, seed=cfg.seed, calibration=calibration)
     except CameraError as e:
         return TrialCaptures(None, log, f"the cameras could not be opened: {e}")
     return TrialCaptures(cams, log)

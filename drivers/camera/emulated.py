@@ -186,7 +186,7 @@ class RenderedScene:
         return (cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR),
                 cv2.resize(depth, (w, h), interpolation=cv2.INTER_NEAREST))
 
-    def render(self, intrinsics: Intrinsics, pose: CameraPose) -> np.ndarray:
+    def render(self, intrinsics: Intrinsics, pose: CameraPose, robot: bool = True) -> np.ndarray:
         """The ideal pinhole image (H × W × 3, uint8, RGB) from ``pose``: the robot where it was
         last posed over the room, each pixel the nearer of the two (the renderer's own depth test).
         The room (with the robot's fixed base) is rendered once per camera, at half the resolution;
@@ -195,6 +195,8 @@ class RenderedScene:
         if key not in self._rooms:
             self._rooms[key] = self._room(intrinsics, pose)
         room, room_depth = self._rooms[key]
+        if not robot:  # the room alone (the robot parked out of the picture)
+            return room.copy()
         x0, y0, x1, y1 = self._window(intrinsics, pose)
         part = Intrinsics(x1 - x0, y1 - y0, intrinsics.fx, intrinsics.fy, intrinsics.cx - x0,
                           intrinsics.cy - y0)  # the same lens, the image cut to the window
@@ -226,6 +228,9 @@ class EmulatedCamera:
         self.noise, self.blur_px = float(noise), float(blur_px)
         self._rng = np.random.default_rng(seed)
         self._maps = None
+        #: Drawn on the ideal image before the lens (a calibration board held up, laid down):
+        #: ``overlay(image, intrinsics, pose) -> image``; None: the scene alone, robot included.
+        self.overlay: Optional[Callable[[np.ndarray, Intrinsics, CameraPose], np.ndarray]] = None
 
     def _lens_maps(self):
         """For each pixel of the distorted image, where the ideal image holds it (cv2.remap's maps):
@@ -253,7 +258,10 @@ class EmulatedCamera:
 
         q, t = self.state()
         self.scene.pose(q)
-        img = cv2.cvtColor(self.scene.render(self.intrinsics, self.pose), cv2.COLOR_RGB2BGR)
+        img = cv2.cvtColor(self.scene.render(self.intrinsics, self.pose, robot=self.overlay is None),
+                           cv2.COLOR_RGB2BGR)
+        if self.overlay is not None:
+            img = self.overlay(img, self.intrinsics, self.pose)
         if np.any(self.intrinsics.dist != 0.0):
             mx, my = self._lens_maps()
             img = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
