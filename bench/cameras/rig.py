@@ -19,9 +19,10 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from bench.cameras.bedmarker import MOVED_PX, bed_marker_decal, marker_offset_px
 from bench.cameras.calibrate import read_calibration
 from bench.cameras.fiducial import emulated_fiducials, tip_in_holder
-from bench.cameras.measure import View, find_balls, measure_tip
+from bench.cameras.measure import Measurement, View, find_balls, measure_tip
 from bench.config.cameras import CameraConfig, CamerasConfig
 from bench.scene.room import default_scene
 from drivers.camera import CameraError, Frame, Intrinsics, look_at
@@ -86,7 +87,8 @@ class TrialCameras:
                 raise CameraError("emulated cameras render where the joints truly are, and this "
                                   "backend does not say (no TruePosition)")
             self._truth = truth
-            self._scene = RenderedScene(urdf, joint_names, default_scene(urdf_dir), emulated_fiducials())
+            self._scene = RenderedScene(urdf, joint_names, default_scene(urdf_dir), emulated_fiducials(),
+                                        [bed_marker_decal()])
             self._state = {"q": None, "t": 0.0}
             for k, (c, v) in enumerate(zip(cameras.views, self.true_views)):
                 self._cams.append(EmulatedCamera(
@@ -146,13 +148,21 @@ class TrialCameras:
             except CameraError as e:
                 captures[label] = {"problem": str(e)}
                 continue
-            found = []
-            for fr in frames:
+            found, moved = [], []
+            for fr, view in zip(frames, self.views):
                 name = frame_file(label, fr.camera)
                 cv2.imwrite(str(Path(run_dir) / name), fr.image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
                 entry.setdefault("frames", {})[fr.camera] = name
                 found.append(find_balls(fr.image))
+                off = marker_offset_px(view, fr.image)
+                entry.setdefault("bed_marker_px", {})[fr.camera] = None if off is None else round(off, 3)
+                if off is not None and off > MOVED_PX:
+                    moved.append(f"{fr.camera} ({off:.1f} px)")
             m = measure_tip(self.views, found, tip_local, axis_local, self.config.pixel_sigma)
+            if moved:  # its frames are not where the calibration says they are taken from: no tip
+                m = Measurement(pixels=m.pixels, problem=(
+                    f"camera moved since its calibration: the bed marker is off where the calibration "
+                    f"puts it in {', '.join(moved)}, more than {MOVED_PX:g} px; calibrate again"))
             entry.update({"time_s": frames[0].time, "problem": m.problem, "balls": m.balls,
                           "pixels": m.pixels})
             if m.ok:

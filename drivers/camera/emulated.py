@@ -21,7 +21,7 @@ import numpy as np
 from drivers.camera import CameraError, CameraPose, Frame, Intrinsics
 from drivers.quiet import quiet_pybullet
 
-__all__ = ["EmulatedCamera", "Fiducial", "RenderedScene", "gl_matrices"]
+__all__ = ["Decal", "EmulatedCamera", "Fiducial", "RenderedScene", "gl_matrices"]
 
 #: Clipping planes of the renderer (m): the room is within a few metres of any camera.
 NEAR_M, FAR_M = 0.05, 5.0
@@ -41,6 +41,48 @@ class Fiducial:
     offset: tuple[float, float, float]
     radius: float
     rgba: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class Decal:
+    """A flat picture on a surface of the room (a marker taped to the bed): ``image`` (grey or
+    BGR), its top-left corner at ``origin`` (m, world), its rows along ``x_axis`` and its columns
+    down ``y_axis`` (unit vectors), ``size`` (m) a side."""
+
+    image: np.ndarray
+    origin: tuple[float, float, float]
+    x_axis: tuple[float, float, float]
+    y_axis: tuple[float, float, float]
+    size: float
+
+    def draw(self, rgb: np.ndarray, intrinsics: Intrinsics, pose: CameraPose,
+             depth: Optional[np.ndarray] = None) -> np.ndarray:
+        """The decal drawn into an RGB image of the ideal (undistorted) camera; with the image's
+        ``depth`` (the renderer's buffer), only where nothing of the room stands in front of it."""
+        import cv2  # heavy: OpenCV, only when a camera is used
+
+        art = self.image if self.image.ndim == 3 else cv2.cvtColor(self.image, cv2.COLOR_GRAY2RGB)
+        s = art.shape[1] / self.size  # pixels of the picture per metre
+        A = np.array([[1 / s, 0, 0.5 / s], [0, 1 / s, 0.5 / s], [0, 0, 1]])  # picture pixel -> plane (m)
+        x, y, o = (np.asarray(v, dtype=float) for v in (self.x_axis, self.y_axis, self.origin))
+        H = intrinsics.matrix @ np.column_stack([pose.rotation @ x, pose.rotation @ y,
+                                                 pose.rotation @ o + pose.translation]) @ A
+        size = (rgb.shape[1], rgb.shape[0])
+        warped = cv2.warpPerspective(art, H, size, flags=cv2.INTER_LINEAR)
+        mask = cv2.warpPerspective(np.full(art.shape[:2], 255, np.uint8), H, size, flags=cv2.INTER_LINEAR)
+        a = mask.astype(np.float32) / 255.0
+        if depth is not None:  # the decal's distance along the view at each pixel, against the room's
+            normal = pose.rotation @ np.cross(x, y)
+            c = float(normal @ (pose.rotation @ o + pose.translation))
+            u, v = np.meshgrid(np.arange(size[0]), np.arange(size[1]))
+            rays = normal[0] * (u - intrinsics.cx) / intrinsics.fx + normal[1] * (v - intrinsics.cy) / intrinsics.fy + normal[2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z_decal = c / rays
+            n, f = NEAR_M, FAR_M
+            z_room = 2 * f * n / ((f + n) - (2 * depth - 1) * (f - n))
+            a[~(z_decal <= z_room + 0.002)] = 0.0  # 2 mm: the decal lies on the surface it is taped to
+        a = a[..., None]
+        return (rgb * (1 - a) + warped * a).astype(np.uint8)
 
 
 def gl_matrices(intrinsics: Intrinsics, pose: CameraPose) -> tuple[list[float], list[float]]:
@@ -68,8 +110,9 @@ class RenderedScene:
     attributes (as ``drivers.pybullet.backend.SceneObject``)."""
 
     def __init__(self, robot_urdf: Path, joint_names: Sequence[str], scene: Sequence = (),
-                 fiducials: Sequence[Fiducial] = ()) -> None:
+                 fiducials: Sequence[Fiducial] = (), decals: Sequence["Decal"] = ()) -> None:
         pb = self._pb = quiet_pybullet()
+        self.decals = list(decals)
         # Two worlds: the room, which never moves (rendered once per camera and kept with its depth),
         # and the robot with its fiducials (rendered at each grab and laid over the room by depth).
         self.room, self.client = pb.connect(pb.DIRECT), pb.connect(pb.DIRECT)
@@ -183,8 +226,11 @@ class RenderedScene:
         small = Intrinsics(sw, sh, intrinsics.fx * kx, intrinsics.fy * ky, (intrinsics.cx + 0.5) * kx - 0.5,
                            (intrinsics.cy + 0.5) * ky - 0.5)  # the same view, pixels k times larger
         rgb, depth = self._image(self.room, small, pose)
-        return (cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR),
-                cv2.resize(depth, (w, h), interpolation=cv2.INTER_NEAREST))
+        rgb = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR)
+        depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_NEAREST)
+        for decal in self.decals:  # printed on the room's surfaces: the robot passes in front of them
+            rgb = decal.draw(rgb, intrinsics, pose, depth)
+        return rgb, depth
 
     def render(self, intrinsics: Intrinsics, pose: CameraPose, robot: bool = True) -> np.ndarray:
         """The ideal pinhole image (H × W × 3, uint8, RGB) from ``pose``: the robot where it was
