@@ -3,7 +3,7 @@
 
 The holder's frame is the ``d10`` link's: the needle runs along its +Z from the origin to the tip
 (the needle's length, 100 mm). Seen in both views, the balls give that frame's pose, and the tip
-and the needle's direction follow from it. The balls stand 30 mm off the axis in four directions and
+and the needle's direction follow from it. The balls stand 40 mm off the axis in four directions and
 at three heights, so that the three a pose needs are seen whole from most places.
 """
 
