@@ -6,7 +6,6 @@ camera configs refused in one line."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import cv2
@@ -137,18 +136,19 @@ def _trial(tmp_path: Path, faults: list, by: str = "encoders"):
     def wrap(act):
         kept["truth"] = GroundTruth(act)
         return kept["truth"]
-    began = time.perf_counter()
     res = run_trial(prep, tmp_path, TrialHooks(report=False, wrap=wrap))
     log = TrialLog.load(res.run_dir / "trial.npz")
     true_tip = prep.robot.needle(settled_truth(log, kept["truth"])).tip
-    return prep, res, log, true_tip, time.perf_counter() - began
+    return prep, res, log, true_tip
 
 
 def test_an_encoder_bias_on_theta5_is_measured_by_the_cameras_and_fails_a_trial_they_judge(tmp_path):
     """A 1° bias on θ5's encoder: the servos hold the reading, the needle ends mm away, and the
     encoders' own placement passes. The gap between the encoders' tip and the cameras' is within
-    0.5 mm of the true gap, and flagged; judged by the cameras, the trial fails on the tip."""
-    prep, res, log, true_tip, _ = _trial(tmp_path, [{"name": "bias", "joints": ["theta5"], "bias_deg": 1.0}],
+    0.5 mm of the true gap, and flagged; judged by the cameras, the trial fails on the tip. The
+    cameras cost the trial under a second of processor time. (A clean trial is never flagged:
+    tests/test_trial.py's, and the 22 placements above.)"""
+    prep, res, log, true_tip = _trial(tmp_path, [{"name": "bias", "joints": ["theta5"], "bias_deg": 1.0}],
                                          by="camera")
     cam = res.camera
     encoders_tip = prep.robot.needle(settled_position(log, "insert")).tip  # the reading the servos held
@@ -163,16 +163,9 @@ def test_an_encoder_bias_on_theta5_is_measured_by_the_cameras_and_fails_a_trial_
     for label in ("entry", "insert"):
         for view in ("front", "top"):
             assert (res.run_dir / f"camera-{label}-{view}.jpg").is_file()
-
-
-def test_the_captures_and_their_measurement_cost_under_a_second(tmp_path):
-    """Opening the cameras, both captures and their measurement: the processor time they add to a
-    clean trial (the trial's own record of it) is under 1 s; the clean placement is not flagged."""
-    _, res, log, true_tip, _ = _trial(tmp_path, [])
-    spent = log.metadata["camera"]
-    assert spent["cpu_s"] < 1.0, spent
-    assert res.camera["flag"] is False and res.camera["encoder_gap_mm"] < 0.5
-    assert np.linalg.norm(np.asarray(res.camera["tip_mm"]) / 1e3 - true_tip) < 0.5e-3
+    # opening the cameras, both captures and their measurement: the processor time they added to
+    # the trial (its record's account of it) is under a second
+    assert log.metadata["camera"]["cpu_s"] < 1.0, log.metadata["camera"]
 
 
 def test_the_real_capture_path_measures_emulated_frames_served_on_the_loopback(tmp_path):
@@ -306,3 +299,59 @@ def test_a_camera_moved_since_its_calibration_is_caught_by_the_bed_marker(tmp_pa
     assert bumped["bed_marker_px"]["top"] > 5.0 and bumped["bed_marker_px"]["front"] < 1.0
     assert bumped["problem"].startswith("camera moved since its calibration") and "top" in bumped["problem"]
     assert "tip_m" not in bumped
+
+
+def test_a_trial_captures_from_real_cameras_opened_on_loopback_urls(tmp_path):
+    """A sim trial whose cameras are `source: capture` on two URLs (emulated frames of the robot at
+    its planned insertion, served as MJPEG on 127.0.0.1): the trial grabs them when settled, in
+    their own threads, keeps them in the run directory and reports the tip they show."""
+    cfg = load_trial_config(SIM)
+    prep = prepare(cfg)
+    still = TrialCameras(cfg.cameras, "emulated", cfg.robot_urdf, ROBOT.joint_names, cfg.resolve(cfg.urdf_dir),
+                         lambda: prep.q_insert)
+    try:
+        still.capture("still", 0.0)
+        names = still.finish(tmp_path)["captures"]["still"]["frames"]
+    finally:
+        still.close()
+    images = {view: cv2.imread(str(tmp_path / name)) for view, name in names.items()}
+    with MjpegServer(lambda: images["front"]) as front, MjpegServer(lambda: images["top"]) as top:
+        data = yaml.safe_load(SIM.read_text())
+        data["cameras"]["source"] = "capture"
+        data["cameras"]["views"][0]["device"], data["cameras"]["views"][1]["device"] = front.url, top.url
+        path = tmp_path / "capture.yaml"
+        path.write_text(yaml.safe_dump(data))
+        res = run_trial(prepare(load_trial_config(path)), tmp_path / "runs", TrialHooks(report=False))
+    cam = res.camera
+    assert cam["problem"] == "", cam["problem"]
+    assert np.linalg.norm(np.asarray(cam["tip_mm"]) / 1e3 - ROBOT.needle(prep.q_insert).tip) < 0.5e-3
+    assert cam["flag"] is False and cam["encoder_gap_mm"] < 0.5
+    assert (res.run_dir / "camera-entry-front.jpg").is_file() and (res.run_dir / "camera-insert-top.jpg").is_file()
+    assert TrialLog.load(res.run_dir / "trial.npz").metadata["camera"]["source"] == "capture"
+
+
+def test_the_emulated_rig_reports_the_cameras_tip_and_a_bias_the_bench_injects(tmp_path):
+    """On the emulated rig (lab_real.yaml's cameras, a short plan), the rendered cameras see the
+    joints where the emulated servos read them, beneath the bench's fault wrappers: a 1° bias on
+    θ5 injected by the bench is a gap between the encoders and the cameras, flagged."""
+    from bench.rig.emulated import EmulatedRig
+
+    data = yaml.safe_load((REPO / "hil_configs" / "lab_real.yaml").read_text())
+    data.update(plan={"velocity_scale": 0.5, "settle_s": 0.5, "retract": False},
+                faults=[{"name": "bias", "joints": ["theta5"], "bias_deg": 1.0}])
+    path = tmp_path / "lab.yaml"
+    path.write_text(yaml.safe_dump(data))
+    cfg = load_trial_config(path)
+    with EmulatedRig(cfg) as rig:
+        res = run_trial(prepare(rig.retarget(cfg)), tmp_path / "runs", TrialHooks(report=False))
+    cam = res.camera
+    assert res.completed and cam["problem"] == "", (res.reason, cam)
+    log = TrialLog.load(res.run_dir / "trial.npz")
+    assert log.metadata["rig"] == "emulated" and log.metadata["camera"]["source"] == "emulated"
+    # the servos held the biased reading: the true joint is 1° off it, and so is the needle
+    q_read = settled_position(log, "insert")
+    q_true = q_read.copy()
+    q_true[ROBOT.joint_names.index("theta5")] -= np.radians(1.0)
+    true_gap_mm = float(np.linalg.norm(ROBOT.needle(q_read).tip - ROBOT.needle(q_true).tip) * 1e3)
+    assert abs(cam["encoder_gap_mm"] - true_gap_mm) < 0.5, (cam["encoder_gap_mm"], true_gap_mm)
+    assert cam["flag"] is True

@@ -8,11 +8,13 @@ measurement, and a trial judged by the cameras then fails on it (never on a gues
 
 from __future__ import annotations
 
+from collections import deque
 from pathlib import Path
 from typing import Callable, Optional
 
 from bench.cameras.rig import TrialCameras, camera_source
 from bench.core.log import TrialLog
+from bench.core.outcome import SETTLED_WINDOW_S
 from bench.core.result import PreparedTrial
 from bench.rig.serving import rig_kind
 import numpy as np
@@ -32,21 +34,26 @@ class BackendReading(ActuatorsWrapper):
 
     On an emulated rig the plant runs in the emulator's process and says nothing of itself but
     through its servos: the rendered cameras show the joints where the emulated encoders read them
-    (to a tick), which the bench's encoder faults do not touch, as a camera would see them."""
+    (to a tick; the median of the settle's last readings), which the bench's encoder faults do
+    not touch, as a camera would see them."""
 
     def __init__(self, actuators: Actuators) -> None:
         super().__init__(actuators)
-        self.position: np.ndarray | None = None
+        self._recent: deque = deque(maxlen=256)
 
     def read(self) -> JointState:
         st = self.actuators.read()
-        self.position = np.array(st.position, dtype=float)
+        self._recent.append((float(st.time), np.array(st.position, dtype=float)))
         return st
 
     def last(self) -> np.ndarray:
-        if self.position is None:
+        """The median reading over the last ``SETTLED_WINDOW_S`` (a sensed joint's reading is noisy:
+        the train's, through the ultrasonic sensor), as the encoders' settled placement is read."""
+        if not self._recent:
             raise CameraError("the backend has not been read yet")
-        return self.position
+        t_end = self._recent[-1][0]
+        kept = [q for t, q in self._recent if t >= t_end - SETTLED_WINDOW_S - 1e-9]
+        return np.median(np.array(kept), axis=0)
 
 
 class TrialCaptures:
