@@ -21,7 +21,7 @@ import numpy as np
 from drivers.camera import CameraError, CameraPose, Frame, Intrinsics
 from drivers.quiet import quiet_pybullet
 
-__all__ = ["Decal", "EmulatedCamera", "Fiducial", "RenderedScene", "gl_matrices"]
+__all__ = ["Decal", "EmulatedCamera", "Fiducial", "RenderedScene", "forget_rooms", "gl_matrices"]
 
 #: Clipping planes of the renderer (m): the room is within a few metres of any camera.
 NEAR_M, FAR_M = 0.05, 5.0
@@ -43,6 +43,22 @@ class Fiducial:
     rgba: tuple[float, float, float, float]
 
 
+#: The room's pictures (colour and depth) by room and camera, kept for this process's next cameras
+#: (a campaign's or a test run's trials share the room): the oldest goes beyond ``_ROOMS_KEPT``.
+_ROOMS: dict = {}
+_ROOMS_KEPT = 8
+
+
+def forget_rooms() -> None:
+    """Drop the room pictures kept (the next camera renders its room again)."""
+    _ROOMS.clear()
+
+
+def _file_key(path) -> tuple:
+    st = Path(path).stat()
+    return str(Path(path).resolve()), st.st_mtime_ns, st.st_size
+
+
 @dataclass(frozen=True)
 class Decal:
     """A flat picture on a surface of the room (a marker taped to the bed): ``image`` (grey or
@@ -54,6 +70,11 @@ class Decal:
     x_axis: tuple[float, float, float]
     y_axis: tuple[float, float, float]
     size: float
+
+    @property
+    def key(self) -> tuple:
+        """What the decal's picture in a room depends on."""
+        return (hash(self.image.tobytes()), self.origin, self.x_axis, self.y_axis, self.size)
 
     def draw(self, rgb: np.ndarray, intrinsics: Intrinsics, pose: CameraPose,
              depth: Optional[np.ndarray] = None) -> np.ndarray:
@@ -67,22 +88,36 @@ class Decal:
         x, y, o = (np.asarray(v, dtype=float) for v in (self.x_axis, self.y_axis, self.origin))
         H = intrinsics.matrix @ np.column_stack([pose.rotation @ x, pose.rotation @ y,
                                                  pose.rotation @ o + pose.translation]) @ A
-        size = (rgb.shape[1], rgb.shape[0])
-        warped = cv2.warpPerspective(art, H, size, flags=cv2.INTER_LINEAR)
-        mask = cv2.warpPerspective(np.full(art.shape[:2], 255, np.uint8), H, size, flags=cv2.INTER_LINEAR)
+        # only the window the decal covers is drawn (its corners projected, a pixel of margin)
+        h_art, w_art = art.shape[:2]
+        ends = H @ np.array([[-0.5, -0.5, 1], [w_art - 0.5, -0.5, 1], [w_art - 0.5, h_art - 0.5, 1],
+                             [-0.5, h_art - 0.5, 1]], dtype=float).T
+        if np.any(ends[2] <= 0):  # behind the camera
+            return rgb
+        us, vs = ends[0] / ends[2], ends[1] / ends[2]
+        x0, y0 = max(0, int(np.floor(us.min())) - 1), max(0, int(np.floor(vs.min())) - 1)
+        x1, y1 = min(rgb.shape[1], int(np.ceil(us.max())) + 2), min(rgb.shape[0], int(np.ceil(vs.max())) + 2)
+        if x1 <= x0 or y1 <= y0:
+            return rgb
+        Hw = np.array([[1.0, 0, -x0], [0, 1.0, -y0], [0, 0, 1.0]]) @ H
+        size = (x1 - x0, y1 - y0)
+        warped = cv2.warpPerspective(art, Hw, size, flags=cv2.INTER_LINEAR)
+        mask = cv2.warpPerspective(np.full(art.shape[:2], 255, np.uint8), Hw, size, flags=cv2.INTER_LINEAR)
         a = mask.astype(np.float32) / 255.0
         if depth is not None:  # the decal's distance along the view at each pixel, against the room's
             normal = pose.rotation @ np.cross(x, y)
             c = float(normal @ (pose.rotation @ o + pose.translation))
-            u, v = np.meshgrid(np.arange(size[0]), np.arange(size[1]))
+            u, v = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1))
             rays = normal[0] * (u - intrinsics.cx) / intrinsics.fx + normal[1] * (v - intrinsics.cy) / intrinsics.fy + normal[2]
             with np.errstate(divide="ignore", invalid="ignore"):
                 z_decal = c / rays
             n, f = NEAR_M, FAR_M
-            z_room = 2 * f * n / ((f + n) - (2 * depth - 1) * (f - n))
+            z_room = 2 * f * n / ((f + n) - (2 * depth[y0:y1, x0:x1] - 1) * (f - n))
             a[~(z_decal <= z_room + 0.002)] = 0.0  # 2 mm: the decal lies on the surface it is taped to
         a = a[..., None]
-        return (rgb * (1 - a) + warped * a).astype(np.uint8)
+        out = rgb.copy()
+        out[y0:y1, x0:x1] = (rgb[y0:y1, x0:x1] * (1 - a) + warped * a).astype(np.uint8)
+        return out
 
 
 def gl_matrices(intrinsics: Intrinsics, pose: CameraPose) -> tuple[list[float], list[float]]:
@@ -113,6 +148,10 @@ class RenderedScene:
                  fiducials: Sequence[Fiducial] = (), decals: Sequence["Decal"] = ()) -> None:
         pb = self._pb = quiet_pybullet()
         self.decals = list(decals)
+        # what the room's picture depends on, beside the camera: its files as they are now, the decals
+        self._room_key = (tuple(_file_key(p) for p in [robot_urdf, *(obj.urdf for obj in scene)]),
+                          tuple((tuple(obj.position), tuple(obj.rpy)) for obj in scene),
+                          tuple(d.key for d in self.decals))
         # Two worlds: the room, which never moves (rendered once per camera and kept with its depth),
         # and the robot with its fiducials (rendered at each grab and laid over the room by depth).
         self.room, self.client = pb.connect(pb.DIRECT), pb.connect(pb.DIRECT)
@@ -153,7 +192,6 @@ class RenderedScene:
             self.close()
             raise
         self._posed: Optional[np.ndarray] = None
-        self._rooms: dict = {}  # (intrinsics, pose) -> the room's image and depth from there
 
     def pose(self, q: np.ndarray) -> None:
         """Put the joints at ``q`` (rad or m) and the fiducials on their links."""
@@ -235,12 +273,15 @@ class RenderedScene:
     def render(self, intrinsics: Intrinsics, pose: CameraPose, robot: bool = True) -> np.ndarray:
         """The ideal pinhole image (H × W × 3, uint8, RGB) from ``pose``: the robot where it was
         last posed over the room, each pixel the nearer of the two (the renderer's own depth test).
-        The room (with the robot's fixed base) is rendered once per camera, at half the resolution;
+        The room (with the robot's fixed base) is rendered once per camera and process, at half the
+        resolution;
         the moving links and the fiducials at the full resolution, in the window they can cover."""
-        key = (intrinsics, pose.rotation.tobytes(), pose.translation.tobytes())
-        if key not in self._rooms:
-            self._rooms[key] = self._room(intrinsics, pose)
-        room, room_depth = self._rooms[key]
+        key = (self._room_key, intrinsics, pose.rotation.tobytes(), pose.translation.tobytes())
+        if key not in _ROOMS:  # the room never moves: rendered once per camera in this process
+            if len(_ROOMS) >= _ROOMS_KEPT:
+                _ROOMS.pop(next(iter(_ROOMS)))
+            _ROOMS[key] = self._room(intrinsics, pose)
+        room, room_depth = _ROOMS[key]
         if not robot:  # the room alone (the robot parked out of the picture)
             return room.copy()
         x0, y0, x1, y1 = self._window(intrinsics, pose)
