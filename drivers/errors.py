@@ -17,6 +17,7 @@ __all__ = [
     "BenchError",
     "CampaignBusy",
     "CampaignDirError",
+    "CameraError",
     "CampaignError",
     "CampaignSpecError",
     "CampaignStoreError",
@@ -98,6 +99,10 @@ class NotEnabledError(ActuatorError):
 
 class BackendSetupError(ActuatorError):
     """The backend cannot start with the settings it was given (a port, a servo, a joint)."""
+
+
+class CameraError(BenchError, RuntimeError):
+    """A camera that cannot be opened, or a frame that cannot be had (drivers/camera)."""
 
 
 class CommunicationError(ActuatorError):

@@ -21,6 +21,7 @@ import typer._click as click_core
 from rich.table import Table
 
 from bench.cli.accuracy import accuracy, workspace
+from bench.cli.cameras import cameras_app
 from bench.cli.campaign import campaign_app
 from bench.cli.common import console, emit_json, fail
 from drivers.errors import ExitCode, UnreachableError
@@ -204,6 +205,7 @@ for command in (accuracy, workspace):
     app.command()(command)
 app.command("contact-protocol")(contact_protocol)
 app.add_typer(campaign_app, name="campaign")
+app.add_typer(cameras_app, name="cameras")
 for command in (scan, doctor, registers, calibrate, jog, compare, identify, predict, stand):
     app.command()(command)
 

@@ -32,6 +32,8 @@ class CrossReferenced(Protocol):
     excitation: Any
     faults: Any
     safety: Any
+    acceptance: Any
+    cameras: Any
 
 
 def check_cross_references(config: CrossReferenced) -> list:
@@ -41,6 +43,8 @@ def check_cross_references(config: CrossReferenced) -> list:
     names = list(robot.joint_names)
     _joint_names(config, names)
     _backend(config, robot, names)
+    if config.acceptance.by == "camera" and config.cameras is None:
+        raise ValueError("acceptance.by: camera needs a cameras: section (the two views)")
     return parse_faults(config.faults, names) if config.faults else []  # ValueError names a bad one
 
 

@@ -16,6 +16,7 @@ from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, field_
 from bench.config.base import (ConfigError, Strict, beside_of, describe_validation_error, from_record,
                                read_yaml_mapping)
 from bench.config.calibration import check_calibration
+from bench.config.cameras import CamerasConfig
 from bench.config.crossref import check_cross_references
 from bench.config.monitor import MonitorConfig
 from bench.config.servo_model import ServoPhysics, load_servo_model_file, physics_for
@@ -341,6 +342,9 @@ class AcceptanceConfig(Strict):
     position_mm: float = Field(default=5.0, gt=0, le=1000,
                                description="tip deviation limit on each axis and on depth (mm)")
     angle_deg: float = Field(default=1.0, gt=0, le=90, description="needle angle deviation limit (°)")
+    by: Literal["encoders", "camera"] = Field(
+        default="encoders", description="the tip judged: the encoders' (forward kinematics) or the "
+                                        "cameras' (needs cameras:)")
 
 
 class SafetyConfig(Strict):
@@ -404,6 +408,8 @@ class TrialConfig(Strict):
                     "(docs/campaigns.md, the faults' table)")
     monitor: Optional[MonitorConfig] = Field(
         default=None, description="the twin beside the trial: {model: datasheet|FILE, action: warn|stop}")
+    cameras: Optional[CamerasConfig] = Field(default=None, description="two cameras that measure the "
+                                             "needle's tip from outside (docs/cameras.md)")
     # A calibration file written by `hilbench calibrate` (joint zero offsets that replace
     # the servos' `offset`, the ultrasonic sensor's offset and scale); relative paths are
     # resolved like urdf_dir. Applied when the Dynamixel backend is built, kept in the log.

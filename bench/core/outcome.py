@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 
 from bench.core.log import TrialLog
-from bench.kinematics.needle import NeedleTarget
+from bench.kinematics.needle import NeedlePose, NeedleTarget
 
 SETTLED_WINDOW_S = 0.1  # the median over this window of the insertion's settle is "achieved"
 
@@ -71,7 +71,12 @@ def settled_position(log: TrialLog, segment: str, window: float = SETTLED_WINDOW
 def needle_outcome(robot, q: np.ndarray, target: NeedleTarget, position_limit_mm: float = 5.0,
                    angle_limit_deg: float = 1.0) -> NeedleOutcome:
     """Forward kinematics of the achieved joints, against the target and the limits."""
-    pose = robot.needle(q)
+    return pose_outcome(robot.needle(q), target, position_limit_mm, angle_limit_deg)
+
+
+def pose_outcome(pose: NeedlePose, target: NeedleTarget, position_limit_mm: float = 5.0,
+                 angle_limit_deg: float = 1.0) -> NeedleOutcome:
+    """A needle (the encoders' or the cameras'), against the target and the limits."""
     entry_dev = (pose.entry - np.asarray(target.entry)) * 1e3
     tip_dev = (pose.tip - target.tip) * 1e3
     depth_dev = (pose.depth - target.depth) * 1e3

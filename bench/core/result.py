@@ -17,7 +17,8 @@ import numpy as np
 from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
 from bench.core.looptiming import LoopTiming, loop_timing
-from bench.core.outcome import NeedleOutcome, needle_outcome, settled_position
+from bench.core.outcome import NeedleOutcome, needle_outcome, pose_outcome, settled_position
+from bench.core.seen import camera_pose, camera_summary
 from bench.kinematics.needle import NeedleTarget
 from drivers.errors import TrialError, safe_stop_unconfirmed
 
@@ -71,6 +72,10 @@ class TrialResult:
     timing: LoopTiming = field(default_factory=lambda: LoopTiming("not recorded"))
     #: What the twin beside the trial said (bench.monitor): its model, joints and alarms; None unmonitored.
     monitor: Optional[dict] = None
+    #: The needle as the cameras measured it (bench.core.seen.camera_summary); None without cameras.
+    camera: Optional[dict] = None
+    #: What the verdict judged: the encoders' tip or the cameras' (``acceptance.by``).
+    judged_by: str = "encoders"
 
     @property
     def stop_confirmed(self) -> bool:
@@ -93,7 +98,8 @@ class TrialResult:
         elif not self.completed:
             why = f"stopped early: {self.reason}"
         elif self.outcome is None:
-            why = "no settled insertion to measure"
+            why = ("the cameras did not measure the tip: " + ((self.camera or {}).get("problem") or "?")
+                   if self.judged_by == "camera" else "no settled insertion to measure")
         else:
             why = f"outside the acceptance limits: {self.outcome.failures()}"
         return "; ".join(first + ([why] if why else []))
@@ -110,7 +116,8 @@ class TrialResult:
             "reason": self.why_not,
             "safe_stop": self.safe_stop or None,
             "loop_timing": self.timing.as_dict(),
-        } | ({"monitor": self.monitor} if self.monitor is not None else {})
+        } | ({"monitor": self.monitor} if self.monitor is not None else {}) | (
+            {"camera": self.camera, "judged_by": self.judged_by} if self.camera is not None else {})
 
 
 def status_from_log(log: TrialLog) -> tuple[bool, str]:
@@ -136,11 +143,18 @@ def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialR
                                  cfg.acceptance.position_mm, cfg.acceptance.angle_deg)
     except (KeyError, ValueError):
         pass
+    measured = log.metadata.get("camera")
+    camera = camera_summary(measured, None if outcome is None else prep.robot.needle(q_final), prep.target)
+    if cfg.acceptance.by == "camera":  # judged on the cameras' tip, or not at all
+        seen = camera_pose((measured or {}).get("captures", {}).get("insert"), prep.target)
+        outcome = None if seen is None else pose_outcome(seen, prep.target, cfg.acceptance.position_mm,
+                                                         cfg.acceptance.angle_deg)
     completed, reason = status_from_log(log)
     stops = [e.message for e in log.events if e.kind == "safe-stop"]
     return TrialResult(Path(run_dir), Path(run_dir) / "trial.npz", completed, reason, outcome,
                        excitation=cfg.excitation is not None, safe_stop=stops[-1] if stops else "",
-                       timing=loop_timing(log, cfg.control_period), monitor=log.metadata.get("monitor"))
+                       timing=loop_timing(log, cfg.control_period), monitor=log.metadata.get("monitor"),
+                       camera=camera, judged_by=cfg.acceptance.by)
 
 
 def write_result_json(res: TrialResult) -> None:

@@ -10,8 +10,10 @@ from pathlib import Path
 import numpy as np
 
 from bench.core.log import TrialLog
+from bench.core.outcome import settled_position
 from bench.core.result import PreparedTrial, TrialResult, write_result_json
 from bench.kinematics.arc_train import train_pose
+from bench.report.cameras import camera_markdown, draw_camera_views
 from bench.report.twin import plot_twin, twin_markdown
 from bench.scene.render import SIDE_VIEW, render_robot
 
@@ -234,6 +236,9 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
                       f"the robot placed the needle (measured joints).*", ""]
         else:
             lines += [f"*The robot {where}, in the CT room.*", ""]
+    if result.camera is not None:
+        lines += ["## The needle seen by the cameras", "",
+                  camera_markdown(result.camera, o, result.judged_by, figures.get("cameras"))]
     if result.monitor is not None:
         lines += ["## The twin", "", twin_markdown(result.monitor, figures.get("twin"))]
     lines += ["## Tracking", "", tracking_summary(log, prep.robot), "## Loop timing", "",
@@ -348,6 +353,18 @@ def write_trial_report(result: "TrialResult", log: TrialLog, prep: "PreparedTria
             figures["robot"] = "robot.png"
         except Exception:  # a picture is a nicety; never lose a report for it
             pass
+    drawn = None
+    if result.camera is not None and prep.config.cameras is not None:
+        try:
+            q = settled_position(log, "insert")
+            drawn = draw_camera_views(d, prep.config.cameras, log.metadata.get("camera"),
+                                      prep.robot.needle(q).tip, d / "cameras.png")
+        except (KeyError, ValueError, OSError):  # a picture is a nicety; never lose a report for it
+            drawn = None
+    if drawn is not None:
+        figures["cameras"] = "cameras.png"
+    else:
+        (d / "cameras.png").unlink(missing_ok=True)
     md = render_markdown(result, log, prep, figures)
     (d / "report.md").write_text(md)
     images = {v: d / v for v in figures.values()}

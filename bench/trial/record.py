@@ -22,7 +22,7 @@ from bench.trial.plan import prepare
 from drivers import BenchError
 
 #: What rebuilding a report writes into the run directory.
-REPORT_FILES = ("result.json", "report.md", "report.html", "joints.png", "robot.png", "twin.png")
+REPORT_FILES = ("result.json", "report.md", "report.html", "joints.png", "robot.png", "twin.png", "cameras.png")
 
 __all__ = ["RECORD_FIELDS", "finish_record", "load_checked", "load_record", "rebuild_report", "record_fields",
            "recover_run", "trial_metadata"]

@@ -28,10 +28,11 @@ from bench.monitor.monitor import Watched
 from bench.report.trial import write_trial_report
 from bench.rig.backends import make_backend
 from bench.rig.serving import bus_rig_kind
+from bench.trial.cameras import BackendReading, TrialCaptures, open_cameras
 from bench.trial.plan import aimed_plan
 from bench.trial.record import finish_record, trial_metadata
-from drivers import ActuatorError, Actuators
-from drivers.capabilities import SafeStopReport, ServoInfo, StartWarnings, find_capability
+from drivers import ActuatorError, Actuators, ActuatorsWrapper
+from drivers.capabilities import SafeStopReport, ServoInfo, StartWarnings, TruePosition, find_capability
 from drivers.link import is_virtual_port
 from drivers.timing import CpuWithheld, LoopPriority
 
@@ -129,6 +130,8 @@ def _build(prep: PreparedTrial, hooks: TrialHooks, run_dir: Path, log: TrialLog,
         else:
             backend = make_backend(prep.config, prep.robot, hooks.gui, calibration=prep.calibration)
         act = backend
+        if prep.config.cameras is not None and find_capability(backend, TruePosition) is None:
+            act = BackendReading(backend)  # where an emulated rig's cameras see the joints
         if prep.faults:  # a fault the backend cannot host is refused here
             act = apply_faults(act, prep.faults, np.random.default_rng(prep.config.seed))
         return backend, (hooks.wrap(act) if hooks.wrap else act)
@@ -156,6 +159,7 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
     stop). Returns the interrupt that stopped it, if one did; other failures are logged."""
     interrupts = hooks.interrupts
     monitor = None if prep.monitor is None else build_monitor(prep.monitor, log)
+    cameras = TrialCaptures(None, log)
     try:
         try:
             interrupts.check()
@@ -166,6 +170,7 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
             warned = find_capability(act, StartWarnings)
             if warned is not None and warned.start_warnings:
                 log.metadata["warnings"] = list(warned.start_warnings)
+            cameras = open_cameras(prep, act, log, _innermost(act, BackendReading))
             if not act.enabled:  # torque on first: a joint taking up its load moves while its
                 act.enable()     # servo settles, and the plan starts from where it then holds
             hooks.tell("planning")
@@ -174,14 +179,16 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
             checks = prep.interlocks if monitor is None else Watched(prep.interlocks, monitor)
             runner = Runner(act, prep.config.control_period, interlocks=checks,
                             on_trip=prep.config.safety.on_trip, progress=hooks.progress,
-                            interrupts=interrupts, phase=hooks.phase)
-            runner.run(segments, log)
+                            interrupts=interrupts, phase=cameras.phase(hooks.phase))
+            if runner.run(segments, log).completed:
+                cameras.settled(log)
         finally:
             with interrupts.deferred():  # the safe stop always runs to its end
                 act.close()
                 if monitor is not None:
                     log.metadata["monitor"] = monitor.summary()
                     monitor.close()
+                cameras.finish(run_dir)
     except KeyboardInterrupt as e:
         _abort_once(log, abort_reason(e))
         return e
@@ -193,6 +200,16 @@ def _run(prep: PreparedTrial, hooks: TrialHooks, act: Actuators, backend: Actuat
             _note_safe_stop(log, backend)
             finish_record(run_dir, log, prep)
         raise
+    return None
+
+
+def _innermost(act: Actuators, kind: type):
+    """The wrapper of type ``kind`` in the stack, if there is one."""
+    layer = act
+    while isinstance(layer, ActuatorsWrapper):
+        if isinstance(layer, kind):
+            return layer
+        layer = layer.actuators
     return None
 
 
