@@ -92,27 +92,64 @@ def _set_nice(nice: int) -> None:
             pass
 
 
-def raise_priority(nice: int = LOOP_NICE) -> str:
+#: The real-time priority (SCHED_FIFO) a paced loop asks for beside its nice value, where the OS
+#: grants it (root, CAP_SYS_NICE or an ``rtprio`` allowance): above every ordinary task, however
+#: nice, so a browser drawing its plots never holds the loop's wake-up back; low among real-time
+#: tasks, below the kernel's own (50 and up). The kernel keeps 5 % of each second for ordinary
+#: tasks whatever a real-time one does (``sched_rt_runtime_us``).
+LOOP_RT_PRIORITY = 10
+
+
+def _set_policy(policy: int, priority: int) -> None:
+    """Every thread of this process under the scheduling ``policy`` at ``priority``."""
+    for tid in _threads():
+        try:
+            os.sched_setscheduler(tid, policy, os.sched_param(priority))
+        except ProcessLookupError:  # a thread that ended meanwhile
+            pass
+
+
+def _raise_realtime(priority: int) -> str:
+    """SCHED_FIFO at ``priority`` for every thread: what was got, or "" where it was refused (the
+    nice value then stands alone) or the OS has none."""
+    if not hasattr(os, "sched_setscheduler") or priority <= 0:
+        return ""
+    try:
+        if os.sched_getscheduler(0) == os.SCHED_FIFO:
+            return f"SCHED_FIFO {os.sched_getparam(0).sched_priority}"
+        _set_policy(os.SCHED_FIFO, priority)
+    except (PermissionError, OSError):
+        return ""
+    return f"SCHED_FIFO {priority}"
+
+
+def raise_priority(nice: int = LOOP_NICE, realtime: int = LOOP_RT_PRIORITY) -> str:
     """Put every thread of this process (and the threads and children it starts later) at ``nice``.
 
     A paced loop shares the bench computer's cores with whatever else runs there: the live
     view's browser, the emulated rig, a second job. At equal priority a browser drawing its
     plots takes its share of the loop's core at the moment a deadline falls. Every thread is
     set, not only the caller: a thread left behind holding the interpreter's lock would make the
-    loop wait at its priority. Returns what was got, for the record: ``"nice -10"``, or the
-    priority kept and why (a user without CAP_SYS_NICE or an RLIMIT_NICE allowance is refused;
-    the docs' "At the rig" says how to allow it).
+    loop wait at its priority. Where the OS grants it, every thread also runs under SCHED_FIFO at
+    ``realtime`` (:data:`LOOP_RT_PRIORITY`; 0: not asked), ahead of any ordinary task. Returns what
+    was got, for the record: ``"nice -10"``, ``"nice -10, SCHED_FIFO 10"``, or the priority kept
+    and why (a user without CAP_SYS_NICE or an RLIMIT_NICE allowance is refused; the docs' "At the
+    rig" says how to allow it).
     """
     if not hasattr(os, "setpriority"):
         return "normal (this OS has no nice values)"
     current = os.getpriority(os.PRIO_PROCESS, 0)
     if current <= nice:
-        return f"nice {current}"
-    try:
-        _set_nice(nice)
-    except PermissionError:
-        return f"nice {current} (raising it to {nice} was refused: no CAP_SYS_NICE or RLIMIT_NICE allowance)"
-    return f"nice {nice}"
+        got = f"nice {current}"
+    else:
+        try:
+            _set_nice(nice)
+        except PermissionError:
+            return (f"nice {current} (raising it to {nice} was refused: no CAP_SYS_NICE or RLIMIT_NICE "
+                    f"allowance)")
+        got = f"nice {nice}"
+    fifo = _raise_realtime(realtime)
+    return f"{got}, {fifo}" if fifo else got
 
 
 class LoopPriority:
@@ -120,18 +157,24 @@ class LoopPriority:
     after (a trial run inside a longer-lived process, a campaign's worker or a test, leaves it
     as it found it; lowering one's own priority is always allowed)."""
 
-    def __init__(self, nice: int = LOOP_NICE) -> None:
+    def __init__(self, nice: int = LOOP_NICE, realtime: int = LOOP_RT_PRIORITY) -> None:
         self.nice = nice
+        self.realtime = realtime
         self.got = "normal"
         self._before: int | None = None
+        self._policy: tuple[int, int] | None = None
 
     def __enter__(self) -> "LoopPriority":
         if hasattr(os, "getpriority"):
             self._before = os.getpriority(os.PRIO_PROCESS, 0)
-            self.got = raise_priority(self.nice)
+            if hasattr(os, "sched_getscheduler"):
+                self._policy = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+            self.got = raise_priority(self.nice, self.realtime)
         return self
 
     def __exit__(self, *exc: object) -> None:
+        if self._policy is not None and (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority) != self._policy:
+            _set_policy(*self._policy)
         if self._before is not None and os.getpriority(os.PRIO_PROCESS, 0) != self._before:
             _set_nice(self._before)
 

@@ -12,11 +12,13 @@ import pytest
 
 from bench.config.models import load_trial_config
 from bench.rig.emulated import EmulatorProcess
-from drivers.timing import LOOP_NICE, LoopPriority, raise_priority
+from drivers.timing import LOOP_NICE, LOOP_RT_PRIORITY, LoopPriority, raise_priority
 
 REPO = Path(__file__).resolve().parent.parent
 LAB = REPO / "hil_configs" / "lab_real.yaml"
 root_only = pytest.mark.skipif(os.geteuid() != 0, reason="raising a priority needs root or CAP_SYS_NICE")
+#: What a paced loop gets as root: its nice value and SCHED_FIFO above every ordinary task.
+GOT = f"nice {LOOP_NICE}, SCHED_FIFO {LOOP_RT_PRIORITY}"
 
 
 def _nice(tid: int = 0) -> int:
@@ -31,14 +33,17 @@ def test_every_thread_is_raised_for_the_block_and_put_back_after():
     before = _nice()
     try:
         with LoopPriority() as got:
-            assert got.got == f"nice {LOOP_NICE}"
+            assert got.got == GOT
             assert _nice() == LOOP_NICE and _nice(other.native_id) == LOOP_NICE
+            assert os.sched_getscheduler(other.native_id) == os.SCHED_FIFO
+            assert os.sched_getparam(other.native_id).sched_priority == LOOP_RT_PRIORITY
             born = []  # a thread started inside inherits it
-            t = threading.Thread(target=lambda: born.append(_nice()))
+            t = threading.Thread(target=lambda: born.append((_nice(), os.sched_getscheduler(0))))
             t.start()
             t.join()
-            assert born == [LOOP_NICE]
+            assert born == [(LOOP_NICE, os.SCHED_FIFO)]
         assert _nice() == before and _nice(other.native_id) == before
+        assert os.sched_getscheduler(0) == os.sched_getscheduler(other.native_id) == os.SCHED_OTHER
     finally:
         stop.set()
         other.join()
@@ -60,7 +65,20 @@ def test_a_user_not_allowed_to_raise_it_is_told_why_and_keeps_its_priority(monke
 @root_only
 def test_already_higher_is_kept():
     with LoopPriority(nice=-12):
-        assert raise_priority(LOOP_NICE) == "nice -12"  # never lowered by asking for less
+        # never lowered by asking for less
+        assert raise_priority(LOOP_NICE) == f"nice -12, SCHED_FIFO {LOOP_RT_PRIORITY}"
+
+
+@root_only
+def test_a_real_time_policy_refused_leaves_the_nice_value_alone(monkeypatch):
+    """Where the OS grants a nice value but no real-time policy (a user with an RLIMIT_NICE
+    allowance and no rtprio), the loop runs at its nice value and the record says just that."""
+    def refused(*args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refused)
+    with LoopPriority() as got:
+        assert got.got == f"nice {LOOP_NICE}" and os.sched_getscheduler(0) == os.SCHED_OTHER
 
 
 @root_only
@@ -78,10 +96,10 @@ def test_the_emulated_rig_serves_at_the_loops_priority_and_a_trial_records_what_
         before = _nice()
         res = run_trial(prepare(rig.retarget(load_trial_config(LAB))), tmp_path / "runs")
         assert _nice() == before  # the test's process is as it was
-    assert res.timing.priority == f"nice {LOOP_NICE}"
-    assert res.timing.as_dict()["priority"] == f"nice {LOOP_NICE}"
-    assert f"at nice {LOOP_NICE}" in res.timing.summary_line()
-    assert f"The loop ran at nice {LOOP_NICE}." in (res.run_dir / "report.md").read_text()
+    assert res.timing.priority == GOT
+    assert res.timing.as_dict()["priority"] == GOT
+    assert f"at {GOT}" in res.timing.summary_line()
+    assert f"The loop ran at {GOT}." in (res.run_dir / "report.md").read_text()
 
     sim = run_trial(prepare(load_trial_config(REPO / "hil_configs" / "sim_target1.yaml")), tmp_path / "sim")
     assert sim.timing.priority is None and _nice() == before

@@ -18,8 +18,9 @@ from bench.config.base import (ConfigError, Strict, beside_of, describe_validati
 from bench.config.calibration import check_calibration
 from bench.config.cameras import CamerasConfig
 from bench.config.crossref import check_cross_references
+from bench.config.emulator import SEED_MAX, EmulatorConfig
 from bench.config.monitor import MonitorConfig
-from bench.config.servo_model import ServoPhysics, load_servo_model_file, physics_for
+from bench.config.servo_model import load_servo_model_file
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot, trial_refusal
 from bench.paths import REPO_ROOT, resolve_named, robot_urdf
@@ -28,7 +29,6 @@ from drivers.dynamixel.units import BAUD_RATES
 
 #: Longest plan a trial may run (s): longer is a typo (a tiny speed, a huge settle time).
 MAX_PLAN_S = 600.0
-SEED_MAX = 2**63 - 1  # campaigns derive 63-bit trial seeds
 #: A trial's name becomes its run directory's name: a plain file name, nothing else.
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 SERIAL_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)
@@ -247,41 +247,6 @@ class DynamixelBackendConfig(Strict):
         if dup:
             raise ValueError(f"servos: duplicate ID(s) {dup}")
         return self
-
-
-class EmulatorConfig(Strict):
-    """The emulated rig used by `--emulate` and `hilbench emulate` (ignored on real hardware)."""
-
-    physics_hz: float = Field(default=1000.0, ge=100, le=10_000,
-                              description="the emulated robot's physics steps per second")
-    wire_timing: bool = Field(default=False,
-                              description="answer after the real wire time at the bus's baud")
-    ultrasonic_rate_hz: Optional[float] = Field(
-        default=None, gt=0, le=100, description="default: the sensor's backend.ultrasonic.rate_hz")
-    ultrasonic_noise_mm: float = Field(default=1.0, ge=0, le=100,
-                                       description="standard deviation of each reading (mm)")
-    ultrasonic_dropout: float = Field(default=0.0, ge=0, lt=1,
-                                      description="probability that a reading is not sent")
-    deadband_deg: float = Field(default=0.0, ge=0, le=10,
-                                description="each servo's position deadband (°)")
-    start_torque_on: bool = Field(default=True, description="servos hold their pose at power-up, "
-                                                            "as a rig left enabled")
-    joint_friction: dict[str, Annotated[float, Field(ge=0, le=100)]] = Field(
-        default_factory=dict, max_length=32,
-        description="extra Coulomb friction per joint (N·m or N), keyed by joint name")
-    servo_physics: dict[str, ServoPhysics] = Field(
-        default_factory=dict, max_length=32,
-        description="hidden servo physics by joint name or `all` (a joint's own entry wins)")
-    seed: int = Field(default=0, ge=0, le=SEED_MAX, description="seed of the emulator's noise")
-    clock: Literal["realtime", "virtual"] = Field(
-        default="realtime",
-        description="realtime: the rig keeps the wall clock (a rehearsal at the rig's pace, the live "
-                    "view); virtual: time advances when each instant's work is done, the same log bit "
-                    "for bit on any machine, as fast as the CPU allows (`--clock virtual`)")
-
-    def physics_of(self, joint: str) -> dict[str, float]:
-        """The hidden physics set for ``joint``: its own entry over ``all``, unset keys left out."""
-        return physics_for(self.servo_physics, joint)
 
 
 class PlanConfig(Strict):

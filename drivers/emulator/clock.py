@@ -150,17 +150,17 @@ class PhysicsClock:
     def _physics(self, steps: int) -> None:
         dt = self.physics_dt
         plant = self.plant
-        torque = np.zeros(plant.joint_count)
+        n = plant.joint_count
         bank, servos = self._bank, self._servos
         for _ in range(steps):
             q, v = plant.position().tolist(), plant.velocity().tolist()
-            torque[:] = 0.0
+            torque = [0.0] * n  # summed in Python floats: a servo's share is one addition, not a numpy item
             for servo, joint in servos:
                 servo.begin_step(dt, q[joint], v[joint])
             bank.step_ticks(dt)
             for servo, joint in servos:
                 torque[joint] += servo.end_step(dt)
-            plant.step(dt, torque)
+            plant.step(dt, np.array(torque))
         q, v = plant.position(), plant.velocity()
         for servo, joint in self._servos:
             servo.observe(float(q[joint]), float(v[joint]))
