@@ -164,3 +164,24 @@ def test_the_same_trial_on_the_virtual_clock_is_the_same_log_bit_for_bit_beside_
     meta_a, meta_b = (TrialLog.load(Path(o["run_dir"]) / "trial.npz").metadata for o in (quiet, loaded))
     assert _without_wall(meta_a) == _without_wall(meta_b)
     assert quiet["tip_deviation_mm"] == loaded["tip_deviation_mm"]
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP"])
+def test_a_stop_signal_stops_a_virtual_trial_safely_with_one_line_and_128_plus_n(tmp_path, sig):
+    """The virtual clock changes nothing of a trial's exit paths: a stop signal mid-trial ends it with
+    the servos torque-off (read back from each), the log saved, one line and 128 + N."""
+    import signal
+
+    proc = subprocess.Popen([HILBENCH, "trial", str(LAB), "--emulate", "--clock", "virtual", "--out",
+                             str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not list(tmp_path.glob("*/trial.journal")):
+        time.sleep(0.05)  # the run directory exists: the rig and the backend are being set up
+    time.sleep(1.0)
+    proc.send_signal(getattr(signal, sig))
+    out, err = proc.communicate(timeout=120)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert proc.returncode == 128 + getattr(signal, sig), err
+    assert len(lines) == 1 and f"interrupted by {sig}" in lines[0], err
+    assert "torque off, confirmed" in lines[0] or "never enabled" in lines[0], err
+    assert "Traceback" not in err
