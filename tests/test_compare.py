@@ -317,7 +317,7 @@ def _gravity_loads(prep) -> dict[str, float]:
 
 
 def test_emulated_rig_five_repeats_pass_and_heavy_joints_lag(prep, tmp_path):
-    out = subprocess.run([HILBENCH, "compare", str(LAB), "--emulate", "--repeats", "5", "--json",
+    out = subprocess.run([HILBENCH, "compare", str(LAB), "--emulate", "--clock", "virtual", "--repeats", "5", "--json",
                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=400)
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)

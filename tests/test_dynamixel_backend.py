@@ -196,7 +196,7 @@ def test_full_unplug_ends_within_one_second(tmp_path):
 
 
 def test_emulated_lab_trial_passes_like_a_sim_trial(tmp_path):
-    out = subprocess.run([HILBENCH, "trial", str(LAB), "--emulate", "--out", str(tmp_path), "--json"],
+    out = subprocess.run([HILBENCH, "trial", str(LAB), "--emulate", "--clock", "virtual", "--out", str(tmp_path), "--json"],
                          capture_output=True, text=True, timeout=180)
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)
@@ -244,7 +244,7 @@ def test_wire_faults_reach_the_driver_and_it_rides_them_out(tmp_path):
                       {"name": "dropped_status", "prob": 0.05, "level": "bus"}]
     cfg = tmp_path / "lab_faults.yaml"
     cfg.write_text(yaml.safe_dump(data))
-    out = subprocess.run([HILBENCH, "trial", str(cfg), "--emulate", "--out", str(tmp_path), "--json"],
+    out = subprocess.run([HILBENCH, "trial", str(cfg), "--emulate", "--clock", "virtual", "--out", str(tmp_path), "--json"],
                          capture_output=True, text=True, timeout=180)
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout)["passed"] is True

@@ -261,7 +261,7 @@ def test_calibrate_on_a_sagging_rig_refuses_the_sag_as_a_zero_and_says_why(tmp_p
     # so the arm sags under gravity where the technician was told it is at its reference
     config = tmp_path / "lab.yaml"
     config.write_text(LAB.read_text())
-    out = hilbench("calibrate", str(config), "--emulate", "--yes", "--stops", "0", "--json",
+    out = hilbench("calibrate", str(config), "--emulate", "--clock", "virtual", "--yes", "--stops", "0", "--json",
                    "--out", str(tmp_path / "cal.yaml"))
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)
@@ -272,7 +272,7 @@ def test_calibrate_on_a_sagging_rig_refuses_the_sag_as_a_zero_and_says_why(tmp_p
     assert all(abs(v["change"]) <= math.radians(2.0) for v in cal["servos"].values())
     assert not list(tmp_path.glob("calibration/*"))  # --out given: nothing else written
     # the technician can insist
-    out = hilbench("calibrate", str(config), "--emulate", "--yes", "--stops", "0", "--json",
+    out = hilbench("calibrate", str(config), "--emulate", "--clock", "virtual", "--yes", "--stops", "0", "--json",
                    "--accept-large-offsets", "--out", str(tmp_path / "all.yaml"))
     assert out.returncode == 0 and json.loads(out.stdout)["refused"] == {}
     assert {"theta5", "theta6"} <= set(yaml.safe_load((tmp_path / "all.yaml").read_text())["servos"])
@@ -281,11 +281,11 @@ def test_calibrate_on_a_sagging_rig_refuses_the_sag_as_a_zero_and_says_why(tmp_p
 def test_doctor_on_the_emulated_rig_prints_problems_then_one_count_line(tmp_path):
     config = tmp_path / "lab.yaml"
     config.write_text(LAB.read_text())  # its ports do not exist here: --emulate brings its own
-    out = hilbench("doctor", str(config), "--emulate")
+    out = hilbench("doctor", str(config), "--emulate", "--clock", "virtual")
     assert out.returncode == 0, out.stderr
     lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("ready for a trial: 0 failed, 0 warning(s), "), lines
-    verbose = hilbench("doctor", str(config), "--emulate", "--verbose")
+    verbose = hilbench("doctor", str(config), "--emulate", "--clock", "virtual", "--verbose")
     passed = [ln for ln in verbose.stderr.splitlines() if ln.startswith("PASS")]
     assert verbose.returncode == 0 and len(passed) == int(lines[0].split(", ")[-1].split()[0]) > 20
 

@@ -70,7 +70,7 @@ def test_watch_refreshes_present_position_while_the_joint_moves(cold_rig):
 
 
 def test_the_cli_prints_one_json_line_and_refuses_bad_calls_in_one_line():
-    done = subprocess.run([HILBENCH, "registers", str(LAB), "--emulate", "--id", "2", "--json"],
+    done = subprocess.run([HILBENCH, "registers", str(LAB), "--emulate", "--clock", "virtual", "--id", "2", "--json"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)

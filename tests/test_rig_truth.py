@@ -183,7 +183,7 @@ def test_an_emulate_rehearsal_says_emulated_in_runs_report_and_log(tmp_path):
     hilbench = str(Path(sys.executable).with_name("hilbench"))
     path = write(tmp_path, "lab", short_lab(tmp_path))
     out = tmp_path / "runs"
-    done = subprocess.run([hilbench, "trial", str(path), "--emulate", "--json", "--out", str(out)],
+    done = subprocess.run([hilbench, "trial", str(path), "--emulate", "--clock", "virtual", "--json", "--out", str(out)],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode in (0, 1), done.stderr
     run = Path(json.loads(done.stdout)["run_dir"])

@@ -356,7 +356,7 @@ def test_a_servo_model_file_with_the_rigs_physics_predicts_it_where_the_datashee
     hilbench = str(Path(sys.executable).with_name("hilbench"))
     ratio = {}
     for name, sim_model in (("datasheet", "datasheet"), ("file", str(model))):
-        out = subprocess.run([hilbench, "compare", str(rig_path), "--emulate", "--repeats", "1",
+        out = subprocess.run([hilbench, "compare", str(rig_path), "--emulate", "--clock", "virtual", "--repeats", "1",
                               "--sim-model", sim_model, "--json", "--out", str(tmp_path / name)],
                              capture_output=True, text=True, timeout=300)
         assert out.returncode in (0, 1), out.stderr

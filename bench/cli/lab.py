@@ -320,6 +320,9 @@ def jog(config: Path = typer.Argument(..., help="A config with backend.kind: dyn
     from bench.lab.session import check_ports, open_backend  # deferred: --help and completion stay fast
 
     cfg = load_lab_config(config, "jog")
+    if checked_clock(emulate, clock) == "virtual":
+        fail("jog moves the rig as keys are pressed, at the rig's pace: it keeps real time "
+             "(drop --clock virtual)")
     if not (sys.stdin.isatty() and sys.stderr.isatty()):
         fail("jog reads keys from a terminal: stdin and stderr must be a TTY "
               "(not a pipe, a file or a script)")

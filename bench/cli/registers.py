@@ -15,7 +15,7 @@ from rich.table import Table
 from rich.text import Text
 
 from bench.cli.common import console, emit_json, fail, interrupted, signum_of
-from bench.cli.lab import EMULATE_OPTION, config_rig, load_lab_config
+from bench.cli.lab import CLOCK_OPTION, EMULATE_OPTION, config_rig, load_lab_config
 from drivers.errors import ActuatorError
 
 if TYPE_CHECKING:
@@ -31,6 +31,7 @@ def registers(config: Optional[Path] = typer.Argument(None, help="A config with 
               sid: int = typer.Option(..., "--id", min=0, max=252, help="The servo's ID."),
               watch: bool = typer.Option(False, "--watch", help="Refresh the RAM area live until Ctrl-C."),
               emulate: bool = EMULATE_OPTION,
+              clock: Optional[str] = CLOCK_OPTION,
               as_json: bool = typer.Option(False, "--json", help="Print the table as one JSON line.")) -> None:
     """One servo's control table: name, address, size, access, raw value, value in SI and unit.
 
@@ -49,7 +50,7 @@ def registers(config: Optional[Path] = typer.Argument(None, help="A config with 
         fail("--watch shows a live table; --json prints one reading (use one of the two)")
     cfg = load_lab_config(config, "registers") if config is not None else None
     try:
-        with config_rig(config, cfg, emulate) if cfg is not None else contextlib.nullcontext() as rig_cfg:
+        with config_rig(config, cfg, emulate, clock) if cfg is not None else contextlib.nullcontext() as rig_cfg:
             where = (rig_cfg.backend.port, rig_cfg.backend.baud) if rig_cfg is not None else (port, baud)
             with ServoBus(*where) as bus:
                 if not watch:
