@@ -69,7 +69,8 @@ def test_cli_trial_json(tmp_path):
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)
     assert set(res) == {"run_dir", "tip_deviation_mm", "depth_deviation_mm", "angle_deviation_deg",
-                        "passed", "completed", "reason", "safe_stop", "loop_timing"}
+                        "passed", "completed", "reason", "safe_stop", "loop_timing",
+                        "requirements", "placement_basis"}
     assert res["loop_timing"]["state"] == "not paced" and res["loop_timing"]["missed"] == 0
     assert res["passed"] is True and len(res["tip_deviation_mm"]) == 3
     assert res["completed"] is True and res["reason"] == "" and out.stderr.strip() == ""

@@ -19,6 +19,7 @@ from bench.config.calibration import check_calibration
 from bench.config.crossref import check_cross_references
 from bench.config.monitor import MonitorConfig
 from bench.config.servo_model import ServoPhysics, load_servo_model_file, physics_for
+from bench.config.requirements import REQUIREMENTS_HELP, Requirement, check_requirements
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot, trial_refusal
 from bench.paths import REPO_ROOT, resolve_named, robot_urdf
@@ -397,6 +398,7 @@ class TrialConfig(Strict):
         default_factory=list, max_length=64,
         description="faults injected around the backend: {name, joints, parameters} "
                     "(docs/campaigns.md, the faults' table)")
+    requirements: Optional[list[Requirement]] = Field(default=None, max_length=64, description=REQUIREMENTS_HELP)
     monitor: Optional[MonitorConfig] = Field(
         default=None, description="the twin beside the trial: {model: datasheet|FILE, action: warn|stop}")
     # A calibration file written by `hilbench calibrate` (joint zero offsets that replace
@@ -450,6 +452,8 @@ class TrialConfig(Strict):
     def _cross_references(self) -> "TrialConfig":
         """What fields say about each other: joints named, sensor, ports, start, transmissions."""
         faults = check_cross_references(self)
+        if self.requirements is not None:
+            check_requirements(self.requirements, get_robot(self.robot))
         if self.faults:  # kept for the trial: parsed once
             self._faults_parsed = (self.faults, faults)
         if self.backend.kind == "pybullet":
