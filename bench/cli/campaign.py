@@ -1,4 +1,5 @@
-"""``hilbench campaign``: run, resume, re-run, export and report fault-injection campaigns.
+"""``hilbench campaign``: run, resume, re-run, export and report fault-injection campaigns, and the
+searches over a spec's axes (falsify, boundary).
 
 ``hilbench campaign SPEC`` is short for ``hilbench campaign run SPEC``: the
 group rewrites a first argument that is not one of its commands into a
@@ -41,7 +42,8 @@ class _RunByDefault(TyperGroup):
 
 campaign_app = typer.Typer(
     cls=_RunByDefault, no_args_is_help=True, add_completion=False,
-    help="Fault-injection campaigns: `hilbench campaign SPEC` (= run), resume, rerun, export, report.")
+    help="Fault-injection campaigns: `hilbench campaign SPEC` (= run), resume, rerun, export, report; "
+         "falsify and boundary search a spec's axes.")
 
 
 
