@@ -153,7 +153,8 @@ def test_the_boundary_search_closes_a_linear_margin_in_few_trials():
 
 def test_the_boundary_of_a_bias_is_found_within_the_tolerance_in_few_sim_trials(tmp_path):
     path = spec(tmp_path, "edge", [{"name": "bias", "joints": ["theta6"], "bias_deg": {"uniform": [0.0, 2.0]}}])
-    res = invoke("campaign", "boundary", str(path), "--workers", "1", "--out", str(tmp_path / "b"), "--json")
+    res = invoke("campaign", "boundary", str(path), "--workers", "1", "--grid", "3", "--out", str(tmp_path / "b"),
+                 "--json")
     assert res.exit_code == 0, res.stdout + res.stderr
     (b,) = json.loads(res.stdout)["boundaries"]
     assert set(b) >= {"axis", "requirement", "value", "interval", "trials"}
@@ -163,3 +164,6 @@ def test_the_boundary_of_a_bias_is_found_within_the_tolerance_in_few_sim_trials(
     assert 1.02 < lo <= b["value"] <= hi < 1.10 and hi - lo <= 0.02 + 1e-9 and b["trials"] <= 12
     assert (tmp_path / "b" / "boundary.png").is_file() and "| bias[theta6].bias_deg | angle |" in \
         (tmp_path / "b" / "report.md").read_text()
+    meta = dict(sqlite3.connect(tmp_path / "b" / "campaign.db").execute("SELECT key, value FROM campaign"))
+    (grid,) = json.loads(meta["grids"])  # the pass rate beside it: 0°, 1° pass, 2° fails
+    assert grid["values"] == [0.0, 1.0, 2.0] and grid["passed"] == [1, 1, 0] and grid["n"] == [1, 1, 1]
