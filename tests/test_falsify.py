@@ -71,7 +71,7 @@ def test_a_search_stops_at_its_budget_resumes_and_its_violation_rerun_alone_fail
     rerun = {r["name"]: r for r in json.loads(again.stdout)["requirements"]}
     assert rerun[out["requirement"]]["robustness"] == pytest.approx(out["robustness"], abs=1e-9)
     assert not rerun[out["requirement"]]["holds"]
-    assert (tmp_path / "f" / "report.html").is_file() and (tmp_path / "f" / "robustness.png").is_file()
+    assert (tmp_path / "f" / "falsify.html").is_file() and (tmp_path / "f" / "robustness.png").is_file()
     other = invoke("campaign", "falsify", str(path), "--optimizer", "cma", "--out", str(tmp_path / "f"))
     assert other.exit_code == 2 and "optimizer 'random', not 'cma'" in other.stderr
 
@@ -163,7 +163,7 @@ def test_the_boundary_of_a_bias_is_found_within_the_tolerance_in_few_sim_trials(
     # the needle's angle leaves its 1° at about 1.06° of θ6 bias (about 0.95° of angle per degree)
     assert 1.02 < lo <= b["value"] <= hi < 1.10 and hi - lo <= 0.02 + 1e-9 and b["trials"] <= 12
     assert (tmp_path / "b" / "boundary.png").is_file() and "| bias[theta6].bias_deg | angle |" in \
-        (tmp_path / "b" / "report.md").read_text()
+        (tmp_path / "b" / "boundary.md").read_text()
     meta = dict(sqlite3.connect(tmp_path / "b" / "campaign.db").execute("SELECT key, value FROM campaign"))
     (grid,) = json.loads(meta["grids"])  # the pass rate beside it: 0°, 1° pass, 2° fails
     assert grid["values"] == [0.0, 1.0, 2.0] and grid["passed"] == [1, 1, 0] and grid["n"] == [1, 1, 1]

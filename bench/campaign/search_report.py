@@ -28,14 +28,16 @@ def _fmt(v: Any) -> str:
     return f"{v:+.3f}" if isinstance(v, float) else str(v)
 
 
-def _write(directory: Path, md: str, figures: dict[str, str], title: str) -> Path:
-    (directory / "report.md").write_text(md)
-    (directory / "report.html").write_text(markdown_to_html(md, {v: directory / v for v in figures.values()}, title))
-    return directory / "report.html"
+def _write(directory: Path, stem: str, md: str, figures: dict[str, str], title: str) -> Path:
+    """``<stem>.md`` and ``<stem>.html`` beside the search's trials (``campaign report`` keeps
+    report.md and report.html for the campaign's own report of the same trials)."""
+    (directory / f"{stem}.md").write_text(md)
+    (directory / f"{stem}.html").write_text(markdown_to_html(md, {v: directory / v for v in figures.values()}, title))
+    return directory / f"{stem}.html"
 
 
 def write_falsify_report(directory: Path | str, result: dict) -> Path:
-    """report.md and report.html of a search: the lowest score trial by trial, and the trial it found."""
+    """falsify.md and falsify.html of a search: the lowest score trial by trial, and the trial it found."""
     directory = Path(directory)
     curve = [c for c in result.get("curve") or []]
     figures = {}
@@ -73,11 +75,11 @@ def write_falsify_report(directory: Path | str, result: dict) -> Path:
         lines += ["## Robustness, trial by trial", "", f"![robustness]({figures['curve']})", "",
                   "*The lowest score found so far (a requirement's robustness over its scale; below 0 a "
                   "requirement is violated).*", ""]
-    return _write(directory, "\n".join(lines), figures, f"Falsification {directory.name}")
+    return _write(directory, "falsify", "\n".join(lines), figures, f"Falsification {directory.name}")
 
 
 def write_boundary_report(directory: Path | str, result: dict, grids: Sequence[dict] = ()) -> Path:
-    """report.md and report.html of a boundary search: each axis's boundary and its interval, on
+    """boundary.md and boundary.html of a boundary search: each axis's boundary and its interval, on
     the grid's pass rate where a grid was run beside it (``grids``: {axis, values, passed, n})."""
     directory = Path(directory)
     figures = {}
@@ -118,4 +120,4 @@ def write_boundary_report(directory: Path | str, result: dict, grids: Sequence[d
                   "trials at the boundary where the spec repeats them.", ""]
     if figures:
         lines += [f"![boundaries]({figures['boundary']})", ""]
-    return _write(directory, "\n".join(lines), figures, f"Boundaries {directory.name}")
+    return _write(directory, "boundary", "\n".join(lines), figures, f"Boundaries {directory.name}")
