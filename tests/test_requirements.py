@@ -155,3 +155,19 @@ def test_a_campaign_stores_each_trials_requirements_and_lowest_robustness(tmp_pa
     assert rows[1][1] == "tip" and rows[1][0] < 0 and rows[1][2] == 0
     names = [r["name"] for r in json.loads(rows[1][3])["requirements"]]
     assert names == ["tip", "near"]
+
+
+def test_a_requirement_that_cannot_be_evaluated_fails_and_the_record_is_kept(tmp_path, monkeypatch):
+    import bench.core.result as result
+
+    def broken(*args, **kwargs):
+        raise ArithmeticError("a signal that will not evaluate")
+
+    monkeypatch.setattr(result, "evaluate_requirements", broken)
+    prep = prepare(load_trial_config(config(tmp_path)))
+    res = run_trial(prep, tmp_path / "runs", TrialHooks(report=False))
+    assert res.completed and not res.passed and (res.run_dir / "trial.npz").is_file()
+    assert all(r["robustness"] is None and not r["holds"] for r in res.requirements)
+    assert "not evaluated: ArithmeticError" in res.requirements[0]["error"]
+    saved = json.loads((res.run_dir / "result.json").read_text())
+    assert [r["name"] for r in saved["requirements"]] == ["tip", "entry", "depth", "angle", "gantry"]

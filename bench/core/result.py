@@ -179,8 +179,14 @@ def judge_requirements(log: TrialLog, prep: PreparedTrial, truth: Any = None) ->
             outcome = None
         log.metadata["true_outcome"] = outcome.as_dict() if outcome is not None else None
     log.metadata["placement_basis"] = basis
-    log.metadata["requirements"] = evaluate_requirements(
-        trial_requirements(cfg), log, prep.robot, cfg.control_period, outcome, measured, truth, basis)
+    reqs = trial_requirements(cfg)
+    try:
+        log.metadata["requirements"] = evaluate_requirements(
+            reqs, log, prep.robot, cfg.control_period, outcome, measured, truth, basis)
+    except Exception as e:  # the record is saved whatever a requirement's evaluation does
+        why = f"not evaluated: {type(e).__name__}: {e}"[:200]
+        log.metadata["requirements"] = [{"name": r.name, "formula": r.formula, "robustness": None, "holds": False,
+                                         "basis": basis, "scale": r.scale, "error": why} for r in reqs]
 
 
 def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialResult:
