@@ -13,6 +13,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+from bench.campaign.report import write_campaign_report
 from bench.campaign.run import create_campaign, run_campaign
 from bench.cli.app import app
 from bench.config.models import ConfigError, load_trial_config
@@ -155,6 +156,8 @@ def test_a_campaign_stores_each_trials_requirements_and_lowest_robustness(tmp_pa
     assert rows[1][1] == "tip" and rows[1][0] < 0 and rows[1][2] == 0
     names = [r["name"] for r in json.loads(rows[1][3])["requirements"]]
     assert names == ["tip", "near"]
+    write_campaign_report(out)
+    assert f"| tip {rows[1][0]:+.3f} | no |" in (out / "report.md").read_text()  # the worst trials' margins
 
 
 def test_a_requirement_that_cannot_be_evaluated_fails_and_the_record_is_kept(tmp_path, monkeypatch):
