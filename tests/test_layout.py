@@ -24,7 +24,7 @@ USERS = ("tests", "benchmarks")
 MAX_LINES = 500
 #: Dependencies a function may import where it needs them: heavy to import, or optional extras.
 DEFERRABLE = {"matplotlib", "scipy", "trimesh", "dask", "distributed", "pybullet", "dynamixel_sdk",
-              "pexpect", "PIL", "cma", "cv2"}
+              "pexpect", "PIL", "cma", "cv2", "rtamt"}
 
 
 def _sources() -> list[Path]:

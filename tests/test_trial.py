@@ -69,7 +69,8 @@ def test_cli_trial_json(tmp_path):
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)
     assert set(res) == {"run_dir", "tip_deviation_mm", "depth_deviation_mm", "angle_deviation_deg",
-                        "passed", "completed", "reason", "safe_stop", "loop_timing", "camera", "judged_by"}
+                        "passed", "completed", "reason", "safe_stop", "loop_timing", "camera", "judged_by",
+                        "requirements", "placement_basis"}
     cam = res["camera"]  # the shipped config's two cameras: the tip as they saw it
     assert cam["problem"] == "" and cam["flag"] is False and res["judged_by"] == "encoders"
     assert cam["encoder_gap_mm"] < 0.5 and 0 < cam["uncertainty_mm"] < 2.0

@@ -68,12 +68,12 @@ def _check_row(campaign_dir: Path, r: dict) -> None:
     for c in ("passed", "completed"):
         if r[c] not in (None, 0, 1):
             raise _where(campaign_dir, f"{tid}: {c} is {r[c]!r}, not 0, 1 or empty")
-    for c in METRIC_COLUMNS:
-        v = r[c]
+    for c in (*METRIC_COLUMNS, "robustness"):
+        v = r.get(c)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
             raise _where(campaign_dir, f"{tid}: {c} is {v!r}, not a finite number")
-    for c in ("reason", "error", "truth"):
-        if r[c] is not None and not isinstance(r[c], str):
+    for c in ("reason", "error", "truth", "worst"):
+        if r.get(c) is not None and not isinstance(r[c], str):
             raise _where(campaign_dir, f"{tid}: {c} is {r[c]!r}, not text")
     if r["log_path"] is not None:
         trial_run_dir(campaign_dir, r)

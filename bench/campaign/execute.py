@@ -32,7 +32,7 @@ from typing import Any, Iterable, Protocol
 from bench.campaign.rates import fault_onset
 from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
-from bench.core.truth import GroundTruth, true_outcome
+from bench.core.requirements import lowest
 from bench.rig.serving import rig_kind
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
@@ -74,34 +74,27 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
     try:
 
         cfg = TrialConfig.model_validate(task["config"])
-        recorder: list[GroundTruth] = []
-
-        def wrap(act):
-            recorder.append(GroundTruth(act))
-            return recorder[0]
-
         prep = prepare(cfg)
-        res = run_trial(prep, Path(task["stage"]), TrialHooks(wrap=wrap, report=bool(task.get("report", False))))
+        res = run_trial(prep, Path(task["stage"]), TrialHooks(report=bool(task.get("report", False))))
         measured = res.outcome
         outcome, truth = measured, "measured"
-        log = TrialLog.load(res.log_path) if (recorder and recorder[0].available) or res.monitor else None
-        if recorder and recorder[0].available:
-            truth = "sim"
-            try:
-                outcome = true_outcome(log, recorder[0], prep.robot, prep.target, cfg.acceptance.position_mm,
-                                       cfg.acceptance.angle_deg)
-            except (KeyError, ValueError):  # stopped before the insertion: no placement
-                outcome = None
+        log = TrialLog.load(res.log_path) if res.monitor else None
+        if res.basis == "sim":  # the backend's truth: placement judged where the joints really were
+            outcome, truth = res.true_outcome, "sim"
         metrics = {"outcome": outcome.as_dict() if outcome else None,
                    "measured": measured.as_dict() if measured else None,
+                   "requirements": res.requirements,
                    "rig": rig_kind(prep.config)}  # sim, emulated or real: what the trial drove
         if res.monitor is not None:  # the twin beside it: when it flagged what, against the fault's start
             metrics["monitor"] = {"first_alarm_s": res.monitor["first_alarm_s"],
                                   "joints_named": [a["joint"] for a in res.monitor["alarms"]],
                                   "onset_s": fault_onset(cfg.faults),
                                   "insertion_end_s": segment_end_s(log, "insert")}
+        worst, _ = lowest(res.requirements)
         return {**base, "status": "done", "completed": res.completed,
-                "passed": bool(res.completed and outcome is not None and outcome.passed),
+                "passed": bool(res.completed and outcome is not None and outcome.passed and not res.failing),
+                "robustness": worst["robustness"] if worst else None,
+                "worst": worst["name"] if worst else None,
                 "reason": res.reason, "columns": _columns(outcome) if outcome else {},
                 "truth": truth, "metrics": metrics, "run_dir": str(res.run_dir),
                 "duration_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}

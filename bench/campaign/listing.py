@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Optional
 
 from bench.campaign.checked import DB_NAME, CampaignDirError, read_campaign
-from bench.trial.runs import RunSummary, broken
+from bench.trial.runs import RunSummary, broken, lowest_margin
 
 __all__ = ["CAMPAIGNS", "campaign_summary", "is_campaign_dir"]
 
@@ -55,7 +55,9 @@ def campaign_summary(directory: Path) -> RunSummary:
     report = d / "report.html"
     return RunSummary(str(d), _text(created), _text(name), _text(backend), status, reason, tip, angle,
                       str(report) if report.is_file() and not report.is_symlink() else None,
-                      _rig(done), kind="campaign")
+                      _rig(done), kind="campaign",
+                      margin=lowest_margin([(r["worst"], r["robustness"]) for r in done
+                                            if isinstance(r.get("worst"), str)]))
 
 
 def _text(v: object) -> Optional[str]:

@@ -356,10 +356,11 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
     worst = worst_trials(rows, pos, ang)
     if worst:
         lines += ["## Worst trials", "", "Largest deviation relative to its limit first; errors and "
-                  "trials that did not finish at the top. Each one's own report (its joint profiles "
+                  "trials that did not finish at the top. The lowest margin is the requirement with the "
+                  "lowest robustness (mm or °; negative: missed by that much). Each one's own report (its joint profiles "
                   "and events) is linked; `hilbench campaign rerun DIR ID` runs it again.", "",
-                  "| id | parameters | tip dev X, Y, Z (mm) | depth (mm) | angle (°) | passed | "
-                  "reason | report |", "|---:|---|---|---:|---:|---|---|---|"]
+                  "| id | parameters | tip dev X, Y, Z (mm) | depth (mm) | angle (°) | lowest margin | passed | "
+                  "reason | report |", "|---:|---|---|---:|---:|---|---|---|---|"]
         for r in worst:
             params = ", ".join(f"{k} = {_fmt(v) if isinstance(v, float) else v}" for k, v in r["params"].items())
             tip = ", ".join(_fmt(r[c], 2) for c in ("tip_dx_mm", "tip_dy_mm", "tip_dz_mm"))
@@ -371,8 +372,10 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
                 log = f"[{r['name']} (log)]({r['log_path']})"
             else:
                 log = "—"
+            margin = (f"{r['worst']} {r['robustness']:+.3f}" if isinstance(r.get("worst"), str)
+                      and isinstance(r.get("robustness"), (int, float)) else "—")
             lines.append(f"| {r['id']} | {params or '—'} | {tip} | {_fmt(r['depth_dev_mm'], 2)} | "
-                         f"{_fmt(r['angle_dev_deg'], 3)} | {'yes' if r['passed'] else 'no'} | "
+                         f"{_fmt(r['angle_dev_deg'], 3)} | {margin} | {'yes' if r['passed'] else 'no'} | "
                          f"{why.replace('|', '/') or '—'} | {log} |")
         lines.append("")
     return "\n".join(lines) + "\n"

@@ -32,12 +32,13 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from bench.config.base import describe_validation_error
 from bench.config.models import AcceptanceConfig, ConfigError, TrialConfig, read_yaml_mapping
+from bench.config.requirements import Requirement, check_requirements
 from bench.faults import parse_fault
 from bench.kinematics.registry import get_robot
 from bench.paths import resolve_named
 from drivers.errors import CampaignSpecError
 
-__all__ = ["Axis", "CampaignSpec", "CampaignSpecError", "PlannedTrial", "load_campaign_spec",
+__all__ = ["Axis", "CampaignSpec", "CampaignSpecError", "PlannedTrial", "Planner", "load_campaign_spec",
            "plan_trials", "trial_seed", "DISTRIBUTIONS"]
 
 DISTRIBUTIONS = ("grid", "uniform", "loguniform", "normal", "choice", "integers")
@@ -57,6 +58,7 @@ class CampaignSpec(_Strict):
     faults: list[dict[str, Any]] = Field(default_factory=list)
     overrides: dict[str, Any] = Field(default_factory=dict, description="merged into the base config")
     acceptance: Optional[AcceptanceConfig] = None  # default: the base config's
+    requirements: Optional[list[Requirement]] = None  # default: the base config's (else the acceptance's)
     max_attempts: int = Field(default=2, ge=1, description="runs of a trial that keeps erroring")
 
     source: Optional[Path] = Field(default=None, exclude=True)
@@ -112,6 +114,12 @@ def load_campaign_spec(path: Path | str) -> CampaignSpec:
     except ValidationError as e:
         raise CampaignSpecError(describe_validation_error(e, CampaignSpec, path)) from None
     try:
+        if spec.requirements is not None:
+            _, base = base_config_data(spec)
+            try:
+                check_requirements(spec.requirements, get_robot(base.get("robot", "arc-train")))
+            except (ValueError, KeyError) as e:
+                raise CampaignSpecError(str(e).strip("'\"")) from None
         plan_trials(spec, limit=1)  # axes, faults and the base config, checked once
         _check_grid_values(spec)
     except CampaignSpecError as e:
@@ -230,52 +238,73 @@ def base_config_data(spec: CampaignSpec) -> tuple[Path, dict]:
     data = _merge(data, spec.overrides)
     if spec.acceptance is not None:
         data["acceptance"] = spec.acceptance.model_dump()
+    if spec.requirements is not None:
+        data["requirements"] = [r.model_dump() for r in spec.requirements]
     return path, data
 
 
 def plan_trials(spec: CampaignSpec, limit: int | None = None) -> list[PlannedTrial]:
     """Every trial of the campaign with its full, validated trial config."""
-    base_path, base = base_config_data(spec)
-    axes = find_axes(spec)
+    planner = Planner(spec)
+    axes = planner.axes
     grid_axes = [a for a in axes if a.is_grid]
     random_axes = [a for a in axes if not a.is_grid]
     grid_points = list(itertools.product(*[a.args for a in grid_axes])) or [()]
     trials: list[PlannedTrial] = []
-    base_faults = list(base.get("faults") or [])
-    try:
-        names = get_robot(base.get("robot", "arc-train")).joint_names
-    except KeyError as e:
-        raise CampaignSpecError(f"base: {e.args[0]}") from None
     for g, point in enumerate(grid_points):
         for s in range(spec.samples):
             values: dict[str, Any] = {a.label: v for a, v in zip(grid_axes, point)}
             for k, a in enumerate(random_axes):
                 values[a.label] = _draw(a, _param_rng(spec.seed, g, s, axes.index(a)))
-            faults = [dict(f) for f in spec.faults]
-            for a in axes:
-                faults[a.fault][a.param] = values[a.label]
-            for i, f in enumerate(faults):
-                try:
-                    parse_fault(f, names, f"faults.{i}")
-                except ValueError as e:
-                    at = f" (trial {len(trials)}: {values})" if axes else ""
-                    raise CampaignSpecError(f"{e}{at}") from None
+            faults = planner.faults(values, len(trials))
             for r in range(spec.repeats):
-                tid = len(trials)
-                seed = trial_seed(spec.seed, g, s, r)
-                name = f"{spec.name}-{tid:05d}"
-                data = {**base, "name": name, "seed": seed, "faults": base_faults + faults}
-                try:
-                    cfg = TrialConfig.model_validate({**data, "source": base_path},
-                                                     context={"beside": Path(base_path).parent})
-                except ValidationError as e:
-                    raise CampaignSpecError(describe_validation_error(
-                        e, TrialConfig, f"base {base_path.name}")) from None
-                trials.append(PlannedTrial(tid, name, g, s, r, seed, values, faults,
-                                           json_config(cfg)))
+                trials.append(planner.trial(len(trials), g, s, r, values, faults))
                 if limit is not None and len(trials) >= limit:
                     return trials
     return trials
+
+
+class Planner:
+    """A spec's base config and axes, read once, turned into planned trials at given axis values
+    (the grid and its draws, or the points a search asks for)."""
+
+    def __init__(self, spec: CampaignSpec) -> None:
+        self.spec = spec
+        self.base_path, self.base = base_config_data(spec)
+        self.axes = find_axes(spec)
+        self.base_faults = list(self.base.get("faults") or [])
+        try:
+            self.names = get_robot(self.base.get("robot", "arc-train")).joint_names
+        except KeyError as e:
+            raise CampaignSpecError(f"base: {e.args[0]}") from None
+
+    def faults(self, values: dict[str, Any], tid: int) -> list[dict[str, Any]]:
+        """The spec's faults with every axis at its value, each checked."""
+        faults = [dict(f) for f in self.spec.faults]
+        for a in self.axes:
+            faults[a.fault][a.param] = values[a.label]
+        for i, f in enumerate(faults):
+            try:
+                parse_fault(f, self.names, f"faults.{i}")
+            except ValueError as e:
+                at = f" (trial {tid}: {values})" if self.axes else ""
+                raise CampaignSpecError(f"{e}{at}") from None
+        return faults
+
+    def trial(self, tid: int, g: int, s: int, r: int, values: dict[str, Any],
+              faults: list[dict[str, Any]] | None = None, seed: int | None = None) -> PlannedTrial:
+        """Trial ``tid`` at these axis values, its seed from its place (grid, sample, repeat)."""
+        faults = self.faults(values, tid) if faults is None else faults
+        seed = trial_seed(self.spec.seed, g, s, r) if seed is None else seed
+        name = f"{self.spec.name}-{tid:05d}"
+        data = {**self.base, "name": name, "seed": seed, "faults": self.base_faults + faults}
+        try:
+            cfg = TrialConfig.model_validate({**data, "source": self.base_path},
+                                             context={"beside": Path(self.base_path).parent})
+        except ValidationError as e:
+            raise CampaignSpecError(describe_validation_error(
+                e, TrialConfig, f"base {self.base_path.name}")) from None
+        return PlannedTrial(tid, name, g, s, r, seed, values, faults, json_config(cfg))
 
 
 def json_config(cfg: TrialConfig) -> dict:

@@ -46,6 +46,8 @@ CREATE TABLE IF NOT EXISTS trials (
     reason TEXT,
     {", ".join(f"{c} REAL" for c in METRIC_COLUMNS)},
     truth TEXT,                    -- 'sim' (backend truth) or 'measured'
+    robustness REAL,               -- the lowest requirement's robustness (its units: mm or deg)
+    worst TEXT,                    -- that requirement's name (robustness/scale lowest)
     metrics TEXT,                  -- JSON: true and measured outcomes in full
     log_path TEXT,                 -- relative to the campaign directory
     worker TEXT,
@@ -80,6 +82,10 @@ class CampaignStore:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
+            columns = {r[1] for r in self._db.execute("PRAGMA table_info(trials)")}
+            for name, kind in (("robustness", "REAL"), ("worst", "TEXT")):  # a campaign from before them
+                if name not in columns:
+                    self._db.execute(f"ALTER TABLE trials ADD COLUMN {name} {kind}")
         except sqlite3.DatabaseError as e:  # not SQLite, truncated, or another program's tables
             self._db.close()
             raise CampaignStoreError(f"{self.path} is not a campaign database ({e})") from None
@@ -148,7 +154,7 @@ class CampaignStore:
             "status": result["status"], "completed": _int(result.get("completed")),
             "passed": _int(result.get("passed")), "reason": result.get("reason"),
             **{c: m.get(c) for c in METRIC_COLUMNS},
-            "truth": result.get("truth"),
+            "truth": result.get("truth"), "robustness": result.get("robustness"), "worst": result.get("worst"),
             "metrics": json.dumps(result["metrics"]) if result.get("metrics") is not None else None,
             "log_path": result.get("log_path"), "worker": result.get("worker"),
             "finished_at": time.time(), "duration_s": result.get("duration_s"),

@@ -1,4 +1,5 @@
-"""``hilbench campaign``: run, resume, re-run, export and report fault-injection campaigns.
+"""``hilbench campaign``: run, resume, re-run, export and report fault-injection campaigns, and the
+searches over a spec's axes (falsify, boundary).
 
 ``hilbench campaign SPEC`` is short for ``hilbench campaign run SPEC``: the
 group rewrites a first argument that is not one of its commands into a
@@ -41,7 +42,8 @@ class _RunByDefault(TyperGroup):
 
 campaign_app = typer.Typer(
     cls=_RunByDefault, no_args_is_help=True, add_completion=False,
-    help="Fault-injection campaigns: `hilbench campaign SPEC` (= run), resume, rerun, export, report.")
+    help="Fault-injection campaigns: `hilbench campaign SPEC` (= run), resume, rerun, export, report; "
+         "falsify and boundary search a spec's axes.")
 
 
 
@@ -209,3 +211,104 @@ def status(campaign_dir: Path = typer.Argument(...), as_json: bool = _JSON) -> N
     else:
         console.print(f"planned {s.planned}, done {s.completed}, passed {s.passed}, errors {s.errors}, "
                       f"not run {s.pending}", highlight=False)
+
+
+@campaign_app.command("falsify")
+def falsify_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fault parameters are axes, e.g. "
+                                                        "hil_configs/campaigns/falsify_bias.yaml."),
+                budget: int = typer.Option(100, "--budget", min=1, help="Most trials to run."),
+                seed: int = typer.Option(0, "--seed", min=0, help="The search's seed (the trials' own come "
+                                                                  "from the spec's)."),
+                optimizer: Optional[str] = typer.Option(None, "--optimizer", help="cma (default) or random."),
+                workers: Optional[int] = _WORKERS, scheduler: Optional[str] = _SCHEDULER,
+                out: Optional[Path] = typer.Option(None, "--out", help="Search directory (default "
+                                                   "runs/campaigns/<stamp>-<name>-falsify); one that holds "
+                                                   "this search already is resumed."),
+                as_json: bool = typer.Option(False, "--json", help='Print {"falsified", "trials", "robustness", '
+                                             '"params", "config", ...}.')) -> None:
+    """Search the spec's axes for a trial that violates a requirement; stop at the first, or the budget.
+
+    Exit codes: 0 none found within the budget, 1 a requirement violated (its trial's config is
+    written beside the search: `hilbench trial CONFIG` runs it alone), 2 refused, 130 Ctrl-C.
+    """
+    from bench.campaign.falsify import DEFAULT_OPTIMIZER, OPTIMIZERS, falsify  # deferred: --help stays fast
+    from bench.campaign.lock import CampaignBusy  # deferred: --help and completion stay fast
+    from bench.campaign.search_report import write_falsify_report  # deferred: --help stays fast
+
+    optimizer = optimizer or DEFAULT_OPTIMIZER
+    if optimizer not in OPTIMIZERS:
+        fail(f"--optimizer {optimizer!r}: unknown; valid: {', '.join(OPTIMIZERS)}")
+    try:
+        res = falsify(spec, out, budget=budget, seed=seed, optimizer=optimizer, workers=workers,
+                      scheduler=scheduler, notify=lambda m: err_console.print(m, highlight=False))
+    except (CampaignSpecError, CampaignError, CampaignBusy, RuntimeError, ValueError) as e:
+        fail(str(e))
+    data = res.as_json()
+    with_meta = {**data, "name": Path(spec).stem, "budget": budget, "search_seed": seed}
+    report = write_falsify_report(res.campaign_dir, with_meta)
+    if as_json:
+        emit_json(data)
+    else:
+        verdict = "[red]FALSIFIED[/]" if res.falsified else "[green]not falsified[/]"
+        console.print(f"falsify {res.campaign_dir}: ", verdict, f" in {data['trials']} trial(s) "
+                      f"({optimizer}); lowest: {data['requirement']} {_signed(data['robustness'])}",
+                      sep="", highlight=False)
+        if data["params"]:
+            console.print("at " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}"
+                                            for k, v in data["params"].items()), highlight=False, soft_wrap=True)
+        if res.falsified:
+            console.print(f"re-run it alone: hilbench trial {data['config']}", highlight=False, soft_wrap=True)
+        console.print(f"report: {report}", highlight=False)
+    if res.interrupted:
+        stopped(signal.SIGINT)
+    raise typer.Exit(ExitCode.FAILED if res.falsified else ExitCode.PASSED)
+
+
+def _signed(v: Optional[float]) -> str:
+    return "none" if v is None else f"{v:+.3f}"
+
+
+@campaign_app.command("boundary")
+def boundary_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fault parameters are axes, e.g. "
+                                                         "hil_configs/campaigns/boundary_bias.yaml."),
+                 tolerance: float = typer.Option(0.01, "--tolerance", help="Stop when the bracket is this share "
+                                                 "of the axis's range."),
+                 max_trials: int = typer.Option(12, "--max-trials", min=2, help="Most trials per axis."),
+                 grid: int = typer.Option(0, "--grid", min=0, help="Also run this many evenly spaced values "
+                                          "per axis (× the spec's repeats) for the pass rate beside the "
+                                          "boundary (0: none)."),
+                 workers: Optional[int] = _WORKERS, scheduler: Optional[str] = _SCHEDULER,
+                 out: Optional[Path] = typer.Option(None, "--out", help="Search directory (default "
+                                                    "runs/campaigns/<stamp>-<name>-boundary); one that holds "
+                                                    "this search already is resumed."),
+                 as_json: bool = typer.Option(False, "--json", help='Print {"boundaries": [{"axis", '
+                                              '"requirement", "value", "interval", "trials"}]}.')) -> None:
+    """Along each fault axis, the magnitude where a requirement starts failing, and its interval."""
+    from bench.campaign.boundary import find_boundaries  # deferred: --help stays fast
+    from bench.campaign.lock import CampaignBusy  # deferred: --help and completion stay fast
+    from bench.campaign.search_report import write_boundary_report  # deferred: --help stays fast
+
+    if not 0 < tolerance < 1:
+        fail(f"--tolerance must be between 0 and 1 (a share of the axis's range), got {tolerance}")
+    try:
+        directory, bounds, grids = find_boundaries(
+            spec, out, tolerance=tolerance, max_trials=max_trials, workers=workers, scheduler=scheduler,
+            grid=grid, notify=lambda m: err_console.print(m, highlight=False))
+    except (CampaignSpecError, CampaignError, CampaignBusy, RuntimeError, ValueError) as e:
+        fail(str(e))
+    except KeyboardInterrupt:
+        stopped(signal.SIGINT)
+    report = write_boundary_report(directory, {"name": Path(spec).stem, "boundaries": bounds}, grids)
+    if as_json:
+        emit_json({"boundaries": bounds, "campaign": str(directory)})
+        return
+    for b in bounds:
+        if b["value"] is None:
+            console.print(f"{b['axis']}: no requirement fails within its range ({b['trials']} trials)",
+                          highlight=False)
+        else:
+            lo, hi = b["interval"]
+            console.print(f"{b['axis']}: {b['requirement']} fails from {b['value']:.4g} "
+                          f"(between {lo:.4g} and {hi:.4g}; {b['trials']} trials, {b['method']})",
+                          highlight=False, soft_wrap=True)
+    console.print(f"report: {report}", highlight=False)

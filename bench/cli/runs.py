@@ -79,11 +79,14 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
     for r, name in zip(found, names):
         if r.reason:
             console.print(f"{name}: {r.reason}", highlight=False, soft_wrap=True)
+        if r.margin:
+            console.print(f"{name}: lowest margin {r.margin}", highlight=False, soft_wrap=True)
         if r.alarms:
             console.print(f"{name}: the twin's alarms: {r.alarms}", highlight=False, soft_wrap=True)
     kinds = {k: sum(r.kind == k for r in found) for k in ("trial", "compare", "campaign")}
     console.print(f"{_count(len(found), 'run')} ({', '.join(f'{n} {k}' for k, n in kinds.items() if n)}); "
-                  f"tip dist.: how far the needle tip ended from its target; "
+                  f"tip dist.: how far the needle tip ended from its target; lowest margin: the "
+                  f"requirement with the lowest robustness (mm or °, negative: missed by); "
                   f"reports: {out}/RUN/report.html (the run's name links to it)",
                   highlight=False, soft_wrap=True)
 

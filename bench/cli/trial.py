@@ -113,12 +113,22 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
             console.print(f"tip deviation: X {x:+.3f}  Y {y:+.3f}  Z {z:+.3f} mm", highlight=False)
             console.print(f"depth {round(o.depth_deviation_mm, 3) + 0.0:+.3f} mm, angle "
                           f"{round(o.angle_deviation_deg, 4) + 0.0:+.4f}°", highlight=False)
+        if res.requirements:
+            console.print(requirements_line(res), highlight=False, soft_wrap=True)
         console.print(res.timing.summary_line(), highlight=False, soft_wrap=True)
         if res.monitor is not None:
             console.print(monitor_line(res.monitor), highlight=False, soft_wrap=True)
         console.print(f"report: {res.run_dir / 'report.html'}")
     raise typer.Exit(ExitCode.STOP_UNCONFIRMED if not res.stop_confirmed
                      else ExitCode.PASSED if res.passed else ExitCode.FAILED)
+
+
+def requirements_line(res) -> str:
+    """Each requirement's robustness, e.g. "requirements (true placement): tip +4.91, ... gantry +94.0"."""
+    fmt = lambda v: "none" if v is None else f"{v:+.3f}"  # noqa: E731
+    parts = [f"{r['name']} {fmt(r['robustness'])}{'' if r['holds'] else ' FAILS'}" for r in res.requirements]
+    basis = "true placement" if res.basis == "sim" else "readings"
+    return f"requirements ({basis}; robustness in mm or °): " + ", ".join(parts)
 
 
 def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, live: bool = False,

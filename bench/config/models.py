@@ -20,6 +20,7 @@ from bench.config.cameras import CamerasConfig
 from bench.config.crossref import check_cross_references
 from bench.config.emulator import SEED_MAX, EmulatorConfig
 from bench.config.monitor import MonitorConfig
+from bench.config.requirements import REQUIREMENTS_HELP, Requirement, check_requirements
 from bench.config.servo_model import load_servo_model_file
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot, trial_refusal
@@ -371,6 +372,7 @@ class TrialConfig(Strict):
         default_factory=list, max_length=64,
         description="faults injected around the backend: {name, joints, parameters} "
                     "(docs/campaigns.md, the faults' table)")
+    requirements: Optional[list[Requirement]] = Field(default=None, max_length=64, description=REQUIREMENTS_HELP)
     monitor: Optional[MonitorConfig] = Field(
         default=None, description="the twin beside the trial: {model: datasheet|FILE, action: warn|stop}")
     cameras: Optional[CamerasConfig] = Field(default=None, description="two cameras that measure the "
@@ -426,6 +428,8 @@ class TrialConfig(Strict):
     def _cross_references(self) -> "TrialConfig":
         """What fields say about each other: joints named, sensor, ports, start, transmissions."""
         faults = check_cross_references(self)
+        if self.requirements is not None:
+            check_requirements(self.requirements, get_robot(self.robot))
         if self.faults:  # kept for the trial: parsed once
             self._faults_parsed = (self.faults, faults)
         if self.backend.kind == "pybullet":

@@ -18,12 +18,14 @@ from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
 from bench.core.looptiming import LoopTiming, loop_timing
 from bench.core.outcome import NeedleOutcome, needle_outcome, pose_outcome, settled_position
+from bench.core.requirements import evaluate_requirements, trial_requirements
 from bench.core.seen import camera_pose, camera_summary
+from bench.core.truth import true_outcome
 from bench.kinematics.needle import NeedleTarget
 from drivers.errors import TrialError, safe_stop_unconfirmed
 
-__all__ = ["PreparedTrial", "TrialError", "TrialResult", "result_from_log", "status_from_log",
-           "write_result_json"]
+__all__ = ["PreparedTrial", "TrialError", "TrialResult", "judge_requirements", "measured_outcome",
+           "result_from_log", "status_from_log", "write_result_json"]
 
 
 @dataclass
@@ -76,6 +78,18 @@ class TrialResult:
     camera: Optional[dict] = None
     #: What the verdict judged: the encoders' tip or the cameras' (``acceptance.by``).
     judged_by: str = "encoders"
+    #: Each requirement's robustness (bench.core.requirements): {name, formula, robustness, holds,
+    #: basis, scale[, measured_robustness]}, in the formula's units; empty for an excitation run.
+    requirements: list = field(default_factory=list)
+    #: Where the placement was judged: "sim" (the backend's truth) or "measured".
+    basis: str = "measured"
+    #: The placement where the backend's truth puts the needle (the simulators); None elsewhere.
+    true_outcome: Optional[NeedleOutcome] = None
+
+    @property
+    def failing(self) -> list[dict]:
+        """The requirements that do not hold."""
+        return [r for r in self.requirements if not r["holds"]]
 
     @property
     def stop_confirmed(self) -> bool:
@@ -86,7 +100,8 @@ class TrialResult:
     def passed(self) -> bool:
         if self.excitation:
             return self.completed
-        return self.completed and self.outcome is not None and self.outcome.passed
+        return (self.completed and self.outcome is not None and self.outcome.passed
+                and not self.failing)
 
     @property
     def why_not(self) -> str:
@@ -100,8 +115,13 @@ class TrialResult:
         elif self.outcome is None:
             why = ("the cameras did not measure the tip: " + ((self.camera or {}).get("problem") or "?")
                    if self.judged_by == "camera" else "no settled insertion to measure")
-        else:
+        elif not self.outcome.passed:
             why = f"outside the acceptance limits: {self.outcome.failures()}"
+        else:
+            why = "requirement(s) not met: " + ", ".join(
+                f"{r['name']} ({'no value' if r['robustness'] is None else format(r['robustness'], '+.3f')}"
+                f"{', on the ' + ('true placement' if r['basis'] == 'sim' else 'readings') if r['basis'] else ''})"
+                for r in self.failing)
         return "; ".join(first + ([why] if why else []))
 
     def summary(self) -> dict:
@@ -116,6 +136,10 @@ class TrialResult:
             "reason": self.why_not,
             "safe_stop": self.safe_stop or None,
             "loop_timing": self.timing.as_dict(),
+            "requirements": [{k: r[k] for k in ("name", "formula", "robustness", "holds")}
+                             | ({"measured_robustness": r["measured_robustness"]}
+                                if "measured_robustness" in r else {}) for r in self.requirements],
+            "placement_basis": self.basis,
         } | ({"monitor": self.monitor} if self.monitor is not None else {}) | (
             {"camera": self.camera, "judged_by": self.judged_by} if self.camera is not None else {})
 
@@ -133,28 +157,82 @@ def status_from_log(log: TrialLog) -> tuple[bool, str]:
     return False, "the log ends before the plan did"
 
 
+def measured_outcome(log: TrialLog, prep: PreparedTrial) -> Optional[NeedleOutcome]:
+    """The placement the readings give (the insertion's settled joints); None without one."""
+    cfg = prep.config
+    try:
+        q_final = settled_position(log, "insert")
+        return needle_outcome(prep.robot, q_final, prep.target,
+                              cfg.acceptance.position_mm, cfg.acceptance.angle_deg)
+    except (KeyError, ValueError):
+        return None
+
+
+def judge_requirements(log: TrialLog, prep: PreparedTrial, truth: Any = None) -> None:
+    """Each requirement's robustness into the log's metadata (``requirements``, and the true
+    placement where ``truth``, a GroundTruth recorder, saw the backend's joints), before the log
+    is saved: the record keeps what the truth said, which the log alone cannot give again."""
+    cfg = prep.config
+    if cfg.excitation is not None:
+        return
+    measured = measured_outcome(log, prep)
+    outcome, basis = measured, "measured"
+    if truth is not None and getattr(truth, "available", False):
+        basis = "sim"
+        try:
+            outcome = true_outcome(log, truth, prep.robot, prep.target, cfg.acceptance.position_mm,
+                                   cfg.acceptance.angle_deg)
+        except (KeyError, ValueError):  # stopped before the insertion: no placement
+            outcome = None
+        log.metadata["true_outcome"] = outcome.as_dict() if outcome is not None else None
+    log.metadata["placement_basis"] = basis
+    reqs = trial_requirements(cfg)
+    try:
+        log.metadata["requirements"] = evaluate_requirements(
+            reqs, log, prep.robot, cfg.control_period, outcome, measured, truth, basis)
+    except Exception as e:  # the record is saved whatever a requirement's evaluation does
+        why = f"not evaluated: {type(e).__name__}: {e}"[:200]
+        log.metadata["requirements"] = [{"name": r.name, "formula": r.formula, "robustness": None, "holds": False,
+                                         "basis": basis, "scale": r.scale, "error": why} for r in reqs]
+
+
 def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialResult:
     """The trial's result computed from its log, identically at the end of a trial and later."""
     cfg = prep.config
-    outcome = None
-    try:
-        q_final = settled_position(log, "insert")
-        outcome = needle_outcome(prep.robot, q_final, prep.target,
-                                 cfg.acceptance.position_mm, cfg.acceptance.angle_deg)
-    except (KeyError, ValueError):
-        pass
+    outcome = measured_outcome(log, prep)
     measured = log.metadata.get("camera")
-    camera = camera_summary(measured, None if outcome is None else prep.robot.needle(q_final), prep.target)
+    camera = camera_summary(measured, None if outcome is None else
+                            prep.robot.needle(settled_position(log, "insert")), prep.target)
     if cfg.acceptance.by == "camera":  # judged on the cameras' tip, or not at all
         seen = camera_pose((measured or {}).get("captures", {}).get("insert"), prep.target)
         outcome = None if seen is None else pose_outcome(seen, prep.target, cfg.acceptance.position_mm,
                                                          cfg.acceptance.angle_deg)
     completed, reason = status_from_log(log)
     stops = [e.message for e in log.events if e.kind == "safe-stop"]
+    if cfg.excitation is None and "requirements" not in log.metadata:  # an older record, or no truth
+        judge_requirements(log, prep)
+    true = log.metadata.get("true_outcome")
+    try:
+        true = NeedleOutcome(**true) if isinstance(true, dict) else None
+    except TypeError:  # a record that was edited: the truth it claims is not read
+        true = None
     return TrialResult(Path(run_dir), Path(run_dir) / "trial.npz", completed, reason, outcome,
                        excitation=cfg.excitation is not None, safe_stop=stops[-1] if stops else "",
                        timing=loop_timing(log, cfg.control_period), monitor=log.metadata.get("monitor"),
-                       camera=camera, judged_by=cfg.acceptance.by)
+                       camera=camera, judged_by=cfg.acceptance.by,
+                       requirements=_requirement_rows(log.metadata.get("requirements")),
+                       basis=str(log.metadata.get("placement_basis", "measured")), true_outcome=true)
+
+
+def _requirement_rows(rows: object) -> list[dict]:
+    """The requirements a log's metadata holds, the rows of the shape the bench writes only."""
+    out = []
+    for r in rows if isinstance(rows, list) else []:
+        if (isinstance(r, dict) and isinstance(r.get("name"), str) and isinstance(r.get("formula"), str)
+                and isinstance(r.get("holds"), bool)
+                and (r.get("robustness") is None or isinstance(r.get("robustness"), (int, float)))):
+            out.append({"basis": "measured", "scale": 1.0, **r})
+    return out
 
 
 def write_result_json(res: TrialResult) -> None:

@@ -51,10 +51,23 @@ class RecordFile(BaseModel):
     bytes: int = Field(ge=0)
 
 
-class ResultFile(BaseModel):
-    """``result.json`` as ``runs`` reads it: the verdict and the two deviations it lists."""
+class RequirementRow(BaseModel):
+    """One requirement's robustness as ``result.json`` holds it (mm or degrees, None: no value)."""
 
     model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+    name: str
+    formula: str
+    robustness: Optional[float] = None
+    holds: StrictBool
+
+
+class ResultFile(BaseModel):
+    """``result.json`` as ``runs`` reads it: the verdict, the two deviations and the requirements."""
+
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+    requirements: list[RequirementRow] = Field(default_factory=list, max_length=64)
 
     passed: StrictBool
     completed: StrictBool

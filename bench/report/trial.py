@@ -179,6 +179,27 @@ def tracking_summary(log: TrialLog, robot) -> str:
     return "\n".join(lines) + "\n"
 
 
+def requirements_markdown(result: "TrialResult") -> str:
+    """One row per requirement: its STL formula, its robustness (the signed margin, in the formula's
+    units) and whether it holds; beside it, where the placement was judged on the backend's truth,
+    the same formula on the readings."""
+    truth = result.basis == "sim"
+    fmt = lambda v: "—" if v is None else f"{v:+.3f}"  # noqa: E731
+    head = "| requirement | formula | robustness | unit | holds |" + (" on the readings |" if truth else "")
+    rows = [head, "|---|---|---:|---|---|" + ("---:|" if truth else "")]
+    for r in result.requirements:
+        formula = r["formula"].replace("|", "\\|")
+        row = f"| {r['name']} | `{formula}` | {fmt(r['robustness'])} | {r.get('unit', '')} | {'yes' if r['holds'] else '**no**'} |"
+        if truth:
+            row += f" {fmt(r.get('measured_robustness'))} |"
+        rows.append(row)
+    where = ("the placement where the simulator's joints really were (its truth), the readings' beside it"
+             if truth else "the placement the readings give")
+    return "\n".join(rows) + (f"\n\nRobustness is the signed margin by which the trial met each requirement "
+                              f"(negative: by how much it missed), in mm or degrees as its formula; judged on "
+                              f"{where}.\n")
+
+
 def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
                     figures: dict[str, str]) -> str:
     cfg = prep.config
@@ -212,6 +233,8 @@ def render_markdown(result: "TrialResult", log: TrialLog, prep: "PreparedTrial",
         lines.append(table3_markdown([t.x_mm, t.y_mm, t.z_mm], t.depth_mm, t.angle_deg, o))
     else:
         lines.append("The trial stopped before the insertion finished: no placement to report.\n")
+    if result.requirements:
+        lines += ["## Requirements", "", requirements_markdown(result), ""]
     if not result.completed:
         at = next(i for i, line in enumerate(lines) if line in ("## Needle placement (Table 3 layout)",
                                                                "## Excitation"))

@@ -14,7 +14,7 @@ from bench.config.calibration import CalibrationFile, calibration_path, calibrat
 from bench.config.models import TrialConfig
 from bench.core.log import JOURNAL_META, JOURNAL_ROWS, TrialLog
 from bench.core.record import package_versions, write_record
-from bench.core.result import PreparedTrial, TrialResult, result_from_log, write_result_json
+from bench.core.result import PreparedTrial, TrialResult, judge_requirements, result_from_log, write_result_json
 from bench.core.rundir import RECORD, RunDirError, SavedRun, load_run, read_journal, refuse_links
 from bench.report.trial import write_trial_report
 from bench.rig.serving import rig_kind
@@ -57,10 +57,13 @@ def record_fields(metadata: dict) -> dict:
     return {k: metadata.get(k) for k in RECORD_FIELDS}
 
 
-def finish_record(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialResult:
-    """The log, record.json and result.json on disk; the journal removed once they are."""
+def finish_record(run_dir: Path, log: TrialLog, prep: PreparedTrial, truth: object = None) -> TrialResult:
+    """The log, record.json and result.json on disk; the journal removed once they are. The
+    requirements are judged first (on ``truth``, a GroundTruth recorder, where it saw the backend's
+    joints), so the log keeps what they came to."""
     log_path = Path(run_dir) / "trial.npz"
     log.flush()
+    judge_requirements(log, prep, truth)
     log.save(log_path)
     write_record(run_dir, log_path, record_fields(log.metadata))
     log.close_journal()

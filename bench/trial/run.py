@@ -21,6 +21,7 @@ from bench.core.interrupts import NO_SIGNALS, TrialInterrupted
 from bench.core.log import TrialLog
 from bench.core.record import new_run_dir
 from bench.core.result import PreparedTrial, TrialError, TrialResult
+from bench.core.truth import GroundTruth
 from bench.core.runner import Interruptible, Runner, abort_reason, safe_now
 from bench.faults import apply_faults
 from bench.monitor.build import build_monitor
@@ -77,14 +78,14 @@ def run_trial(prep: PreparedTrial, out: Path, hooks: Optional[TrialHooks] = None
         run_dir = new_run_dir(out, prep.config.name)
         log.journal_to(run_dir)
     with _loop_priority(prep, log):
-        backend, act = _build(prep, hooks, run_dir, log, Path(out), out_existed)
+        backend, act, truth = _build(prep, hooks, run_dir, log, Path(out), out_existed)
         interrupted = _run(prep, hooks, act, backend, log, run_dir)
     with interrupts.deferred():
         _note_safe_stop(log, backend)
         if interrupted is None and interrupts.interrupted:  # noted while stopping safely
             interrupted = TrialInterrupted(interrupts.signum)
             _abort_once(log, abort_reason(interrupted))
-        res = finish_record(run_dir, log, prep)
+        res = finish_record(run_dir, log, prep, truth)
     try:
         if interrupted is not None:
             raise interrupted
@@ -119,9 +120,10 @@ def _loop_priority(prep: PreparedTrial, log: TrialLog):
 
 
 def _build(prep: PreparedTrial, hooks: TrialHooks, run_dir: Path, log: TrialLog, out: Path,
-           out_existed: bool) -> tuple[Actuators, Actuators]:
-    """The backend (inactive) and the stack the trial drives: the prepared faults around it, the
-    caller's wrap outermost. Refused before anything moved: the run directory is removed."""
+           out_existed: bool) -> tuple[Actuators, Actuators, GroundTruth]:
+    """The backend (inactive), the stack the trial drives (the prepared faults around it, the
+    ground-truth recorder around them, the caller's wrap outermost) and the recorder. Refused
+    before anything moved: the run directory is removed."""
     backend = None
     try:  # from the first step after the run directory exists, a signal leaves it a record
         hooks.tell("connecting")
@@ -134,7 +136,8 @@ def _build(prep: PreparedTrial, hooks: TrialHooks, run_dir: Path, log: TrialLog,
             act = BackendReading(backend)  # where an emulated rig's cameras see the joints
         if prep.faults:  # a fault the backend cannot host is refused here
             act = apply_faults(act, prep.faults, np.random.default_rng(prep.config.seed))
-        return backend, (hooks.wrap(act) if hooks.wrap else act)
+        truth = GroundTruth(act)  # where the joints really are, where the backend knows it
+        return backend, (hooks.wrap(truth) if hooks.wrap else truth), truth
     except (ActuatorError, ConfigError, TrialError, ValueError):
         if backend is not None:
             backend.close()

@@ -21,7 +21,7 @@ from typing import Optional
 from bench.core.log import JOURNAL_META
 from bench.core.rundir import RECORD, RunDirError, has_run_files, load_run, read_journal, read_result
 
-__all__ = ["RunSummary", "broken", "list_runs", "trial_summary"]
+__all__ = ["RunSummary", "broken", "list_runs", "lowest_margin", "trial_summary"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,9 @@ class RunSummary:
     kind: str = "trial"  # trial | compare | campaign
     #: The twin's alarms, "theta5 at 2.13 s, …" (a monitored trial), "" when it raised none; None unmonitored.
     alarms: Optional[str] = None
+    #: The requirement with the lowest robustness, "tip +4.912" (mm or °; "tip none": no value);
+    #: a campaign's: the lowest over its trials. None when the record holds no requirements.
+    margin: Optional[str] = None
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -79,9 +82,11 @@ def _checked_summary(run_dir: Path) -> RunSummary:
     result = read_result(run_dir)
     config = meta.get("config") or {}
     name = config.get("name")
+    margin = None
     if result is None:
         status, reason, tip, angle = "incomplete", "no result: the process was killed", None, None
     else:
+        margin = lowest_margin([(r.name, r.robustness) for r in result.requirements])
         tip = math.hypot(*result.tip_deviation_mm) if result.tip_deviation_mm else None
         angle = result.angle_deviation_deg
         if result.passed:
@@ -97,4 +102,13 @@ def _checked_summary(run_dir: Path) -> RunSummary:
     return RunSummary(str(run_dir), meta.get("start_time"), name if isinstance(name, str) else None,
                       meta.get("backend"), status, reason, None if tip is None else round(tip, 3),
                       None if angle is None else round(float(angle), 4),
-                      str(report) if report.is_file() else None, meta.get("rig"), alarms=alarms)
+                      str(report) if report.is_file() else None, meta.get("rig"), alarms=alarms,
+                      margin=margin)
+
+
+def lowest_margin(rows: list[tuple[str, Optional[float]]]) -> Optional[str]:
+    """"name +r.rrr" of the lowest robustness among (name, robustness); no value counts lowest."""
+    if not rows:
+        return None
+    name, value = min(rows, key=lambda r: -math.inf if r[1] is None else r[1])
+    return f"{name} {'none' if value is None else format(value, '+.3f')}"
