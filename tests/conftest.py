@@ -110,11 +110,10 @@ def cold_rig():
     from bench.config.models import load_trial_config  # the rig's fixtures only
     from bench.paths import REPO_ROOT
     from bench.rig.emulated import EmulatedRig
-    from drivers.clock import VirtualClock  # the rig's fixtures only
 
     cfg = load_trial_config(REPO_ROOT / "hil_configs" / "lab_real.yaml")
     cfg = cfg.model_copy(update={"emulator": cfg.emulator.model_copy(update={"start_torque_on": False})})
-    with EmulatedRig(cfg, clock=VirtualClock()) as r:
+    with EmulatedRig(cfg) as r:  # real ptys: registers --watch reads it from another process
         yield r, r.retarget(cfg)
 
 

@@ -160,7 +160,7 @@ def test_an_encoder_bias_on_theta5_is_measured_by_the_cameras_and_fails_a_trial_
     assert res.judged_by == "camera" and not res.passed and "tip Z" in res.why_not
     by_encoders = result_from_log(res.run_dir, log, prep.with_config(
         prep.config.model_copy(update={"acceptance": prep.config.acceptance.model_copy(update={"by": "encoders"})})))
-    assert by_encoders.passed  # what the bench said before it had cameras
+    assert by_encoders.outcome.passed  # the encoders' placement: what the bench said before it had cameras
     for label in ("entry", "insert"):
         for view in ("front", "top"):
             assert (res.run_dir / f"camera-{label}-{view}.jpg").is_file()

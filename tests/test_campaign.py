@@ -112,7 +112,7 @@ def test_plan_is_deterministic_and_extends_without_reshuffling(tmp_path):
     tuned = plan_trials(spec.model_copy(update={"overrides": {"plan": {"settle_s": 0.4}},
                                                 "acceptance": AcceptanceConfig(position_mm=3.0, angle_deg=0.5)}))
     assert tuned[0].config["plan"]["settle_s"] == 0.4 and tuned[0].config["plan"]["retract"] is False
-    assert tuned[0].config["acceptance"] == {"position_mm": 3.0, "angle_deg": 0.5}
+    assert tuned[0].config["acceptance"] == {"position_mm": 3.0, "angle_deg": 0.5, "by": "encoders"}
     # more repeats and samples: the trials already planned keep their seeds and parameters
     bigger = plan_trials(spec.model_copy(update={"repeats": 3, "samples": 3}))
     key = {(t.grid_index, t.sample_index, t.repeat_index): (t.seed, t.params) for t in bigger}

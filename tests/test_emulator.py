@@ -715,5 +715,10 @@ def test_a_state_read_after_the_emulator_was_held_up_answers_the_state_now():
         finally:
             port.closePort()
     assert all(moved > 30 for moved, _ in seen), seen  # the hold-up was worth tens of ticks
-    # the best of three (a loaded machine may hold the serving thread up again on its own)
-    assert min(off for _, off in seen) <= 5, seen
+    # the best of three (a loaded machine may hold the serving thread up again on its own): the
+    # answer is a fifth of the hold-up's motion from the shaft at most. Running the 20 steps due
+    # takes the emulator a few milliseconds of its own, and the steps falling due meanwhile run
+    # after the answer: 2 to 4 steps at this swing (about 3 ticks a step, 6-12 ticks measured on this
+    # machine, the same before the virtual clock came); a read answered before the steps due would
+    # trail by the hold-up's whole motion, tens of ticks.
+    assert min(off for _, off in seen) <= max(5.0, min(moved for moved, _ in seen) / 5), seen

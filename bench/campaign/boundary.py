@@ -84,7 +84,7 @@ class AxisSearch:
             # just past the last estimate, toward the bracket's other end: when the estimate was
             # close, the bracket closes to within the tolerance at once
             other = x1 if last == x0 else x0
-            x = last + math.copysign(0.9 * width, other - last)
+            x = last + (0.9 * width if other > last else -0.9 * width)
         elif step == 2:
             x = 0.5 * (x0 + x1)  # a bisection: the bracket halves whatever the margin's shape
         else:

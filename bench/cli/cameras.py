@@ -11,7 +11,7 @@ from typing import Optional
 import typer
 
 from bench.cli.common import emit_json, fail, load_config, say
-from drivers.errors import CameraError
+from drivers.errors import CameraError, ExitCode
 
 __all__ = ["cameras_app"]
 
@@ -48,7 +48,7 @@ def calibrate(config: Path = typer.Argument(..., help="A trial config with a cam
             cals = calibrate_devices(cfg.cameras, views, max_error, lambda what: typer.prompt(
                 what, default="", show_default=False, prompt_suffix=" "))
     except CameraError as e:
-        fail(str(e), code=1)
+        fail(str(e), code=ExitCode.FAILED)
     folder = out if out is not None else Path(config).resolve().parent / "calibration"
     path = write_calibration(cals, folder, str(config), emulate, truth)
     record = json.loads(path.read_text())

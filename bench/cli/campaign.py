@@ -219,7 +219,8 @@ def falsify_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fau
                 budget: int = typer.Option(100, "--budget", min=1, help="Most trials to run."),
                 seed: int = typer.Option(0, "--seed", min=0, help="The search's seed (the trials' own come "
                                                                   "from the spec's)."),
-                optimizer: Optional[str] = typer.Option(None, "--optimizer", help="cma (default) or random."),
+                optimizer: Optional[str] = typer.Option(None, "--optimizer", help="corners-cma (default: the box's "
+                                                        "corners first, then CMA-ES), cma or random."),
                 workers: Optional[int] = _WORKERS, scheduler: Optional[str] = _SCHEDULER,
                 out: Optional[Path] = typer.Option(None, "--out", help="Search directory (default "
                                                    "runs/campaigns/<stamp>-<name>-falsify); one that holds "
