@@ -39,7 +39,7 @@ MISSED_SHARE = 0.01
 #: ... and on a machine other work loads (two CPU hogs on two cores): the serial port's kernel work
 #: then waits behind them, a few cycles a second, page or no page.
 LOADED_MISSED_SHARE = 0.03
-#: ... and, where the machine missed more than that without the page too, what the page may add.
+#: ... and, where the trial with its page missed more, what the page may add to the same trial without it.
 PAGE_MISSED_SHARE = 0.01
 #: How long an emulated trial may take to connect, home and draw its first rows (ms): a wait for the
 #: trial to start, not a bound on how fast it starts (beside two CPU hogs and the suite's other worker
@@ -143,14 +143,18 @@ def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(t
                       f"{MISSED_SHARE:.0%}")
     bound = (LOADED_MISSED_SHARE if loaded else MISSED_SHARE) * tm["cycles"]
     if tm["missed"] > bound:
-        # Over the bound: the same trial without the page says whether the page or this machine
-        # (other work on it, a hypervisor taking its cores) held the loop up.
+        # Over the bound: the same trial without the page says what this machine (other work on it,
+        # a hypervisor taking its cores) costs the loop by itself; the page may add 1 % to that, and
+        # no more. (A machine that misses 7 of 840 alone, 0.8 %, leaves the page 0.2 % under a fixed
+        # 1 % bound, a bound the page does not set.)
         alone = _trial_without_page(tmp_path)
-        assert alone["missed"] > bound, (f"the page made the loop miss {tm['missed']} of {tm['cycles']} "
-                                         f"deadlines; without it {alone['missed']} of {alone['cycles']}")
-        warnings.warn(f"this machine did not keep the loop's time even without the page ({alone['missed']} "
-                      f"of {alone['cycles']} missed): the page is held to {PAGE_MISSED_SHARE:.0%} more")
-        assert tm["missed"] <= alone["missed"] + PAGE_MISSED_SHARE * tm["cycles"], (tm, alone)
+        added = tm["missed"] - alone["missed"]
+        assert added <= PAGE_MISSED_SHARE * tm["cycles"], (
+            f"the page made the loop miss {tm['missed']} of {tm['cycles']} deadlines; without it "
+            f"{alone['missed']} of {alone['cycles']}")
+        warnings.warn(f"this machine missed {alone['missed']} of {alone['cycles']} deadlines without the "
+                      f"page, {tm['missed']} with it: the page added {max(added, 0)}, held to "
+                      f"{PAGE_MISSED_SHARE:.0%}")
     assert result["loop_timing"]["priority"].startswith("nice -10") or "refused" in result["loop_timing"]["priority"]
     times = [float(line.split(" s ")[0]) for line in page.inner_text("#events").splitlines()]
     assert times == sorted(times)  # the events in time order

@@ -38,6 +38,7 @@ from bench.core.interrupts import NO_SIGNALS
 from bench.core.log import TrialLog
 from drivers import Actuators, JointState
 from drivers.capabilities import BlockExecution, BusTiming, SensedEncoder, find_capability
+from drivers.timing import FrozenHeap
 from trajectories import Trajectory
 
 #: Cycles sampled from a trajectory at once: bounds a segment's memory, amortises sampling.
@@ -163,6 +164,8 @@ class Runner:
         if enc is not None and enc.encoder_joint is not None and log.encoder_joint is None and not len(log):
             log.start_encoder(enc.encoder_joint)
         self._encoder = enc.encoder_position if enc is not None and log.encoder_joint is not None else None
+        # a paced loop: what exists now is never walked by the cycle collector mid-run
+        frozen = FrozenHeap().__enter__() if self._bus_time is not None else None
         began = time.perf_counter()
         t_next = act.now()
         q_c = None
@@ -193,6 +196,8 @@ class Runner:
             raise
         finally:
             log.metadata["loop_wall_s"] = time.perf_counter() - began
+            if frozen is not None:
+                frozen.__exit__()
 
     def _run_cycles(self, si: int, q_all: np.ndarray, qd_all: np.ndarray, t_next: float,
                     log: TrialLog) -> tuple[float, Optional[RunResult]]:

@@ -50,7 +50,7 @@ from drivers.errors import ExitCode
 from drivers.link import is_virtual_port
 from drivers.servo import ServoParams
 from drivers.servo.plant import PyBulletPlant
-from drivers.timing import raise_priority
+from drivers.timing import FrozenHeap, raise_priority
 
 
 _RIG_NUMBERS = itertools.count(1)
@@ -243,6 +243,7 @@ def serve(config: TrialConfig, announce, report=None) -> None:
                              daemon=True).start()
         announce(rig.ports)
         try:
+            FrozenHeap().__enter__()  # what the rig set up is never walked mid-trial (for the process's life)
             while not stop.wait(0.2):
                 pass
         finally:
