@@ -12,18 +12,20 @@ safe stops above are the same code for both.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import time
-from typing import Protocol, runtime_checkable
+from typing import Iterator, Optional, Protocol, runtime_checkable
 
 import serial
 
 from drivers.clock import WALL, Clock
 from drivers.virtual import line_named
+from drivers.wirecapture import CapturedLink, WireCapture
 
-__all__ = ["FdLink", "Link", "VIRTUAL_SCHEME", "drain_until_quiet", "is_virtual_port", "link_of", "open_port",
-           "port_usable", "virtual_port_served"]
+__all__ = ["FdLink", "Link", "VIRTUAL_SCHEME", "capturing", "drain_until_quiet", "is_virtual_port", "link_of",
+           "open_port", "port_usable", "virtual_port_served"]
 
 #: The URL scheme of an emulated line on a virtual clock (``virtual://NAME``).
 VIRTUAL_SCHEME = "virtual://"
@@ -126,9 +128,26 @@ def port_usable(port: str) -> bool:
     return os.path.exists(port) and os.access(port, os.R_OK | os.W_OK)
 
 
-def link_of(ser) -> Link:
-    """The link of an open pyserial port: the virtual line's own, or one on its descriptor."""
-    return ser if isinstance(ser, Link) else FdLink(ser)
+#: The capture the ports opened meanwhile write to (:func:`capturing`), or None.
+_capture: Optional[WireCapture] = None
+
+
+@contextlib.contextmanager
+def capturing(capture: Optional[WireCapture]) -> Iterator[None]:
+    """Every port opened inside the block writes its bytes to ``capture`` (None: none does)."""
+    global _capture
+    before, _capture = _capture, capture
+    try:
+        yield
+    finally:
+        _capture = before
+
+
+def link_of(ser, role: str) -> Link:
+    """The link of an open pyserial port: the virtual line's own, or one on its descriptor; a
+    port opened while :func:`capturing` writes its bytes to the capture as ``role``."""
+    link = ser if isinstance(ser, Link) else FdLink(ser)
+    return link if _capture is None else CapturedLink(link, _capture, role)
 
 
 def open_port(port: str, baud: int) -> serial.SerialBase:

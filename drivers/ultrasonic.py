@@ -119,7 +119,7 @@ class UltrasonicSensor:
         except (serial.SerialException, OSError, ValueError) as exc:
             raise CommunicationError(f"cannot open ultrasonic sensor port {port!r}: {exc}") from exc
         self._serial.reset_input_buffer()
-        self._link = link_of(self._serial)
+        self._link = link_of(self._serial, "ultrasonic")
         self.clock = self._link.clock
         self._pending = bytearray()
         self._synced = False  # the first bytes may be the tail of a line sent before we opened

@@ -11,6 +11,7 @@ plain values.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import sys
@@ -84,6 +85,31 @@ def emit_json(obj: object) -> None:
 CLOCK_HELP = ("The emulated rig's clock, with --emulate: realtime (the rig's pace; the default unless the "
               "config's emulator.clock says otherwise) or virtual (time advances when each instant's work "
               "is done: the same log bit for bit on any machine, as fast as the CPU allows).")
+
+
+CAPTURE_HELP = ("Write every byte the bench sends and receives on its serial ports to FILE, one chunk a line "
+                "with its time and port (servo bus or ultrasonic sensor): on the virtual clock the same file "
+                "bit for bit on any machine.")
+
+
+@contextlib.contextmanager
+def wire_capture(path: "Path | None"):
+    """The ports opened inside write to a wire capture at ``path`` (nothing when None)."""
+    if path is None:
+        yield
+        return
+    from drivers.link import capturing  # deferred: --help and completion stay fast
+    from drivers.wirecapture import WireCapture  # deferred: --help and completion stay fast
+
+    try:
+        capture = WireCapture(path).__enter__()
+    except OSError as e:
+        fail(f"--capture {path}: {e.strerror or e}")
+    try:
+        with capturing(capture):
+            yield
+    finally:
+        capture.__exit__()
 
 
 def checked_clock(emulate: bool, clock: "str | None") -> "str | None":

@@ -11,8 +11,8 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-from bench.cli.common import (CLOCK_HELP, checked_clock, console, emit_json, err_console, fail, load_config,
-                               say, stopped, styled)
+from bench.cli.common import (CAPTURE_HELP, CLOCK_HELP, checked_clock, console, emit_json, err_console, fail,
+                               load_config, say, stopped, styled, wire_capture)
 from bench.cli.live import LIVE_HELP, LIVE_WAIT_HELP, LIVE_WAIT_S, live_view
 from bench.cli.monitor import MONITOR_HELP, monitor_line, with_monitor
 from bench.core.interrupts import NO_SIGNALS, SignalGuard, TrialInterrupted
@@ -74,6 +74,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
           live: bool = typer.Option(False, "--live", help=LIVE_HELP),
           live_wait: float = typer.Option(LIVE_WAIT_S, "--live-wait", min=0, help=LIVE_WAIT_HELP),
           monitor: Optional[str] = typer.Option(None, "--monitor", metavar="MODEL", help=MONITOR_HELP),
+          capture: Optional[Path] = typer.Option(None, "--capture", metavar="FILE", help=CAPTURE_HELP),
           as_json: bool = typer.Option(False, "--json", help="Print the result as one JSON line.")) -> None:
     """Run one trial: home -> Target -> insertion -> retract, with its log and report.
 
@@ -89,7 +90,7 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
     with SignalGuard() as guard:  # first, so no signal can land before it
         try:
             res, name, live_url = _trial(config, out, gui, note, emulate, guard, live, live_wait, monitor,
-                                         clock)
+                                         clock, capture)
         except TrialInterrupted as e:
             _interrupted(e, as_json)
     if not res.stop_confirmed:
@@ -132,13 +133,17 @@ def requirements_line(res) -> str:
 
 
 def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, live: bool = False,
-           live_wait: float = 0.0, monitor: Optional[str] = None, clock: Optional[str] = None):
+           live_wait: float = 0.0, monitor: Optional[str] = None, clock: Optional[str] = None,
+           capture: Optional[Path] = None):
     from bench.trial.plan import prepare  # deferred: --help and completion stay fast
 
     cfg = with_monitor(load_config(config), monitor)
     guard.check()
     if emulate and cfg.backend.kind != "dynamixel":
         fail(f"{config}: --emulate needs backend.kind: dynamixel (this config is {cfg.backend.kind})")
+    if capture is not None and cfg.backend.kind != "dynamixel":
+        fail(f"{config}: --capture records a serial bus; this config's backend is {cfg.backend.kind}, "
+             f"which has none")
     try:
         prep = prepare(cfg)  # once; nothing starts for a trial that cannot run
     except TrialError as e:
@@ -156,7 +161,8 @@ def _trial(config: Path, out: Path, gui: bool, note: str, emulate: bool, guard, 
     try:  # the backend builder attaches the emulated bus's fault hooks (bench.rig.serving)
         with live_view(live, config, out, guard, live_wait) as server:
             try:
-                res = _run_with_progress(prep, out, gui, note, guard)
+                with wire_capture(capture):
+                    res = _run_with_progress(prep, out, gui, note, guard)
             except KeyboardInterrupt as e:
                 e.live_url = server.url if server else None
                 raise

@@ -105,7 +105,7 @@ class ServoBus:
             self._ser = open_port(port, baud)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise BackendSetupError(open_error(port, getattr(exc, "__cause__", None) or exc)) from None
-        self._link = link_of(self._ser)
+        self._link = link_of(self._ser, "dynamixel")
         self.clock = self._link.clock  # the wall clock; an emulated line's virtual one
         self._byte_s = 10.0 / baud
         self._heard = False  # bytes arrived during the last receive

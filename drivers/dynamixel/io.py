@@ -226,7 +226,7 @@ class BlockingPortHandler(PortHandler):
         if self.is_open:
             self.closePort()
         self.ser = open_port(self.port_name, self.baudrate)
-        self.link = link_of(self.ser)
+        self.link = link_of(self.ser, "dynamixel")
         self.is_open = True
         self.ser.reset_input_buffer()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
@@ -247,6 +247,17 @@ class BlockingPortHandler(PortHandler):
     def closePort(self) -> None:  # noqa: N802 - SDK name
         super().closePort()
         self.link = None
+
+    def writePort(self, packet) -> int:  # noqa: N802 - SDK name
+        """The packet on the line through the link (a wire capture holds it); the bytes written."""
+        if self.link is None:
+            return 0
+        data = bytes(packet)
+        try:
+            self.link.send(data)
+        except (OSError, ValueError):
+            return 0
+        return len(data)
 
     def readPort(self, length: int) -> bytes:  # noqa: N802 - SDK name
         if length <= 0 or self.link is None:
