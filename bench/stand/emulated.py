@@ -9,14 +9,15 @@ from __future__ import annotations
 import math
 import tempfile
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, Optional
 
 from bench.config.servo_model import apply_physics
 from bench.paths import URDF_DIR
 from bench.scene.urdf_writer import STAND_LENGTH_M, STAND_MASS_KG, stand_urdf
 from bench.stand.logs import MOTORS
 from bench.stand.simulate import GRAVITY
-from drivers.emulator import DynamixelBusEmulator, ServoModel
+from drivers.clock import VirtualClock
+from drivers.emulator import DynamixelBusEmulator, ServoModel, VirtualBusEmulator
 from drivers.servo import ServoParams
 from drivers.servo.plant import PyBulletPlant
 
@@ -47,12 +48,14 @@ class EmulatedStand:
     ``realtime`` False the physics moves only through :meth:`advance`. ``source_ohm``: the
     supply's source resistance (0: a stiff supply at ``supply_v``). ``gravity_offset_rad``: the
     stand's zero from hanging plumb, as a stand model file's ``stand:`` gives it (gravity tilted
-    about the shaft, so its torque is −m g L sin(q + offset), the rollout's)."""
+    about the shaft, so its torque is −m g L sin(q + offset), the rollout's). On a ``clock`` (a
+    :class:`~drivers.clock.VirtualClock`) the bus is a ``virtual://`` line of this process and
+    everything, the wire's time included, moves on that clock."""
 
     def __init__(self, physics: Mapping[str, float] | None = None, *, mass: float = STAND_MASS_KG,
                  length: float = STAND_LENGTH_M, supply_v: float = 7.0, motor: str = "xl330",
                  servo_id: int = 1, source_ohm: float = 0.0, realtime: bool = False,
-                 gravity_offset_rad: float = 0.0) -> None:
+                 gravity_offset_rad: float = 0.0, clock: Optional[VirtualClock] = None) -> None:
         number = MOTORS[motor]
         physics = dict(physics or {})
         self.params = apply_physics(ServoParams.datasheet([number]), [physics])
@@ -69,7 +72,11 @@ class EmulatedStand:
                            motor=self.params, overload_time_s=60.0)
         self.plant.servo, self.plant.volts, self.plant.source_ohm = servo, supply_v, source_ohm
         self.plant.kt = float(self.params.kt[0])
-        self.bus = DynamixelBusEmulator({servo_id: servo}, self.plant, realtime=realtime)
+        self.clock = clock
+        if clock is None:
+            self.bus = DynamixelBusEmulator({servo_id: servo}, self.plant, realtime=realtime)
+        else:
+            self.bus = VirtualBusEmulator({servo_id: servo}, self.plant, clock=clock, name=f"stand-{id(self):x}")
         self.mass, self.length, self.supply_v = mass, length, supply_v
 
     @property

@@ -13,22 +13,25 @@ from typing import Callable, Optional
 from bench.stand.config import StandConfig
 from bench.stand.emulated import EmulatedStand
 from bench.stand.record import record_stand_log, write_stand_log
+from drivers.clock import WALL, Clock, VirtualClock
 from drivers.dynamixel.bus import ServoBus
 from drivers.dynamixel.stand import StandServo
 
-__all__ = ["emulated_clock", "record_session", "serve_stand"]
+__all__ = ["emulated_clock", "paced", "record_session", "serve_stand"]
 
 
-def _realtime() -> Callable[[float], float]:
-    """A clock that sleeps ``dt`` past its last tick (not past now: no drift) and says how long it has run."""
-    start = time.monotonic()
+def paced(clock: Clock) -> Callable[[float], float]:
+    """A recording's wait on ``clock``: to ``dt`` past its last tick (not past now: no drift); it
+    says how long it has run. The wall clock at the stand; a virtual one on an emulated stand
+    whose wire takes time too."""
+    start = clock.now()
     due = [start]
 
     def wait(dt: float) -> float:
         if dt > 0:
             due[0] += dt
-            time.sleep(max(0.0, due[0] - time.monotonic()))
-        return time.monotonic() - start
+            clock.sleep_until(due[0])
+        return clock.now() - start
     return wait
 
 
@@ -62,15 +65,24 @@ def _run_all(config: StandConfig, bus: ServoBus, wait: Callable[[float], float],
     return paths
 
 
-def record_session(config: StandConfig, out: Path, *, emulate: bool = False,
+def record_session(config: StandConfig, out: Path, *, emulate: bool = False, clock: Optional[str] = None,
                    progress: Optional[Callable[[int, int], None]] = None) -> tuple[Path, list[Path]]:
-    """Run every run of ``config``; (the run directory, the logs written)."""
+    """Run every run of ``config``; (the run directory, the logs written). ``clock="virtual"``: the
+    emulated stand on a virtual clock (its logs the same bit for bit on any machine)."""
     stem = Path(out) / f"{config.name}-{datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S')}"
     run_dir, n = stem, 1
     while run_dir.exists():  # two sessions within a second
         n += 1
         run_dir = stem.with_name(f"{stem.name}-{n}")
     run_dir.mkdir(parents=True)
+    if emulate and clock == "virtual":
+        vc = VirtualClock()
+        physics = config.emulator.physics.model_dump(exclude_none=True)
+        with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m,
+                           supply_v=config.emulator.supply_v, motor=config.motor, servo_id=config.servo_id,
+                           source_ohm=config.emulator.source_ohm, clock=vc) as stand, \
+                ServoBus(stand.port, config.baud) as bus:
+            return run_dir, _run_all(config, bus, paced(vc), run_dir, progress)
     if emulate:
         physics = config.emulator.physics.model_dump(exclude_none=True)
         with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m,
@@ -80,7 +92,7 @@ def record_session(config: StandConfig, out: Path, *, emulate: bool = False,
             # (more tries than a real bus needs: a busy machine may starve the emulator's thread)
             return run_dir, _run_all(config, bus, emulated_clock(stand), run_dir, progress)
     with ServoBus(config.port, config.baud) as bus:
-        return run_dir, _run_all(config, bus, _realtime(), run_dir, progress)
+        return run_dir, _run_all(config, bus, paced(WALL), run_dir, progress)
 
 
 def serve_stand(config: StandConfig, announce: Callable[[str], None]) -> None:

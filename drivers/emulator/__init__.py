@@ -23,6 +23,7 @@ from drivers.emulator.bus import BusFaults, BusStats, DynamixelBusEmulator
 from drivers.emulator.plant import InertiaPlant, Plant
 from drivers.emulator.servo import ServoModel
 from drivers.emulator.ultrasonic import UltrasonicEmulator, standoff_distance
+from drivers.emulator.virtual import VirtualBusEmulator, VirtualUltrasonic
 
 __all__ = [
     "Access",
@@ -38,6 +39,8 @@ __all__ = [
     "Register",
     "ServoModel",
     "UltrasonicEmulator",
+    "VirtualBusEmulator",
+    "VirtualUltrasonic",
     "XC430_W150",
     "XL430_W250",
     "XM430_W350",
