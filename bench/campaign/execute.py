@@ -26,6 +26,7 @@ import threading
 import time
 import traceback
 import uuid
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, Iterable, Protocol
 
@@ -33,6 +34,7 @@ from bench.campaign.rates import fault_onset
 from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
 from bench.core.requirements import lowest
+from bench.rig.emulated import VirtualRig
 from bench.rig.serving import rig_kind
 from bench.trial.plan import prepare
 from bench.trial.run import TrialHooks, run_trial
@@ -74,8 +76,11 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
     try:
 
         cfg = TrialConfig.model_validate(task["config"])
-        prep = prepare(cfg)
-        res = run_trial(prep, Path(task["stage"]), TrialHooks(report=bool(task.get("report", False))))
+        with ExitStack() as rig:
+            if task.get("emulate"):  # its emulated rig, here, on the virtual clock
+                cfg = rig.enter_context(VirtualRig(cfg)).retarget(cfg)
+            prep = prepare(cfg)
+            res = run_trial(prep, Path(task["stage"]), TrialHooks(report=bool(task.get("report", False))))
         measured = res.outcome
         outcome, truth = measured, "measured"
         log = TrialLog.load(res.log_path) if res.monitor else None

@@ -192,9 +192,10 @@ class _Interrupts:
 
 
 def make_pool(backend: str, to_run: int, workers: int | None, scheduler: str | None,
-              notes: list[str]) -> Pool:
-    """Local processes (default: one per core), a Dask cluster, or this process for the one bus."""
-    if backend == "dynamixel":
+              notes: list[str], emulate: bool = False) -> Pool:
+    """Local processes (default: one per core), a Dask cluster, or this process for the one bus
+    (emulated rigs on the virtual clock are one a trial, each in its worker)."""
+    if backend == "dynamixel" and not emulate:
         if (workers or 1) > 1 or scheduler:
             notes.append("the real backend has one servo bus: trials run one at a time in this "
                          "process (workers=1)")
@@ -259,7 +260,8 @@ def _run_locked(campaign_dir: Path, workers: int | None, scheduler: str | None,
         if progress:
             progress(state)
         if todo:
-            pool = make_pool(meta.get("backend", "pybullet"), len(todo), workers, scheduler, notes)
+            emulate = bool(meta.get("spec", {}).get("emulate"))
+            pool = make_pool(meta.get("backend", "pybullet"), len(todo), workers, scheduler, notes, emulate)
             pool_desc = pool.description
             for n in notes:
                 say(n)
@@ -276,7 +278,7 @@ def _run_locked(campaign_dir: Path, workers: int | None, scheduler: str | None,
                             stage = _stage_root(campaign_dir) / f"{row['name']}-{uuid.uuid4().hex[:8]}"
                             store.mark_running(row["id"])
                             task = {"id": row["id"], "name": row["name"], "config": row["config"],
-                                    "stage": str(stage), "report": False}
+                                    "stage": str(stage), "report": False, "emulate": emulate}
                             try:
                                 fut = pool.submit(task)
                             except BrokenProcessPool:  # a worker died: a fresh pool for the rest
@@ -353,9 +355,10 @@ def rerun_trial(campaign_dir: Path | str, trial_id: int, out: Path | str | None 
     campaign_dir = Path(campaign_dir)
     with open_store(campaign_dir) as store:
         row = store.trial(trial_id)
+        emulate = bool(store.meta().get("spec", {}).get("emulate"))
     out = Path(out) if out is not None else campaign_dir / "reruns"
     result = execute_trial({"id": row["id"], "name": row["name"], "config": row["config"],
-                            "stage": str(out), "report": report})
+                            "stage": str(out), "report": report, "emulate": emulate})
     if result["status"] != "done":
         raise CampaignError(f"trial {trial_id} could not run: {result.get('error')}")
     keys = ("completed", "passed", "reason")

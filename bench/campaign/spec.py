@@ -60,6 +60,9 @@ class CampaignSpec(_Strict):
     acceptance: Optional[AcceptanceConfig] = None  # default: the base config's
     requirements: Optional[list[Requirement]] = None  # default: the base config's (else the acceptance's)
     max_attempts: int = Field(default=2, ge=1, description="runs of a trial that keeps erroring")
+    emulate: bool = Field(default=False, description="run each trial of a servo-bus base config on its "
+                          "emulated rig, on the virtual clock: the real driver's path, the same results on "
+                          "any machine and in any number of workers")
 
     source: Optional[Path] = Field(default=None, exclude=True)
 
@@ -120,8 +123,11 @@ def load_campaign_spec(path: Path | str) -> CampaignSpec:
                 check_requirements(spec.requirements, get_robot(base.get("robot", "arc-train")))
             except (ValueError, KeyError) as e:
                 raise CampaignSpecError(str(e).strip("'\"")) from None
-        plan_trials(spec, limit=1)  # axes, faults and the base config, checked once
+        first = plan_trials(spec, limit=1)  # axes, faults and the base config, checked once
         _check_grid_values(spec)
+        if spec.emulate and first and first[0].config["backend"]["kind"] != "dynamixel":
+            raise CampaignSpecError(f"emulate: runs a servo bus's emulated rig; the base config's backend is "
+                                    f"{first[0].config['backend']['kind']}, which has none")
     except CampaignSpecError as e:
         raise CampaignSpecError(f"{path}: {e}") from None
     return spec
