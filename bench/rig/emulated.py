@@ -46,7 +46,7 @@ from drivers.dynamixel.units import BAUD_RATES, OPERATING_MODES
 from drivers.clock import VirtualClock
 from drivers.emulator import DynamixelBusEmulator, ServoModel, UltrasonicEmulator
 from drivers.emulator.virtual import VirtualBusEmulator, VirtualUltrasonic
-from drivers.errors import ExitCode
+from drivers.errors import BackendSetupError, ExitCode
 from drivers.link import is_virtual_port
 from drivers.servo import ServoParams
 from drivers.servo.plant import PyBulletPlant
@@ -219,8 +219,9 @@ def _baud_index(baud: int) -> int:
     raise ValueError(f"baud {baud} is not an X-series rate; choose from {sorted(BAUD_RATES.values())}")
 
 
-def serve(config: TrialConfig, announce, report=None) -> None:
-    """Run the rig until SIGINT/SIGTERM; SIGUSR1 unplugs the bus, SIGUSR2 plugs it back.
+def serve(config: TrialConfig, announce, report=None, applied=None) -> None:
+    """Run the rig until SIGINT/SIGTERM; SIGUSR1 unplugs the bus, SIGUSR2 plugs it back; the
+    commands on stdin change its faults, each told to ``applied`` by its number once done.
 
     ``report`` gets the bus's counters at the end (physics skipped when the host starved
     the emulator of CPU, packets, errors), so a rehearsal never hides a slow rig."""
@@ -239,11 +240,11 @@ def serve(config: TrialConfig, announce, report=None) -> None:
         signal.signal(signal.SIGUSR1, lambda *a: rig.bus.unplug())
         signal.signal(signal.SIGUSR2, lambda *a: rig.bus.replug())
         if not sys.stdin.isatty():  # a parent process drives the rig's faults through our stdin
-            threading.Thread(target=follow_commands, args=(rig.hooks, rig.bus, sys.stdin),
+            threading.Thread(target=follow_commands, args=(rig.hooks, rig.bus, sys.stdin, applied),
                              daemon=True).start()
+        FrozenHeap().__enter__()  # what the rig set up is never walked mid-trial (for the process's life)
         announce(rig.ports)
         try:
-            FrozenHeap().__enter__()  # what the rig set up is never walked mid-trial (for the process's life)
             while not stop.wait(0.2):
                 pass
         finally:
@@ -260,6 +261,8 @@ EMULATOR_TIMEOUT_MS = 50.0
 EMULATOR_STALE_S = 0.5
 #: An emulated rig left alone (servos still, no writes) pauses its physics after this long.
 REST_AFTER_S = 0.5
+#: How long a command to the emulated rig's process may take to be applied (s).
+COMMAND_TIMEOUT_S = 5.0
 
 
 class EmulatorProcess:
@@ -298,12 +301,17 @@ class EmulatorProcess:
             why = err[-1].removeprefix("error: ") if err else f"it exited with {self.proc.returncode}"
             raise RuntimeError(f"the emulator did not start: {why}") from None
         self.ports = RigPorts(ports["dynamixel_port"], ports.get("ultrasonic_port"))
+        #: The bus's counters, read when the emulator has stopped (see :func:`serve`).
+        self.stats: dict = {}
+        # what the child says after its ports: each command's number once applied, its counters last
+        self._sent = self._applied = 0
+        self._told = threading.Condition()
+        self._listener = threading.Thread(target=self._listen, daemon=True)
+        self._listener.start()
         # the child validated the config it serves: its robot says how many joints the plant has
         joints = len(get_robot(load_trial_config(config_path).robot).joint_names)
         self.faults = RemoteRigHooks(self._send, joints)
         serving.attach(self.ports.dynamixel_port, self.faults)  # backends built on this port get its hooks
-        #: The bus's counters, read when the emulator has stopped (see :func:`serve`).
-        self.stats: dict = {}
 
     def _first_line(self, timeout: float) -> str:
         out: list[str] = []
@@ -315,10 +323,39 @@ class EmulatorProcess:
             raise RuntimeError(f"the emulator did not announce its ports within {timeout:.0f} s")
         return out[0]
 
+    def _listen(self) -> None:
+        for line in self.proc.stdout:
+            try:
+                said = json.loads(line)
+            except ValueError:
+                continue
+            if not isinstance(said, dict):
+                continue
+            with self._told:
+                self._applied = max(self._applied, int(said.get("applied", self._applied)))
+                self.stats = said.get("stats", self.stats)
+                self._told.notify_all()
+        with self._told:  # the child is gone: nobody waits for it any longer
+            self._applied = self._sent = max(self._applied, self._sent)
+            self._told.notify_all()
+
     def _send(self, cmd: dict) -> None:
-        if self.proc.poll() is None:
-            self.proc.stdin.write(json.dumps(cmd) + "\n")
+        """Send a command and wait until the child has applied it: a fault is in the plant before
+        the trial goes on (a push sent and not yet taken would be a push the log never saw)."""
+        if self.proc.poll() is not None:
+            return
+        with self._told:
+            self._sent += 1
+            seq = self._sent
+        try:
+            self.proc.stdin.write(json.dumps(cmd | {"seq": seq}) + "\n")
             self.proc.stdin.flush()
+        except (OSError, ValueError):
+            return  # the child is gone; the trial learns it from its bus
+        with self._told:
+            if not self._told.wait_for(lambda: self._applied >= seq, COMMAND_TIMEOUT_S):
+                raise BackendSetupError(f"the emulated rig did not apply {json.dumps(cmd)} within "
+                                        f"{COMMAND_TIMEOUT_S:g} s")
 
     def unplug(self) -> None:
         self.proc.send_signal(signal.SIGUSR1)
@@ -336,11 +373,9 @@ class EmulatorProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        try:
-            for line in self.proc.stdout:
-                self.stats = json.loads(line).get("stats", self.stats)
-        except (OSError, ValueError, AttributeError):
-            pass
+        listener = getattr(self, "_listener", None)
+        if listener is not None:
+            listener.join(5)  # the child has exited: its last line (the counters) is read
         for stream in (self.proc.stdin, self.proc.stdout, self._stderr):
             try:
                 stream.close()

@@ -88,13 +88,17 @@ class RemoteRigHooks:
         self._send({"plant": {what: [j, float(value)]}})
 
 
-def follow_commands(rig_hooks: RigHooks, bus: DynamixelBusEmulator, stream: TextIO) -> None:
+def follow_commands(rig_hooks: RigHooks, bus: DynamixelBusEmulator, stream: TextIO,
+                    applied: Callable[[int], None] | None = None) -> None:
     """Apply JSON lines such as ``{"faults": {"drop_prob": 0.05}}``, ``{"plant": {"external_effort":
     [3, 0.3]}}`` or ``{"unplug": true}`` to the running rig; a line it cannot apply is said on stderr
-    and skipped, and the rig goes on."""
+    and skipped, and the rig goes on. A line's ``"seq"`` is told to ``applied`` once the line is
+    done (applied or refused), so the parent knows a fault is in the plant before it goes on."""
     for line in stream:
+        seq = None
         try:
             cmd = json.loads(line)
+            seq = cmd.get("seq")
             for field_name, value in cmd.get("faults", {}).items():
                 if field_name in BUS_FAULT_FIELDS:
                     setattr(rig_hooks, field_name, value)
@@ -103,8 +107,10 @@ def follow_commands(rig_hooks: RigHooks, bus: DynamixelBusEmulator, stream: Text
                     getattr(rig_hooks, PLANT_FAULTS[what])(joint, value)
         except (json.JSONDecodeError, BenchError, TypeError, ValueError, AttributeError) as e:
             print(f"emulator: command {line.strip()!r} not applied: {e}", file=sys.stderr, flush=True)
-            continue
+            cmd = {}
         if cmd.get("unplug"):
             bus.unplug()
         if cmd.get("replug"):
             bus.replug()
+        if applied is not None and isinstance(seq, int):
+            applied(seq)
