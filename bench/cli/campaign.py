@@ -103,6 +103,12 @@ _SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g
 _JSON = typer.Option(False, "--json", help='Print {"db", "planned", "completed", "passed", "errors"}.')
 
 
+def _search_dir(kind: str):
+    """A search's ``--out``: its directory, resumed when it already holds this search."""
+    return typer.Option(None, "--out", help=f"Search directory (default runs/campaigns/<stamp>-<name>-{kind}); "
+                                            "one that holds this search already is resumed.")
+
+
 @campaign_app.command("run")
 def run(spec: Path = typer.Argument(..., help="A campaign spec, e.g. hil_configs/campaigns/tolerance_sweep.yaml."),
         workers: Optional[int] = _WORKERS, scheduler: Optional[str] = _SCHEDULER,
@@ -222,9 +228,7 @@ def falsify_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fau
                 optimizer: Optional[str] = typer.Option(None, "--optimizer", help="corners-cma (default: the box's "
                                                         "corners first, then CMA-ES), cma or random."),
                 workers: Optional[int] = _WORKERS, scheduler: Optional[str] = _SCHEDULER,
-                out: Optional[Path] = typer.Option(None, "--out", help="Search directory (default "
-                                                   "runs/campaigns/<stamp>-<name>-falsify); one that holds "
-                                                   "this search already is resumed."),
+                out: Optional[Path] = _search_dir("falsify"),
                 as_json: bool = typer.Option(False, "--json", help='Print {"falsified", "trials", "robustness", '
                                              '"params", "config", ...}.')) -> None:
     """Search the spec's axes for a trial that violates a requirement; stop at the first, or the budget.
@@ -279,9 +283,7 @@ def boundary_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fa
                                           "per axis (× the spec's repeats) for the pass rate beside the "
                                           "boundary (0: none)."),
                  workers: Optional[int] = _WORKERS, scheduler: Optional[str] = _SCHEDULER,
-                 out: Optional[Path] = typer.Option(None, "--out", help="Search directory (default "
-                                                    "runs/campaigns/<stamp>-<name>-boundary); one that holds "
-                                                    "this search already is resumed."),
+                 out: Optional[Path] = _search_dir("boundary"),
                  as_json: bool = typer.Option(False, "--json", help='Print {"boundaries": [{"axis", '
                                               '"requirement", "value", "interval", "trials"}]}.')) -> None:
     """Along each fault axis, the magnitude where a requirement starts failing, and its interval."""

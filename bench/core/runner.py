@@ -27,6 +27,7 @@ ultrasonic sensor) has that joint's servo encoder recorded beside each reading
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass
@@ -165,39 +166,37 @@ class Runner:
             log.start_encoder(enc.encoder_joint)
         self._encoder = enc.encoder_position if enc is not None and log.encoder_joint is not None else None
         # a paced loop: what exists now is never walked by the cycle collector mid-run
-        frozen = FrozenHeap().__enter__() if self._bus_time is not None else None
-        began = time.perf_counter()
-        t_next = act.now()
-        q_c = None
-        try:
-            for si, seg in enumerate(segments):
-                n = self._cycles(seg)
-                if self.phase is not None:
-                    self.phase(seg.name)
-                log.event(act.now(), "segment", f"start {seg.name} ({seg.trajectory.duration:.3f} s"
-                          f" + {seg.settle:.3f} s settle)")
-                for q_all, qd_all in sample_chunks(seg.trajectory, n, dt):
-                    t_next, stopped = run_chunk(si, q_all, qd_all, t_next, log)
-                    if stopped is not None:
-                        return stopped
-                    q_c = q_all[-1]
-            st = act.read()
-            log.append(st.time, len(segments) - 1, st.position if q_c is None else q_c,
-                       np.zeros(n_dof), st.position, st.velocity, st.effort)
-            if self._encoder is not None:
-                log.encode(self._encoder())
-            log.event(st.time, "done", "all segments completed")
-            if self.progress is not None:
-                self.progress(1.0)
-            return RunResult(log, True)
-        except BaseException as e:  # a lost bus, a stop signal, a bad command: stop safely first
-            log.event(safe_now(act), "abort", abort_reason(e))
-            _safe_disable(act)
-            raise
-        finally:
-            log.metadata["loop_wall_s"] = time.perf_counter() - began
-            if frozen is not None:
-                frozen.__exit__()
+        with FrozenHeap() if self._bus_time is not None else contextlib.nullcontext():
+            began = time.perf_counter()
+            t_next = act.now()
+            q_c = None
+            try:
+                for si, seg in enumerate(segments):
+                    n = self._cycles(seg)
+                    if self.phase is not None:
+                        self.phase(seg.name)
+                    log.event(act.now(), "segment", f"start {seg.name} ({seg.trajectory.duration:.3f} s"
+                              f" + {seg.settle:.3f} s settle)")
+                    for q_all, qd_all in sample_chunks(seg.trajectory, n, dt):
+                        t_next, stopped = run_chunk(si, q_all, qd_all, t_next, log)
+                        if stopped is not None:
+                            return stopped
+                        q_c = q_all[-1]
+                st = act.read()
+                log.append(st.time, len(segments) - 1, st.position if q_c is None else q_c,
+                           np.zeros(n_dof), st.position, st.velocity, st.effort)
+                if self._encoder is not None:
+                    log.encode(self._encoder())
+                log.event(st.time, "done", "all segments completed")
+                if self.progress is not None:
+                    self.progress(1.0)
+                return RunResult(log, True)
+            except BaseException as e:  # a lost bus, a stop signal, a bad command: stop safely first
+                log.event(safe_now(act), "abort", abort_reason(e))
+                _safe_disable(act)
+                raise
+            finally:
+                log.metadata["loop_wall_s"] = time.perf_counter() - began
 
     def _run_cycles(self, si: int, q_all: np.ndarray, qd_all: np.ndarray, t_next: float,
                     log: TrialLog) -> tuple[float, Optional[RunResult]]:

@@ -242,17 +242,17 @@ def serve(config: TrialConfig, announce, report=None, applied=None) -> None:
         if not sys.stdin.isatty():  # a parent process drives the rig's faults through our stdin
             threading.Thread(target=follow_commands, args=(rig.hooks, rig.bus, sys.stdin, applied),
                              daemon=True).start()
-        FrozenHeap().__enter__()  # what the rig set up is never walked mid-trial (for the process's life)
-        announce(rig.ports)
-        try:
-            while not stop.wait(0.2):
-                pass
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-            if report is not None:
-                with rig.bus.lock:
-                    report(dataclasses.asdict(rig.bus.stats))
+        with FrozenHeap():  # what the rig set up is never walked while it serves
+            announce(rig.ports)
+            try:
+                while not stop.wait(0.2):
+                    pass
+            finally:
+                for sig, handler in previous.items():
+                    signal.signal(sig, handler)
+                if report is not None:
+                    with rig.bus.lock:
+                        report(dataclasses.asdict(rig.bus.stats))
 
 
 EMULATOR_TIMEOUT_MS = 50.0
@@ -331,8 +331,10 @@ class EmulatorProcess:
                 continue
             if not isinstance(said, dict):
                 continue
+            applied = said.get("applied")
             with self._told:
-                self._applied = max(self._applied, int(said.get("applied", self._applied)))
+                if isinstance(applied, int):
+                    self._applied = max(self._applied, applied)
                 self.stats = said.get("stats", self.stats)
                 self._told.notify_all()
         with self._told:  # the child is gone: nobody waits for it any longer

@@ -75,22 +75,16 @@ def record_session(config: StandConfig, out: Path, *, emulate: bool = False, clo
         n += 1
         run_dir = stem.with_name(f"{stem.name}-{n}")
     run_dir.mkdir(parents=True)
-    if emulate and clock == "virtual":
-        vc = VirtualClock()
+    if emulate:
+        vc = VirtualClock() if clock == "virtual" else None
         physics = config.emulator.physics.model_dump(exclude_none=True)
         with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m,
                            supply_v=config.emulator.supply_v, motor=config.motor, servo_id=config.servo_id,
                            source_ohm=config.emulator.source_ohm, clock=vc) as stand, \
-                ServoBus(stand.port, config.baud) as bus:
-            return run_dir, _run_all(config, bus, paced(vc), run_dir, progress)
-    if emulate:
-        physics = config.emulator.physics.model_dump(exclude_none=True)
-        with EmulatedStand(physics, mass=config.mass_kg, length=config.length_m,
-                           supply_v=config.emulator.supply_v, motor=config.motor, servo_id=config.servo_id,
-                           source_ohm=config.emulator.source_ohm) as stand, \
-                ServoBus(stand.port, config.baud, tries=30) as bus:
-            # (more tries than a real bus needs: a busy machine may starve the emulator's thread)
-            return run_dir, _run_all(config, bus, emulated_clock(stand), run_dir, progress)
+                ServoBus(stand.port, config.baud, **({} if vc else {"tries": 30})) as bus:
+            # (stepped: more tries than a real bus needs, a busy machine may starve the emulator's thread)
+            wait = paced(vc) if vc else emulated_clock(stand)
+            return run_dir, _run_all(config, bus, wait, run_dir, progress)
     with ServoBus(config.port, config.baud) as bus:
         return run_dir, _run_all(config, bus, paced(WALL), run_dir, progress)
 
