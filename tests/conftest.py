@@ -16,8 +16,6 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 #: Files whose ``alone`` tests are best started last: the one worker then waits for the other's
 #: current test only (the shortest tests run last), not for a file of them.
 ALONE_LAST = ("test_live.py",)
-#: A share of one core below which this process, spinning, finds the machine loaded by others.
-LOADED_BELOW = 0.9
 
 #: The longest test files (a minute or more each, mostly the emulated rig's trials in real time),
 #: started first: the suite runs on two workers, each file whole on one (README, the test
@@ -65,22 +63,6 @@ def room(config, alone: bool) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
-
-
-@pytest.fixture(scope="session")
-def machine_loaded():
-    """Whether other work loads this machine, measured now: a test that needs the cores to itself
-    (an ``alone`` test, which the suite's own tests leave alone) says so rather than failing."""
-    return lambda: _core_share() < LOADED_BELOW
-
-
-def _core_share(seconds: float = 0.5) -> float:
-    """The share of one core this process gets spinning for ``seconds``: near 1 on a machine with a
-    core to spare, 2/3 beside two CPU hogs on two cores."""
-    wall0, cpu0 = time.monotonic(), time.thread_time()
-    while time.monotonic() - wall0 < seconds:
-        pass
-    return (time.thread_time() - cpu0) / (time.monotonic() - wall0)
 
 
 def pytest_terminal_summary(terminalreporter) -> None:
