@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.geometry.shape_cache import cached_mesh, mesh_key
 from bench.kinematics.dh import matrix_from_rpy
 
 __all__ = ["CollisionShape", "JointSpec", "parse_collisions", "parse_joints"]
@@ -50,8 +51,15 @@ class CollisionShape:
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def local_mesh(self) -> tuple[np.ndarray, np.ndarray]:
-        """(vertices, faces) in the shape's own frame, containing the true shape."""
-        import trimesh  # heavy: loaded only for meshes
+        """(vertices, faces) in the shape's own frame, containing the true shape (kept on disk
+        between commands: :mod:`bench.geometry.shape_cache`)."""
+        if self.kind == "mesh" and self.mesh_file is None:
+            raise ValueError("mesh collision without a filename")
+        key = mesh_key(self.kind, self.size, self.scale, self.mesh_file)
+        return cached_mesh(key, self._make_mesh)
+
+    def _make_mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        import trimesh  # heavy: loaded only when a mesh is made
 
         if self.kind == "box":
             m = trimesh.creation.box(extents=self.size)
@@ -68,8 +76,6 @@ class CollisionShape:
             inner = np.abs(np.einsum("ij,ij->i", normals, tri[:, 0])).min()
             m.apply_scale(self.size[0] / inner)
         elif self.kind == "mesh":
-            if self.mesh_file is None:
-                raise ValueError("mesh collision without a filename")
             m = trimesh.load(self.mesh_file, force="mesh")
             m.apply_scale(self.scale)
         else:

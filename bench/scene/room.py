@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.geometry.shape_cache import cached_mesh, mesh_key
 from bench.kinematics.arc_train import TARGET_1, ArcTrainParams, build_chain
 from bench.paths import URDF_DIR
 from bench.scene.urdf_writer import LinkSpec, Shape, chain_to_urdf, next_joint_offsets, segment, stand_urdf
@@ -112,16 +113,24 @@ def arc_rail_mesh(p: ArcTrainParams = ArcTrainParams(), tube: float = 0.012,
 
 def gantry_mesh(s: SceneParams = SceneParams(), bed_width: float = ArcTrainParams().bed_width,
                 major_sections: int = 96, minor_sections: int = 32):
-    """The CT gantry: a torus around the X axis with the bore radius of seed 000 (70 cm)."""
-    import trimesh  # heavy: trimesh, only when meshes are built
+    """The CT gantry: a torus around the X axis with the bore radius of seed 000 (70 cm) (kept on
+    disk between commands: :mod:`bench.geometry.shape_cache`)."""
+    major, minor = s.bore_radius + s.gantry_tube_radius, s.gantry_tube_radius
+    centre = s.gantry_centre(bed_width)
 
-    ring = trimesh.creation.torus(s.bore_radius + s.gantry_tube_radius, s.gantry_tube_radius,
-                                  major_sections=major_sections, minor_sections=minor_sections)
-    T = np.eye(4)
-    T[:3, :3] = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # z -> X
-    T[:3, 3] = s.gantry_centre(bed_width)
-    ring.apply_transform(T)
-    return np.asarray(ring.vertices), np.asarray(ring.faces)
+    def make() -> tuple[np.ndarray, np.ndarray]:
+        import trimesh  # heavy: trimesh, only when the mesh is made
+
+        ring = trimesh.creation.torus(major, minor, major_sections=major_sections,
+                                      minor_sections=minor_sections)
+        T = np.eye(4)
+        T[:3, :3] = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # z -> X
+        T[:3, 3] = centre
+        ring.apply_transform(T)
+        return np.asarray(ring.vertices), np.asarray(ring.faces)
+
+    key = mesh_key("gantry torus about X", (major, minor, major_sections, minor_sections, *centre))
+    return cached_mesh(key, make)
 
 
 def obj_text(verts: np.ndarray, faces: np.ndarray) -> str:

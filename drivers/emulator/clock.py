@@ -8,6 +8,8 @@ import time
 import numpy as np
 
 from drivers.dynamixel.units import POSITION_MODES
+from drivers.emulator.steady import run_steady
+from drivers.servo.fast import PositionLoop
 
 __all__ = ["PhysicsClock"]
 
@@ -26,6 +28,10 @@ SLICE_STEPS = 2
 
 class PhysicsClock:
     """Part of :class:`~drivers.emulator.bus.DynamixelBusEmulator` (a mixin: it uses the bus's state)."""
+
+    #: Run steady stretches for all servos at once (:mod:`drivers.emulator.steady`); False: servo by
+    #: servo always (the reference the steady path is held to).
+    steady = True
 
     def _due_steps(self, now: float) -> int:
         """Physics steps due by ``now``; beyond ``max_catchup_s`` the backlog is skipped."""
@@ -147,12 +153,21 @@ class PhysicsClock:
             self.stats.rest_s += now - self._rest_since
             self._sim_wall = now
 
+    _loop: PositionLoop | None = None
+
+    def _position_loop(self) -> PositionLoop:
+        """The servo array's position loop (fused where its plain case holds), made once."""
+        if self._loop is None or self._loop.servos is not self._bank:
+            self._loop = PositionLoop(self._bank, self.physics_dt)
+        return self._loop
+
     def _physics(self, steps: int) -> None:
         dt = self.physics_dt
         plant = self.plant
         n = plant.joint_count
         bank, servos = self._bank, self._servos
-        for _ in range(steps):
+        done = run_steady(servos, self._position_loop(), plant, steps) if self.steady else 0
+        for _ in range(steps - done):
             q, v = plant.position().tolist(), plant.velocity().tolist()
             torque = [0.0] * n  # summed in Python floats: a servo's share is one addition, not a numpy item
             for servo, joint in servos:

@@ -135,12 +135,22 @@ class ServoFirmware:
             self._loop_inputs = key
         else:
             self._loop_inputs = None
-        b.pid[i] = False
-        b.pwm_in[i] = b.current_in[i] = math.nan
         if values["Torque Enable"] != 1:
+            b.pid[i] = False
+            b.pwm_in[i] = b.current_in[i] = math.nan
             self._track_present(present)
             self._driving = False
             return
+        self._set_loop_inputs(dt, mode)
+
+    def _set_loop_inputs(self, dt: float, mode: int) -> None:
+        """Hand the array this servo's loop inputs (torque on): the gains and limits of a position
+        mode, or the drive of the others."""
+        values = self._values
+        b, i = self._bank, self._slot
+        b.version += 1  # the array's registers written in place: a fused loop works its constants out again
+        b.pid[i] = False
+        b.pwm_in[i] = b.current_in[i] = math.nan
         self._driving = True
         pwm_limit = float(values["PWM Limit"])
         b.pwm_limit[i] = pwm_limit
@@ -164,6 +174,42 @@ class ServoFirmware:
             b.current_in[i] = values["Goal Current"] * self._amps_per_unit
         else:  # PWM
             b.pwm_in[i] = clamp(float(values["Goal PWM"]), pwm_limit)
+
+    def steady(self) -> tuple | None:
+        """This servo's constants for a run of steady steps (:mod:`drivers.emulator.steady`), its loop
+        inputs brought up to date; None where its next step must take :meth:`begin_step`'s path:
+        torque off, a mode other than a position mode, a forced item, a supervision fault due."""
+        values = self._values
+        mode = values["Operating Mode"]
+        if values["Torque Enable"] != 1 or mode not in POSITION_MODES or self._forced:
+            return None
+        volts = self._voltage_reg.from_si(self.input_voltage)
+        if not (values["Min Voltage Limit"] <= volts <= values["Max Voltage Limit"]
+                and self.temperature_c <= values["Temperature Limit"]):
+            return None
+        key = (self._writes, self.input_voltage, self.deadband_ticks)
+        if key != self._loop_inputs:
+            self._loop_inputs = key
+            self._set_loop_inputs(CONTROL_PERIOD_S, mode)
+        sign = -1.0 if values["Drive Mode"] & 1 else 1.0
+        register = self._position_reg
+        available = min(self._current_limit_a(), self.input_voltage / self._resistance)
+        overload_at = self.overload_fraction * available if available > 0 else math.inf
+        return (sign, register.scale, register.divisor, register.zero, self._turn_offset,
+                values["Homing Offset"], sign * self._kt, overload_at, self.overload_time_s,
+                self._overload_timer, self._time)
+
+    def settle(self, position: float, velocity: float, raw: float, time_s: float, overload_timer: float,
+               sign: float, *, drive: bool) -> None:
+        """After a run of steady steps: the state its last step leaves, as :meth:`begin_step` and, with
+        ``drive``, :meth:`end_step` would have left it (without, :meth:`end_step` is still to run)."""
+        b, i = self._bank, self._slot
+        self._time, self._sign, self._raw_ticks, self._overload_timer = time_s, sign, raw, overload_timer
+        self._pending = [("sense", position, velocity, sign, time_s)]
+        if drive:
+            self._profile_ongoing = bool(b.ongoing[i])
+            self._pending.append(("drive", float(b.pwm[i]), float(b.current[i]),
+                                  (float(b.traj[i]), float(b.traj_vel[i]))))
 
     def end_step(self, dt: float) -> float:
         """Take the array's drive for this servo: supervise the current, report, return the torque."""

@@ -123,6 +123,20 @@ class PositionLoop:
         present = np.floor(position * self._inv_tick + 0.5)
         return self._kt * self._drive(s, present, velocity)
 
+    def step_present(self, present: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """One firmware sample from the encoders' readings ``present`` (ticks, as the owner's encoders
+        read them) at shaft speeds ``omega`` (rad/s): the motor currents (A). A goal just written
+        (its trajectory still to be set) takes the array's own step, as outside the plain case."""
+        s = self.servos
+        if s.version != self._version:
+            self.refresh()
+        if not (self.fused and self._primed) or s.ongoing.any():
+            s.present, s.omega = present, omega
+            s.step_ticks(self.dt)
+            self._primed = bool(s.has_prev.all())
+            return s.current
+        return self._drive(s, present, omega)
+
     def step_joint(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """:meth:`step` from joint values and speeds, torques at the joints (shaft torque / ratio),
         the transmissions folded into the constants: :meth:`ServoArray.step_joint`'s very numbers."""
