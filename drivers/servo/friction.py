@@ -49,6 +49,8 @@ class FrictionParams(Protocol):
     load_quad_external: np.ndarray
     #: which terms any joint has: Stribeck peak, load, load at rest, quadratic (worked out once)
     _friction_terms: tuple[bool, bool, bool, bool]
+    #: the Stribeck exponents, 2.0 where all are 2 (worked out once)
+    _stribeck_alpha: float | np.ndarray
 
 
 def friction_level(params: FrictionParams, omega: np.ndarray, motor_torque=0.0,
@@ -60,7 +62,7 @@ def friction_level(params: FrictionParams, omega: np.ndarray, motor_torque=0.0,
     level = params.coulomb
     fade = None
     if peak or load_rest or quadratic:
-        fade = stribeck_fade(omega, params.stribeck_velocity, params.stribeck_alpha)
+        fade = stribeck_fade(omega, params.stribeck_velocity, params._stribeck_alpha)
     if peak:
         level = np.where(params.stribeck > 0.0, params.coulomb + (params.stribeck - params.coulomb) * fade,
                          params.coulomb)
@@ -82,7 +84,9 @@ def friction_level(params: FrictionParams, omega: np.ndarray, motor_torque=0.0,
 def stribeck_fade(omega, stribeck_velocity, alpha=2.0) -> np.ndarray:
     """The Stribeck curve e^{-|ω/ω_s|^α}: 1 at rest, fading to 0 past ω_s (α = 2 unless set)."""
     ratio = omega / np.maximum(stribeck_velocity, 1e-9)
-    return np.exp(-(ratio * ratio)) if np.all(np.asarray(alpha) == 2.0) else np.exp(-np.abs(ratio) ** alpha)
+    if (alpha == 2.0 if isinstance(alpha, float) else np.all(np.asarray(alpha) == 2.0)):
+        return np.exp(-(ratio * ratio))
+    return np.exp(-np.abs(ratio) ** alpha)
 
 
 def regressors(omega: np.ndarray, stribeck_velocity: float) -> tuple[np.ndarray, np.ndarray]:

@@ -124,6 +124,12 @@ class ServoParams:
                 nonzero("load_stribeck_motor", "load_stribeck_external"),
                 nonzero("load_quad_motor", "load_quad_external"))
 
+    @cached_property
+    def _stribeck_alpha(self) -> float | np.ndarray:
+        """The Stribeck exponents as :func:`~drivers.servo.friction.stribeck_fade` takes them: the
+        number 2.0 where every joint's is 2 (its square, not a power), else the array."""
+        return 2.0 if bool(np.all(self.stribeck_alpha == 2.0)) else self.stribeck_alpha
+
     @property
     def n(self) -> int:
         return int(self.kt.shape[0])
