@@ -24,13 +24,16 @@ from drivers.dynamixel.control_table import Register
 from drivers.dynamixel.units import POSITION_MODES, TICKS_PER_REV, OperatingMode
 from drivers.servo.model import ServoArray, ServoParams
 
-__all__ = ["CONTROL_PERIOD_S", "ServoFirmware", "clamp"]
+__all__ = ["CONTROL_PERIOD_S", "NOT_LOOP_INPUTS", "REPORTED", "ServoFirmware", "clamp"]
 
 CONTROL_PERIOD_S = 0.001
 #: The items the firmware reports from each step: writing them changes none of the loop's inputs.
 REPORTED = frozenset({"Present Position", "Present Velocity", "Present Current", "Present Load",
                       "Present PWM", "Present Input Voltage", "Present Temperature", "Realtime Tick",
                       "Position Trajectory", "Velocity Trajectory", "Moving", "Moving Status"})
+#: The items whose writes leave the position loop's inputs as they were: the reports, and the goal
+#: (a new goal plans the servo's trajectory in its slot at once, :meth:`ServoFirmware._plan_profile`).
+NOT_LOOP_INPUTS = REPORTED | {"Goal Position"}
 
 
 def clamp(value: float, limit: float) -> float:
@@ -75,7 +78,7 @@ class ServoFirmware:
     #: What the last step (and an observation after it) left to report, in order: ("sense",
     #: position, velocity, sign, time), ("drive", pwm, current, trajectory or None), ...
     _pending: list[tuple] | None = None
-    #: Items written other than reports (the loop's inputs may have changed), and the key under
+    #: Items written other than reports and the goal (the loop's inputs may have changed), and the key under
     #: which the slot's inputs were last set: (writes, supply, deadband).
     _writes = 0
     _loop_inputs: tuple | None = None

@@ -60,7 +60,7 @@ from typing import Mapping, NoReturn
 from drivers.dynamixel.control_table import XM430_W350, Access, Area, ModelSpec, Register, model_spec
 from drivers.dynamixel.protocol import ALERT_BIT, HARDWARE_ERROR_BITS, StatusError
 from drivers.dynamixel.units import BAUD_RATES, OperatingMode
-from drivers.emulator.firmware import CONTROL_PERIOD_S, REPORTED, ServoFirmware
+from drivers.emulator.firmware import CONTROL_PERIOD_S, NOT_LOOP_INPUTS, REPORTED, ServoFirmware
 from drivers.servo.model import ServoParams
 
 __all__ = ["CONTROL_PERIOD_S", "ServoModel"]
@@ -189,7 +189,7 @@ class ServoModel(ServoFirmware):
             raise ValueError(f"{name} = {value} does not fit {self._fmt[name][1]} byte(s)")
         self._values[name] = value
         self._dirty.add(name)
-        if name not in REPORTED:
+        if name not in NOT_LOOP_INPUTS:
             self._writes += 1
 
     def _report(self, name: str, value: int) -> None:
