@@ -356,3 +356,58 @@ def test_the_emulated_rig_reports_the_cameras_tip_and_a_bias_the_bench_injects(t
     true_gap_mm = float(np.linalg.norm(ROBOT.needle(q_read).tip - ROBOT.needle(q_true).tip) * 1e3)
     assert abs(cam["encoder_gap_mm"] - true_gap_mm) < 0.5, (cam["encoder_gap_mm"], true_gap_mm)
     assert cam["flag"] is True
+
+
+def test_a_zero_error_in_the_emulated_rig_is_seen_by_its_cameras_not_by_its_encoders(tmp_path):
+    """θ5 mounted 1° off its zero: a mechanical error, nothing the bench injects. The encoders put
+    the needle on the target and the trial passes by them; the emulated rig's rendered cameras see
+    its plant where it truly is, and measure the gap between the two tips, flagged (on the virtual
+    clock: the same numbers on any machine)."""
+    from bench.rig.emulated import EmulatedRig, Planted
+    from drivers.clock import VirtualClock
+
+    data = yaml.safe_load((REPO / "hil_configs" / "lab_real.yaml").read_text())
+    data.update(plan={"velocity_scale": 0.5, "settle_s": 0.5, "retract": False})
+    path = tmp_path / "lab.yaml"
+    path.write_text(yaml.safe_dump(data))
+    cfg = load_trial_config(path)
+    error = np.radians(1.0)
+    with EmulatedRig(cfg, clock=VirtualClock(), planted=Planted(zero_errors={"theta5": error})) as rig:
+        res = run_trial(prepare(rig.retarget(cfg)), tmp_path / "runs", TrialHooks(report=False))
+    cam = res.camera
+    assert res.completed and res.passed and cam["problem"] == "", (res.reason, cam)
+    log = TrialLog.load(res.run_dir / "trial.npz")
+    q_read = settled_position(log, "insert")
+    q_true = q_read.copy()
+    q_true[ROBOT.joint_names.index("theta5")] += error  # the true joint: the configured zero plus the error
+    true_gap_mm = float(np.linalg.norm(ROBOT.needle(q_read).tip - ROBOT.needle(q_true).tip) * 1e3)
+    assert true_gap_mm > 1.0
+    assert abs(cam["encoder_gap_mm"] - true_gap_mm) < 0.5, (cam["encoder_gap_mm"], true_gap_mm)
+    assert cam["flag"] is True
+
+
+def test_the_encoders_tip_uncertainty_is_their_resolution_through_the_kinematics():
+    """On a servo bus each joint reads to a tick through its transmission (the sensed train: its
+    readings' scatter instead): the tip's standard deviation from those steps is what drawing every
+    joint within half a step of its reading gives (10 000 draws)."""
+    from bench.core.seen import encoder_tip_sigma, joint_resolution
+
+    lab = load_trial_config(REPO / "hil_configs" / "lab_real.yaml")
+    names = ROBOT.joint_names
+    res = joint_resolution(lab, names)
+    tick = 2 * np.pi / 4096
+    for name, r in zip(names, res):
+        expected = 0.0 if name == lab.backend.ultrasonic.joint else abs(lab.backend.servos[name].ratio) * tick
+        assert r == pytest.approx(expected), name
+    assert not joint_resolution(load_trial_config(REPO / "hil_configs" / "sim_target1.yaml"), names).any()
+    q = ROBOT.ik(TARGET_1)
+    sigma = encoder_tip_sigma(ROBOT, np.tile(q, (50, 1)), res)
+    rng = np.random.default_rng(0)
+    tips = np.array([ROBOT.needle(q + rng.uniform(-0.5, 0.5, len(q)) * res).tip for _ in range(10_000)])
+    drawn = float(np.sqrt(np.mean(np.sum((tips - ROBOT.needle(q).tip) ** 2, axis=1))))
+    assert sigma == pytest.approx(drawn, rel=0.05) and sigma > 1e-4  # a tenth of a millimetre and more
+    # a sensed joint's scatter over the settle counts as its median's: π/2 · σ² / n
+    scattered = np.tile(q, (400, 1))
+    train = names.index("train")
+    scattered[:, train] += rng.normal(0.0, 0.004, 400)
+    assert encoder_tip_sigma(ROBOT, scattered, np.zeros(len(q))) > 0

@@ -465,12 +465,34 @@ def test_the_child_emulator_applies_each_command_line_and_says_which_it_could_no
              '{"plant": {"external_effort": [12, 0.3]}}', '{"plant": {"friction_scale": 3}}',
              '{"faults": {"drop_prob": 0.1}, "unplug": true}',
              '{"plant": {"friction_scale": [2, 2.5]}}', '{"replug": true}']
-    follow_commands(rig, rig, iter(line + "\n" for line in lines))
+    answers = []
+    follow_commands(rig, rig, iter(f'{line[:-1]}, "seq": {k}}}\n' if line.startswith("{") else line + "\n"
+                                   for k, line in enumerate(lines)), lambda seq, answer: answers.append(seq))
     assert rig.done == [("load", 3, 0.3), ("unplug",), ("friction", 2, 2.5), ("replug",)]
+    assert answers == [0, 2, 3, 4, 5, 6]  # every numbered line told, applied or refused
     assert rig.drop_prob == 0.1
     said = capsys.readouterr().err.splitlines()
     assert len(said) == 3 and all(line.startswith("emulator: command ") for line in said)
     assert "not a joint index" in said[1]
+
+
+def test_an_emulator_in_a_child_process_says_where_its_joints_truly_are(tmp_path):
+    """What its rendered cameras see: asked over its stdin, the child's plant's joints, here where the
+    servos hold them (its encoders read them to a tick); an answer of the wrong size is refused."""
+    from bench.rig.hooks import RemoteRigHooks
+
+    path = lab_holding(tmp_path)
+    with EmulatorProcess(path) as child:
+        cfg = child.retarget(load_trial_config(path))
+        robot = get_robot(cfg.robot)
+        with make_dynamixel_backend(cfg, robot) as act:
+            read = np.asarray(act.read().position)
+        truth = child.faults.true_position()
+    assert truth.shape == (len(robot.joint_names),)
+    revolute = [j for j, n in enumerate(robot.joint_names) if n.startswith("theta")]
+    assert np.abs(truth[revolute] - read[revolute]).max() < np.radians(0.2), (truth, read)
+    with pytest.raises(BackendSetupError, match="did not say where its joints are"):
+        RemoteRigHooks(lambda cmd: {"true_position": [0.0]}, len(robot.joint_names)).true_position()
 
 
 def test_a_trial_on_a_rig_served_by_another_process_refuses_a_contact_in_one_line(tmp_path):

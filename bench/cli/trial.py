@@ -244,9 +244,9 @@ def emulate(config: Path = typer.Argument(..., help="A config with backend.kind:
             say("warning: the emulator's physics fell behind real time and skipped {} s (the "
                 "machine was too busy)", f"{stats['physics_skipped_s']:.2f}")
 
-    def applied(seq: int) -> None:  # a parent driving faults through our stdin waits for this
+    def applied(seq: int, answer: dict) -> None:  # a parent driving faults through our stdin waits for this
         if as_json:
-            emit_json({"applied": seq})
+            emit_json({"applied": seq} | answer)
 
     try:
         serve(cfg, announce, report, applied)

@@ -17,9 +17,9 @@ import numpy as np
 from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
 from bench.core.looptiming import LoopTiming, loop_timing
-from bench.core.outcome import NeedleOutcome, needle_outcome, pose_outcome, settled_position
+from bench.core.outcome import NeedleOutcome, needle_outcome, pose_outcome, settle_rows, settled_position
 from bench.core.requirements import evaluate_requirements, trial_requirements
-from bench.core.seen import camera_pose, camera_summary
+from bench.core.seen import camera_pose, camera_summary, encoder_tip_sigma, joint_resolution
 from bench.core.truth import true_outcome
 from bench.kinematics.needle import NeedleTarget
 from drivers.errors import TrialError, safe_stop_unconfirmed
@@ -201,8 +201,14 @@ def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialR
     cfg = prep.config
     outcome = measured_outcome(log, prep)
     measured = log.metadata.get("camera")
-    camera = camera_summary(measured, None if outcome is None else
-                            prep.robot.needle(settled_position(log, "insert")), prep.target)
+    camera = None
+    if measured:
+        encoders, sigma = None, 0.0
+        if outcome is not None:
+            rows = log.q[settle_rows(log.time, log.segment, log.segment_names, "insert")]
+            encoders = prep.robot.needle(settled_position(log, "insert"))
+            sigma = encoder_tip_sigma(prep.robot, rows, joint_resolution(cfg, log.joint_names))
+        camera = camera_summary(measured, encoders, prep.target, sigma)
     if cfg.acceptance.by == "camera":  # judged on the cameras' tip, or not at all
         seen = camera_pose((measured or {}).get("captures", {}).get("insert"), prep.target)
         outcome = None if seen is None else pose_outcome(seen, prep.target, cfg.acceptance.position_mm,

@@ -4,6 +4,13 @@ The record keeps what was measured (``log.metadata["camera"]``); this turns the 
 of the insertion into the trial's camera figures, the same at the end of a trial and later:
 the tip's deviation from the target, the needle's angle, the gap between the encoders' tip and
 the cameras', the uncertainty, and the flag: a gap beyond what the uncertainty explains.
+
+Both tips are uncertain: the cameras' by their calibration and detection (the measurement's
+covariance), the encoders' by their resolution (a servo reads its shaft to a tick, 0.088°, so
+the joint it drives is anywhere within half a step of its reading) and by the scatter of a sensed
+joint's readings (the train's ultrasonic sensor) over the settle. The gap is flagged beyond
+:data:`COVERAGE` standard deviations of the two together: a clean rig whose encoders place the
+tip half a millimetre from the truth is not flagged, an encoder bias of a degree is.
 """
 
 from __future__ import annotations
@@ -13,8 +20,9 @@ from typing import Optional
 import numpy as np
 
 from bench.kinematics.needle import NeedlePose, NeedleTarget, angles_of, pose_from_axis
+from drivers.dynamixel.control_table import x_series_table
 
-__all__ = ["COVERAGE", "camera_pose", "camera_summary"]
+__all__ = ["COVERAGE", "camera_pose", "camera_summary", "encoder_tip_sigma", "joint_resolution"]
 
 #: The uncertainty reported is this many standard deviations of the tip (the root of its
 #: covariance's trace): a gap beyond it is flagged.
@@ -34,15 +42,52 @@ def camera_pose(capture: dict, target: NeedleTarget) -> Optional[NeedlePose]:
     return pose_from_axis(entry, axis, float(np.linalg.norm(tip - entry)))
 
 
+def joint_resolution(config, names) -> np.ndarray:
+    """Each joint's reading step (joint units) on the config's backend: on a servo bus, a tick of
+    its servo through the transmission; 0 where the bench reads no quantized encoder (the sensed
+    joint, whose readings' scatter counts instead; the simulator's exact joints)."""
+    out = np.zeros(len(names))
+    b = config.backend
+    if getattr(b, "kind", None) != "dynamixel":
+        return out
+    sensed = b.ultrasonic.joint if b.ultrasonic is not None else None
+    tick = x_series_table()["Present Position"].scale  # rad a tick at the shaft
+    for i, name in enumerate(names):
+        servo = b.servos.get(name)
+        if servo is not None and name != sensed:
+            out[i] = abs(servo.ratio) * tick
+    return out
+
+
+def encoder_tip_sigma(robot, readings: np.ndarray, resolution: np.ndarray, step: float = 1e-6) -> float:
+    """The standard deviation (m, the root of the covariance's trace) of the tip the encoders place
+    from the settle's ``readings`` (rows of joint values): each joint's median within half a step
+    of ``resolution`` (uniform: step/√12; 0 for a joint read exactly) and scattered as its readings
+    are (the median's variance, π/2·σ²/n), through the needle's forward kinematics."""
+    readings = np.atleast_2d(np.asarray(readings, dtype=float))
+    q = np.median(readings, axis=0)
+    n = len(readings)
+    var = np.asarray(resolution, dtype=float) ** 2 / 12.0 + (np.pi / 2) * readings.var(axis=0) / max(n, 1)
+    tip = robot.needle(q).tip
+    total = 0.0
+    for j in np.flatnonzero(var > 0):
+        dq = np.zeros_like(q)
+        dq[j] = step
+        column = (robot.needle(q + dq).tip - tip) / step  # ∂tip/∂q_j
+        total += float(column @ column) * float(var[j])
+    return float(np.sqrt(total))
+
+
 def camera_summary(camera: Optional[dict], encoders: Optional[NeedlePose],
-                   target: NeedleTarget) -> Optional[dict]:
+                   target: NeedleTarget, encoder_sigma: float = 0.0) -> Optional[dict]:
     """``trial --json``'s "camera" (mm, degrees), from the record's camera measurement and the
-    encoders' settled needle; None when the trial had no cameras."""
+    encoders' settled needle (``encoder_sigma``: its tip's standard deviation, m, from
+    :func:`encoder_tip_sigma`); None when the trial had no cameras."""
     if not camera:
         return None
     capture = camera.get("captures", {}).get("insert")
     out = {"tip_deviation_mm": None, "angle_deviation_deg": None, "encoder_gap_mm": None,
-           "uncertainty_mm": None, "flag": None, "tip_mm": None,
+           "uncertainty_mm": None, "encoder_uncertainty_mm": None, "flag": None, "tip_mm": None,
            "problem": "no capture at the end of the insertion (the trial stopped before it)"}
     if capture is None:
         return out
@@ -61,5 +106,6 @@ def camera_summary(camera: Optional[dict], encoders: Optional[NeedlePose],
     if encoders is not None:
         gap = float(np.linalg.norm(encoders.tip - pose.tip))
         out["encoder_gap_mm"] = r(gap * 1e3)
-        out["flag"] = bool(gap > COVERAGE * sigma)
+        out["encoder_uncertainty_mm"] = r(COVERAGE * encoder_sigma * 1e3)
+        out["flag"] = bool(gap > COVERAGE * np.hypot(sigma, encoder_sigma))
     return out

@@ -305,6 +305,7 @@ class EmulatorProcess:
         self.stats: dict = {}
         # what the child says after its ports: each command's number once applied, its counters last
         self._sent = self._applied = 0
+        self._answers: dict[int, dict] = {}
         self._told = threading.Condition()
         self._listener = threading.Thread(target=self._listen, daemon=True)
         self._listener.start()
@@ -335,17 +336,20 @@ class EmulatorProcess:
             with self._told:
                 if isinstance(applied, int):
                     self._applied = max(self._applied, applied)
+                    if len(said) > 1:  # an answer beside the number: kept for the one who asked
+                        self._answers[applied] = said
                 self.stats = said.get("stats", self.stats)
                 self._told.notify_all()
         with self._told:  # the child is gone: nobody waits for it any longer
             self._applied = self._sent = max(self._applied, self._sent)
             self._told.notify_all()
 
-    def _send(self, cmd: dict) -> None:
+    def _send(self, cmd: dict) -> dict:
         """Send a command and wait until the child has applied it: a fault is in the plant before
-        the trial goes on (a push sent and not yet taken would be a push the log never saw)."""
+        the trial goes on (a push sent and not yet taken would be a push the log never saw). The
+        child's answer, where the command asked something ({} otherwise, or once the child is gone)."""
         if self.proc.poll() is not None:
-            return
+            return {}
         with self._told:
             self._sent += 1
             seq = self._sent
@@ -353,11 +357,12 @@ class EmulatorProcess:
             self.proc.stdin.write(json.dumps(cmd | {"seq": seq}) + "\n")
             self.proc.stdin.flush()
         except (OSError, ValueError):
-            return  # the child is gone; the trial learns it from its bus
+            return {}  # the child is gone; the trial learns it from its bus
         with self._told:
             if not self._told.wait_for(lambda: self._applied >= seq, COMMAND_TIMEOUT_S):
                 raise BackendSetupError(f"the emulated rig did not apply {json.dumps(cmd)} within "
                                         f"{COMMAND_TIMEOUT_S:g} s")
+            return self._answers.pop(seq, {})
 
     def unplug(self) -> None:
         self.proc.send_signal(signal.SIGUSR1)

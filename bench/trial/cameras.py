@@ -21,7 +21,8 @@ import numpy as np
 
 from drivers import Actuators, ActuatorsWrapper, JointState
 from drivers.camera import CameraError
-from drivers.capabilities import TruePosition, find_capability
+from drivers.errors import BenchError
+from drivers.capabilities import EmulatorHooks, TruePosition, find_capability
 
 __all__ = ["BackendReading", "TrialCaptures", "open_cameras"]
 
@@ -32,10 +33,10 @@ CAPTURE_AT = {"insert": "entry", "retract": "insert"}
 class BackendReading(ActuatorsWrapper):
     """Keeps the backend's own last reading, beneath the fault wrappers (a recorder, not a fault).
 
-    On an emulated rig the plant runs in the emulator's process and says nothing of itself but
-    through its servos: the rendered cameras show the joints where the emulated encoders read them
-    (to a tick; the median of the settle's last readings), which the bench's encoder faults do
-    not touch, as a camera would see them."""
+    The rendered cameras of an emulated rig show its plant's joints where they truly are (the
+    rig's ``true_position``, asked of its process); a backend on a rig that cannot say has them
+    where its own servos read them (to a tick; the median of the settle's last readings), which
+    the bench's encoder faults do not touch, but a mechanical zero error would."""
 
     def __init__(self, actuators: Actuators) -> None:
         super().__init__(actuators)
@@ -107,13 +108,25 @@ class TrialCaptures:
 def open_cameras(prep: PreparedTrial, act: Actuators, log: TrialLog,
                  reading: Optional[BackendReading] = None) -> TrialCaptures:
     """The config's cameras on this backend: rendered where its true joints are (the sim's
-    ``TruePosition``; an emulated rig's own servos' reading, ``reading``), or the devices (real rig)."""
+    ``TruePosition``, an emulated rig's plant; else the servos' own reading, ``reading``), or the
+    devices (real rig)."""
     cfg = prep.config
     if cfg.cameras is None:
         return TrialCaptures(None, log)
     source = camera_source(cfg.cameras, log.metadata.get("rig") or rig_kind(cfg))
     truth = find_capability(act.unwrapped, TruePosition)
-    where = truth.true_position if truth is not None else None if reading is None else reading.last
+    hooks = find_capability(act.unwrapped, EmulatorHooks)
+    rig_truth = getattr(hooks.fault_hooks, "true_position", None) if hooks is not None else None
+    if truth is not None:
+        where = truth.true_position
+    elif rig_truth is not None:  # an emulated rig: its plant, as a camera on it sees it
+        def where() -> np.ndarray:
+            try:
+                return rig_truth()
+            except BenchError as e:  # a camera that cannot see never stops the trial
+                raise CameraError(str(e)) from e
+    else:
+        where = None if reading is None else reading.last
     try:
         calibration = None if cfg.cameras.calibration is None else cfg.resolve(cfg.cameras.calibration)
         cams = TrialCameras(cfg.cameras, source, cfg.robot_urdf, prep.robot.joint_names,
