@@ -111,6 +111,8 @@ def camera_markdown(camera: dict, outcome, judged_by: str, figure: Optional[str]
         lines += [f"- gap between the encoders' tip and the cameras': "
                   f"{'—' if gap is None else f'{gap:.2f} mm'}; the cameras' uncertainty "
                   f"{camera['uncertainty_mm']:.2f} mm ({COVERAGE:g} σ)"
+                  + (f", the encoders' {camera['encoder_uncertainty_mm']:.2f} mm"
+                     if camera.get("encoder_uncertainty_mm") is not None else "")
                   + ("; **flagged: the encoders do not say where the needle is**" if flag else ""),
                   f"- judged by: {judged_by}", ""]
     if figure:
