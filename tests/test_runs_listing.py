@@ -180,3 +180,19 @@ def test_runs_refuses_an_out_that_is_not_a_directory_in_one_line(tmp_path):
     for out, why in ((tmp_path / "missing", "no such directory"), (tmp_path / "file", "not a directory")):
         res = CliRunner().invoke(app, ["runs", "--out", str(out)])
         assert res.exit_code == 2 and res.stderr.strip() == f"error: --out {out}: {why}", res.stderr
+
+
+def test_a_trial_with_cameras_lists_their_gap_to_the_encoders(tmp_path):
+    """sim_target1.yaml ships two cameras: its trial is listed with the gap between their tip and the
+    encoders' (not flagged on a clean sim trial), in the JSON and under the table."""
+    cfg = load_trial_config(REPO / "hil_configs" / "sim_target1.yaml")
+    res = run_trial(prepare(cfg), tmp_path, TrialHooks(report=False))
+    gap = res.camera["encoder_gap_mm"]
+    (listed,) = _listed(tmp_path)
+    assert listed["cameras"] == f"tip {gap:.2f} mm from the encoders'"
+    table = CliRunner().invoke(app, ["runs", "--out", str(tmp_path)], env={"COLUMNS": "160"})
+    assert f": cameras: tip {gap:.2f} mm from the encoders'" in table.stdout
+    result = json.loads((res.run_dir / "result.json").read_text())
+    result["camera"]["flag"] = True
+    (res.run_dir / "result.json").write_text(json.dumps(result))
+    assert _listed(tmp_path)[0]["cameras"].endswith(", flagged")

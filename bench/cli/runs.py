@@ -83,10 +83,13 @@ def runs(out: Path = typer.Option(Path("runs"), "--out", help="The directory tri
             console.print(f"{name}: lowest margin {r.margin}", highlight=False, soft_wrap=True)
         if r.alarms:
             console.print(f"{name}: the twin's alarms: {r.alarms}", highlight=False, soft_wrap=True)
+        if r.cameras:
+            console.print(f"{name}: cameras: {r.cameras}", highlight=False, soft_wrap=True)
     kinds = {k: sum(r.kind == k for r in found) for k in ("trial", "compare", "campaign")}
     console.print(f"{_count(len(found), 'run')} ({', '.join(f'{n} {k}' for k, n in kinds.items() if n)}); "
                   f"tip dist.: how far the needle tip ended from its target; lowest margin: the "
-                  f"requirement with the lowest robustness (mm or °, negative: missed by); "
+                  f"requirement with the lowest robustness (mm or °, negative: missed by); cameras: "
+                  f"their tip's distance from the encoders', flagged beyond the two's uncertainty; "
                   f"reports: {out}/RUN/report.html (the run's name links to it)",
                   highlight=False, soft_wrap=True)
 

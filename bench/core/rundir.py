@@ -62,12 +62,24 @@ class RequirementRow(BaseModel):
     holds: StrictBool
 
 
+class CameraRow(BaseModel):
+    """The cameras' figures as ``result.json`` holds them (mm; None: not measured)."""
+
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+    encoder_gap_mm: Optional[float] = None
+    flag: Optional[StrictBool] = None
+    problem: str = Field("", max_length=2000)
+
+
 class ResultFile(BaseModel):
-    """``result.json`` as ``runs`` reads it: the verdict, the two deviations and the requirements."""
+    """``result.json`` as ``runs`` reads it: the verdict, the two deviations, the requirements and
+    the cameras' gap."""
 
     model_config = ConfigDict(extra="allow", allow_inf_nan=False)
 
     requirements: list[RequirementRow] = Field(default_factory=list, max_length=64)
+    camera: Optional[CameraRow] = None
 
     passed: StrictBool
     completed: StrictBool

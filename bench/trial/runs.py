@@ -21,7 +21,7 @@ from typing import Optional
 from bench.core.log import JOURNAL_META
 from bench.core.rundir import RECORD, RunDirError, has_run_files, load_run, read_journal, read_result
 
-__all__ = ["RunSummary", "broken", "list_runs", "lowest_margin", "trial_summary"]
+__all__ = ["RunSummary", "broken", "camera_line", "list_runs", "lowest_margin", "trial_summary"]
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,9 @@ class RunSummary:
     #: The requirement with the lowest robustness, "tip +4.912" (mm or °; "tip none": no value);
     #: a campaign's: the lowest over its trials. None when the record holds no requirements.
     margin: Optional[str] = None
+    #: What the cameras saw: "tip 0.95 mm from the encoders'" (", flagged" beyond the two's
+    #: uncertainty), or why they measured nothing; None for a trial without cameras.
+    cameras: Optional[str] = None
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -82,7 +85,9 @@ def _checked_summary(run_dir: Path) -> RunSummary:
     result = read_result(run_dir)
     config = meta.get("config") or {}
     name = config.get("name")
-    margin = None
+    margin = cameras = None
+    if result is not None and result.camera is not None:
+        cameras = camera_line(result.camera.encoder_gap_mm, result.camera.flag, result.camera.problem)
     if result is None:
         status, reason, tip, angle = "incomplete", "no result: the process was killed", None, None
     else:
@@ -103,7 +108,17 @@ def _checked_summary(run_dir: Path) -> RunSummary:
                       meta.get("backend"), status, reason, None if tip is None else round(tip, 3),
                       None if angle is None else round(float(angle), 4),
                       str(report) if report.is_file() else None, meta.get("rig"), alarms=alarms,
-                      margin=margin)
+                      margin=margin, cameras=cameras)
+
+
+def camera_line(gap_mm: Optional[float], flag: Optional[bool], problem: str) -> str:
+    """What the cameras saw, in a few words: the gap between their tip and the encoders', flagged
+    or not, or why there is no measurement."""
+    if problem:
+        return f"no measurement: {problem}"
+    if gap_mm is None:
+        return "tip measured; the encoders placed none"
+    return f"tip {gap_mm:.2f} mm from the encoders'" + (", flagged" if flag else "")
 
 
 def lowest_margin(rows: list[tuple[str, Optional[float]]]) -> Optional[str]:
