@@ -174,6 +174,8 @@ def _gist(msg) -> str:
     """A message's gist in one line: joint names and positions, a number, a text."""
     if hasattr(msg, "position"):
         return " ".join(f"{n}={v:.4g}" for n, v in zip(msg.name, msg.position))
+    if hasattr(msg, "point"):
+        return f"x={msg.point.x:.4g} y={msg.point.y:.4g} z={msg.point.z:.4g} ({msg.header.frame_id})"
     if hasattr(msg, "msg"):
         return msg.msg[:110]
     return f"{msg.data:.4g}" if isinstance(msg.data, float) else str(msg.data)[:110]

@@ -89,6 +89,16 @@ def test_the_mcap_file_holds_the_trial_log_exactly(run_dir, tmp_path):
     assert [m.data for _, m, _ in topics["/phase"]] == log.segment_names
     rosout = [m for _, m, _ in topics["/rosout"]]
     assert [r.msg for r in rosout] == [f"{e.kind}: {e.message}" for e in log.events]
+    # What the cameras measured: their tip at each capture (entry, end of the insertion), and at the
+    # end of the insertion its distance from the encoders' tip, SI, as the result gives them in mm.
+    result = json.loads((run_dir / "result.json").read_text())
+    tips = topics["/camera/tip"]
+    assert [s for s, _, _ in tips] == ["geometry_msgs/msg/PointStamped"] * 2
+    assert all(m.header.frame_id == "base_link" for _, m, _ in tips)
+    last = tips[-1][1].point
+    np.testing.assert_allclose([last.x, last.y, last.z], np.array(result["camera"]["tip_mm"]) * 1e-3, atol=1e-7)
+    (gap,) = [m.data for _, m, _ in topics["/camera/encoder_gap"]]
+    assert gap == pytest.approx(result["camera"]["encoder_gap_mm"] * 1e-3, abs=1e-7)
     assert {"trial", "config", "result"} <= set(meta)
     assert json.loads(meta["config"]["json"]) == log.metadata["config"]
     assert meta["trial"]["robot"] == "arc-train"

@@ -41,7 +41,7 @@ from bench.core.result import PreparedTrial
 from bench.export import ros2_messages as msgs
 from bench.trial.margins import margins_of
 
-__all__ = ["write_mcap", "TIMING_TOPICS", "TOPICS", "TWIN_TOPICS"]
+__all__ = ["write_mcap", "CAMERA_TOPICS", "TIMING_TOPICS", "TOPICS", "TWIN_TOPICS"]
 
 TOPICS = ("/joint_states", "/joint_commands", "/tracking_error", "/interlock_margins/joint_limits",
           "/interlock_margins/tracking", "/interlock_margins/gantry", "/phase", "/rosout")
@@ -49,6 +49,11 @@ TOPICS = ("/joint_states", "/joint_commands", "/tracking_error", "/interlock_mar
 TIMING_TOPICS = ("/loop_timing/late", "/loop_timing/bus")
 #: A monitored trial's (bench.monitor): the twin's residuals, and its alarms.
 TWIN_TOPICS = ("/twin/residual", "/twin/alarm")
+#: What the cameras measured, at each capture: the needle's tip (m, robot frame), and at the end of
+#: the insertion its distance from the encoders' tip (m).
+CAMERA_TOPICS = ("/camera/tip", "/camera/encoder_gap")
+#: The frame the cameras' tip is given in (the robot's, as the encoders' forward kinematics).
+ROBOT_FRAME = "base_link"
 
 
 def _stamp(ns: int) -> dict:
@@ -100,7 +105,7 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
         w = Writer(f)
         schema = {key: w.register_msgdef(*definition) for key, definition in
                   (("joint", msgs.JOINT_STATE), ("float", msgs.FLOAT64), ("string", msgs.STRING),
-                   ("log", msgs.LOG))}
+                   ("log", msgs.LOG), ("point", msgs.POINT_STAMPED))}
         last_segment = None
         timing = zip(TIMING_TOPICS, (log.loop_late, log.bus_s)) if log.timed else ()
         timing = [(topic, series, np.isfinite(log.loop_late)) for topic, series in timing]
@@ -144,8 +149,26 @@ def write_mcap(log: TrialLog, prep: PreparedTrial, path: Path, result: dict | No
             w.write_message(TWIN_TOPICS[1], schema["string"],
                             {"data": f"{alarm['joint']} behaves unlike its model ({alarm['signal']} CUSUM "
                                      f"{alarm['score']:.1f} σ at {alarm['t_s']:.3f} s)"}, ns, ns, k)
+        _write_camera(w, schema, log, result, t0)
         for name, data in _metadata(log, result):
             w.add_metadata(name, data)
         w.finish()
     tmp.replace(path)
     return path
+
+
+def _write_camera(w: Writer, schema: dict, log: TrialLog, result: dict | None, t0: int) -> None:
+    """The cameras' tip at each capture that measured one, and the gap to the encoders' at the end
+    of the insertion (from the result, where it was worked out)."""
+    captures = sorted(((c.get("time_s"), label, c) for label, c in
+                       ((log.metadata.get("camera") or {}).get("captures") or {}).items()
+                       if c.get("tip_m") is not None and c.get("time_s") is not None), key=lambda x: x[0])
+    for k, (t, label, capture) in enumerate(captures):
+        ns = t0 + int(round(float(t) * 1e9))
+        x, y, z = (float(v) for v in capture["tip_m"])
+        w.write_message(CAMERA_TOPICS[0], schema["point"],
+                        {"header": {"stamp": _stamp(ns), "frame_id": ROBOT_FRAME}, "point": {"x": x, "y": y, "z": z}},
+                        ns, ns, k)
+        gap = ((result or {}).get("camera") or {}).get("encoder_gap_mm")
+        if label == "insert" and gap is not None:
+            w.write_message(CAMERA_TOPICS[1], schema["float"], {"data": float(gap) * 1e-3}, ns, ns, k)

@@ -7,7 +7,7 @@ Each definition is followed by the definitions it uses, separated by a line of
 
 from __future__ import annotations
 
-__all__ = ["JOINT_STATE", "FLOAT64", "STRING", "LOG", "LOG_LEVEL"]
+__all__ = ["JOINT_STATE", "FLOAT64", "STRING", "LOG", "LOG_LEVEL", "POINT_STAMPED"]
 
 _SEP = "=" * 80
 _TIME = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
@@ -19,6 +19,11 @@ JOINT_STATE = ("sensor_msgs/msg/JointState",
                f"float64[] effort\n{_SEP}\n{_HEADER}{_SEP}\n{_TIME}")
 
 FLOAT64 = ("std_msgs/msg/Float64", "float64 data\n")
+
+#: ``geometry_msgs/msg/PointStamped``: a point (m) in ``header.frame_id``'s frame at its stamp.
+POINT_STAMPED = ("geometry_msgs/msg/PointStamped",
+                 f"std_msgs/Header header\ngeometry_msgs/Point point\n{_SEP}\n{_HEADER}{_SEP}\n{_TIME}"
+                 f"{_SEP}\nMSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n")
 
 STRING = ("std_msgs/msg/String", "string data\n")
 
