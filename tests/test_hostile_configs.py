@@ -1,5 +1,7 @@
 """Hostile configs are refused by `hilbench trial` before anything is built: exit 2, one line
-on stderr, no traceback, no run directory, well inside a second; the shipped configs still load."""
+on stderr, no traceback, no run directory, well inside a second of processor time (what the
+config costs, not what the machine's other work does to the wall clock); the shipped configs
+still load."""
 
 from __future__ import annotations
 
@@ -112,15 +114,15 @@ def test_hostile_config_is_refused_with_one_line(tmp_path, label, text):
     cfg = tmp_path / "hostile.yaml"
     cfg.write_bytes(text.encode("utf-8", "surrogatepass"))
     out = tmp_path / "runs"
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # this process's processor time: the same on a loaded machine
     res = CliRunner().invoke(app, ["trial", str(cfg), "--out", str(out)])
-    elapsed = time.perf_counter() - t0
+    elapsed = time.process_time() - t0
     assert res.exit_code == 2, (label, res.output, res.exception)
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: "), res.output
     assert "Traceback" not in res.output and len(lines[0]) < 400
     assert not out.exists()  # nothing written, nothing moved
-    assert elapsed < 1.0, f"{label}: refused after {elapsed:.2f} s"
+    assert elapsed < 1.0, f"{label}: refused after {elapsed:.2f} s of processor time"
 
 
 @pytest.mark.parametrize("raw,why", [

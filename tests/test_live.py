@@ -123,6 +123,8 @@ def test_the_page_follows_the_trial_and_ends_with_the_logs_verdict_and_margins(t
     share = 1 - m.tracking[-1] / (m.tracking[-1] + np.abs(log.q[-1] - log.q_cmd[-1]))
     assert page.inner_text("#track") == f"{100 * share.max():.1f} %"
     assert ("PASSED" if result["passed"] else f"NOT PASSED: {result['reason']}") in page.inner_text("#verdict")
+    cam = result["camera"]  # lab_real.yaml's two cameras: their tip beside the encoders'
+    assert f"cameras: tip {cam['encoder_gap_mm']:.2f} mm from the encoders'" in page.inner_text("#verdict")
     assert page.get_attribute("#report-link", "href").startswith("report?token=")
     assert "safe-stop" in page.inner_text("#events")
     tm = result["loop_timing"]  # the loop's timing line ends with the saved log's count

@@ -104,8 +104,8 @@ def test_preflight_is_cheap_once_the_geometry_is_built():
 
     cfg = load_trial_config(SIM)
     prepare(cfg)
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # processor time: what preparing costs, whatever else the machine runs
     for _ in range(5):
         prepare(cfg)
-    assert (time.perf_counter() - t0) / 5 < 0.1  # a campaign pays this per trial
+    assert (time.process_time() - t0) / 5 < 0.1  # a campaign pays this per trial
     assert np.isfinite(cfg.control_period)
