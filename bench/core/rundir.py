@@ -27,6 +27,7 @@ from bench.config.base import describe_validation_error
 from bench.core.log import (ENCODER_SERIES, JOURNAL_META, JOURNAL_ROWS, SERIES, TIMING_SERIES,
                             TWIN_CURRENT_SERIES, TWIN_SERIES, Event, TrialLog, journal_row_width)
 from bench.core.record import sha256_of
+from bench.core.result_file import ResultFile
 from drivers.errors import RunDirError
 
 __all__ = ["LOG_MAX_BYTES", "RECORD", "RESULT", "RecordFile", "ResultFile", "RunDirError", "SavedRun",
@@ -49,44 +50,6 @@ class RecordFile(BaseModel):
     log: str = Field(min_length=1, max_length=255)
     sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
     bytes: int = Field(ge=0)
-
-
-class RequirementRow(BaseModel):
-    """One requirement's robustness as ``result.json`` holds it (mm or degrees, None: no value)."""
-
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
-
-    name: str
-    formula: str
-    robustness: Optional[float] = None
-    holds: StrictBool
-
-
-class CameraRow(BaseModel):
-    """The cameras' figures as ``result.json`` holds them (mm; None: not measured)."""
-
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
-
-    encoder_gap_mm: Optional[float] = None
-    flag: Optional[StrictBool] = None
-    problem: str = Field("", max_length=2000)
-
-
-class ResultFile(BaseModel):
-    """``result.json`` as ``runs`` reads it: the verdict, the two deviations, the requirements and
-    the cameras' gap."""
-
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
-
-    requirements: list[RequirementRow] = Field(default_factory=list, max_length=64)
-    camera: Optional[CameraRow] = None
-
-    passed: StrictBool
-    completed: StrictBool
-    reason: str
-    tip_deviation_mm: Optional[list[float]] = Field(None, min_length=3, max_length=3)
-    angle_deviation_deg: Optional[float] = None
-    depth_deviation_mm: Optional[float] = None
 
 
 class _EventEntry(BaseModel):
