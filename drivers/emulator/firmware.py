@@ -132,7 +132,7 @@ class ServoFirmware:
         if values["Torque Enable"] == 1 and mode in POSITION_MODES:
             # the position loop's inputs stand as the last step set them while no item but a
             # report was written since, and the supply and the deadband are the same
-            key = (self._writes, self.input_voltage, self.deadband_ticks)
+            key = self._loop_key()
             if key == self._loop_inputs:
                 return
             self._loop_inputs = key
@@ -145,6 +145,10 @@ class ServoFirmware:
             self._driving = False
             return
         self._set_loop_inputs(dt, mode)
+
+    def _loop_key(self) -> tuple:
+        """What the position loop's inputs were last set under: (writes, supply, deadband)."""
+        return (self._writes, self.input_voltage, self.deadband_ticks)
 
     def _set_loop_inputs(self, dt: float, mode: int) -> None:
         """Hand the array this servo's loop inputs (torque on): the gains and limits of a position
@@ -186,21 +190,17 @@ class ServoFirmware:
         mode = values["Operating Mode"]
         if values["Torque Enable"] != 1 or mode not in POSITION_MODES or self._forced:
             return None
-        volts = self._voltage_reg.from_si(self.input_voltage)
-        if not (values["Min Voltage Limit"] <= volts <= values["Max Voltage Limit"]
-                and self.temperature_c <= values["Temperature Limit"]):
+        if self._supervision_faults():
             return None
-        key = (self._writes, self.input_voltage, self.deadband_ticks)
+        key = self._loop_key()
         if key != self._loop_inputs:
             self._loop_inputs = key
             self._set_loop_inputs(CONTROL_PERIOD_S, mode)
         sign = -1.0 if values["Drive Mode"] & 1 else 1.0
-        register = self._position_reg
         available = min(self._current_limit_a(), self.input_voltage / self._resistance)
         overload_at = self.overload_fraction * available if available > 0 else math.inf
-        return (sign, register.scale, register.divisor, register.zero, self._turn_offset,
-                values["Homing Offset"], sign * self._kt, overload_at, self.overload_time_s,
-                self._overload_timer, self._time)
+        return (sign, self._position_reg.from_si, self._turn_offset, values["Homing Offset"],
+                sign * self._kt, overload_at, self.overload_time_s, self._overload_timer, self._time)
 
     def settle(self, position: float, velocity: float, raw: float, time_s: float, overload_timer: float,
                sign: float, *, drive: bool) -> None:
@@ -379,13 +379,20 @@ class ServoFirmware:
         self._vel_integral = clamp(self._vel_integral + ki * error * dt / CONTROL_PERIOD_S, limit)
         return kp * error + self._vel_integral
 
-    def _check_supervision(self) -> None:
+    def _supervision_faults(self) -> list[str]:
+        """The supervision's faults due now, in the order the firmware latches them."""
         values = self._values
         volts = self._voltage_reg.from_si(self.input_voltage)
+        faults = []
         if not values["Min Voltage Limit"] <= volts <= values["Max Voltage Limit"]:
-            self.raise_hardware_error("input_voltage")
+            faults.append("input_voltage")
         if self.temperature_c > values["Temperature Limit"]:
-            self.raise_hardware_error("overheating")
+            faults.append("overheating")
+        return faults
+
+    def _check_supervision(self) -> None:
+        for fault in self._supervision_faults():
+            self.raise_hardware_error(fault)
 
     def _check_overload(self, dt: float, current: float) -> None:
         available = min(self._current_limit_a(), self.input_voltage / self._resistance)

@@ -1,10 +1,12 @@
 """The bus's physics steps while every servo runs its position loop undisturbed, for all servos at
-once: the encoder, the drive's torque and the overload timers as arrays rather than servo by servo.
+once: one pass over the encoders, the servo array's fused loop, the drive's torque and the overload
+timers, instead of each servo's own step.
 
 Between two instructions nothing a servo's firmware reads can change but the shaft, so each step of
 such a stretch is the same arithmetic for every servo: read the encoder, run the servo array's loop,
-turn current into torque, watch for an overload. Servo by servo in Python that costs more than the
-loop and the plant together; as arrays, a fraction. The result is the same bit for bit (the same
+turn current into torque, watch for an overload. Each servo's own step (its supervision, its loop
+inputs, its reports) cost more than the loop and the plant together; here the constants are taken
+once per stretch and the reports once at its end. The result is the same bit for bit (the same
 IEEE operations in the same order: a test holds it), and what the step leaves to report is handed
 back to each servo as its own step would have left it.
 
@@ -36,7 +38,7 @@ def run_steady(servos: list[tuple[ServoModel, int]], loop: PositionLoop, plant: 
         if c is None:
             return 0
         constants.append(c)
-    (sign, scale, divisor, zero, turn_offset, homing, torque_per_amp, overload_at, overload_time,
+    (sign, from_si, turn_offset, homing, torque_per_amp, overload_at, overload_time,
      timer, times) = (list(column) for column in zip(*constants))
     joints = [joint for _, joint in servos]
     dt = loop.dt
@@ -52,9 +54,7 @@ def run_steady(servos: list[tuple[ServoModel, int]], loop: PositionLoop, plant: 
         present = [0.0] * len(joints)
         for k in slots:
             times[k] += dt
-            shaft = sign[k] * q[k]
-            # Register.from_si, as each servo's encoder runs it
-            r = (shaft * divisor[k] if divisor[k] else shaft / scale[k]) + zero[k] + turn_offset[k]
+            r = from_si[k](sign[k] * q[k]) + turn_offset[k]  # as each servo's encoder reads it
             raw[k] = r
             present[k] = float(floor(r + 0.5) + homing[k])
         current = loop.step_present(np.array(present), np.array([sign[k] * v[k] for k in slots])).tolist()
