@@ -68,6 +68,32 @@ def _columns(outcome) -> dict[str, float]:
             "depth_dev_mm": outcome.depth_deviation_mm, "angle_dev_deg": outcome.angle_deviation_deg}
 
 
+#: The camera figures a campaign trial keeps (bench.core.seen.camera_summary's, mm and degrees).
+CAMERA_METRICS = ("tip_deviation_mm", "angle_deviation_deg", "encoder_gap_mm", "uncertainty_mm",
+                  "encoder_uncertainty_mm", "flag", "problem")
+
+
+def judged_on_the_cameras(cfg: TrialConfig) -> TrialConfig:
+    """A trial on a servo bus (the emulated or the real rig: no simulator truth) with cameras is
+    judged on the cameras' tip, as seed 000 judged its robot (Table 3): its placement and its
+    placement's requirements (``acceptance.by: camera``). A simulator's trial keeps its config: its
+    truth judges it, the cameras' figures beside."""
+    if cfg.cameras is None or cfg.backend.kind != "dynamixel" or cfg.acceptance.by == "camera":
+        return cfg
+    return cfg.model_copy(update={"acceptance": cfg.acceptance.model_copy(update={"by": "camera"})})
+
+
+def _judged(res) -> tuple[Any, str, str]:
+    """(the placement a campaign judges, what it was judged on, why there is none) of a trial."""
+    if res.basis == "sim":  # the backend's truth: placement judged where the joints really were
+        return res.true_outcome, "sim", ""
+    if res.judged_by == "camera":
+        missing = "" if res.outcome is not None or not res.completed else (
+            "the cameras did not measure the tip: " + ((res.camera or {}).get("problem") or "?"))
+        return res.outcome, "camera", missing
+    return res.outcome, "measured", ""
+
+
 def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
     """Run one campaign trial; plain data in, plain data out (never raises for a bad trial)."""
     t0, c0 = time.perf_counter(), time.process_time()
@@ -79,17 +105,18 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
         with ExitStack() as rig:
             if task.get("emulate"):  # its emulated rig, here, on the virtual clock
                 cfg = rig.enter_context(VirtualRig(cfg)).retarget(cfg)
-            prep = prepare(cfg)
+            prep = prepare(judged_on_the_cameras(cfg))
+            kind = rig_kind(prep.config)  # while its emulated rig serves: sim, emulated or real
             res = run_trial(prep, Path(task["stage"]), TrialHooks(report=bool(task.get("report", False))))
-        measured = res.outcome
-        outcome, truth = measured, "measured"
+        measured = res.encoders
+        outcome, truth, missing = _judged(res)
         log = TrialLog.load(res.log_path) if res.monitor else None
-        if res.basis == "sim":  # the backend's truth: placement judged where the joints really were
-            outcome, truth = res.true_outcome, "sim"
         metrics = {"outcome": outcome.as_dict() if outcome else None,
                    "measured": measured.as_dict() if measured else None,
                    "requirements": res.requirements,
-                   "rig": rig_kind(prep.config)}  # sim, emulated or real: what the trial drove
+                   "rig": kind}  # what the trial drove
+        if res.camera is not None:  # the cameras' figures, whatever judged the placement
+            metrics["camera"] = {k: res.camera.get(k) for k in CAMERA_METRICS}
         if res.monitor is not None:  # the twin beside it: when it flagged what, against the fault's start
             metrics["monitor"] = {"first_alarm_s": res.monitor["first_alarm_s"],
                                   "joints_named": [a["joint"] for a in res.monitor["alarms"]],
@@ -100,7 +127,7 @@ def execute_trial(task: dict[str, Any]) -> dict[str, Any]:
                 "passed": bool(res.completed and outcome is not None and outcome.passed and not res.failing),
                 "robustness": worst["robustness"] if worst else None,
                 "worst": worst["name"] if worst else None,
-                "reason": res.reason, "columns": _columns(outcome) if outcome else {},
+                "reason": res.reason or missing, "columns": _columns(outcome) if outcome else {},
                 "truth": truth, "metrics": metrics, "run_dir": str(res.run_dir),
                 "duration_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
     except Exception as e:  # a trial that cannot run is a result too (status error)

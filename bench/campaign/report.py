@@ -11,6 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bench.campaign.cameras import basis_line, cameras_markdown
 from bench.campaign.checked import read_campaign, trial_run_dir
 from bench.campaign.rates import detection_rates, detection_table, monitored, wilson
 from bench.kinematics.arc_train import table3_deviations
@@ -318,9 +319,7 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
     if rigs:
         lines.append(f"- rig: {', '.join(rigs)} (sim, emulated or real: what each trial's record says ran it)")
     if truth:
-        lines.append("- placement measured on " + (
-            "the simulator's true joint positions (as an external camera would; a biased or noisy "
-            "sensor does not hide the error)" if truth == ["sim"] else ", ".join(truth)))
+        lines.append(basis_line(truth))
     lines += ["", "## Deviation against seed 000 Table 3", "",
               "Campaign trials that finished vs the paper's five repeats at Target 1 (Table 3: "
               "the first target point X, Y, Z, the insertion and the angle; the paper has no tip "
@@ -336,6 +335,7 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
     if beside:
         lines += _beside_markdown(done, counts, beside)
     axes_meta = meta.get("axes", [])
+    lines += cameras_markdown(done, axes_meta, _groups)
     if axes_meta:
         lines += ["## Pass rate against fault magnitude", ""]
         if "rates" in figures:

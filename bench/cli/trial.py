@@ -126,9 +126,11 @@ def trial(config: Path = typer.Argument(..., help="A trial config, e.g. hil_conf
 
 def requirements_line(res) -> str:
     """Each requirement's robustness, e.g. "requirements (true placement): tip +4.91, ... gantry +94.0"."""
+    from bench.core.result import PLACEMENT_BASES  # deferred: --help and completion stay fast
+
     fmt = lambda v: "none" if v is None else f"{v:+.3f}"  # noqa: E731
     parts = [f"{r['name']} {fmt(r['robustness'])}{'' if r['holds'] else ' FAILS'}" for r in res.requirements]
-    basis = "true placement" if res.basis == "sim" else "readings"
+    basis = PLACEMENT_BASES.get(res.basis, "readings")
     return f"requirements ({basis}; robustness in mm or °): " + ", ".join(parts)
 
 

@@ -51,7 +51,9 @@ from bench.compare.alignment import ProfileDiff, check_same_plan, profile_differ
 from bench.compare.needle_error import (
     JointContribution,
     acceptance_of,
+    cameras_of_log,
     joint_contributions,
+    judged_by_of,
     needle_of_log,
     repeat_statistics,
 )
@@ -119,16 +121,39 @@ class Side:
     stats: dict = field(default_factory=dict)
     #: What the logs say ran them: sim, emulated or real (their record's ``rig``; "?" for older logs).
     rig: str = "?"
+    #: Per repeat: the cameras' figures (bench.core.seen.camera_summary; None: the trial had no
+    #: cameras) and the placement they measured (None: no measurement), with its statistics.
+    cameras: list[Optional[dict]] = field(default_factory=list)
+    seen: list[Optional[NeedleOutcome]] = field(default_factory=list)
+    seen_stats: dict = field(default_factory=dict)
+    #: The tip the trials were judged on (their config's ``acceptance.by``): "encoders" or "camera".
+    judged_by: str = "encoders"
 
     @property
     def placed(self) -> list[NeedleOutcome]:
         return [o for o in self.outcomes if o is not None]
 
     @property
+    def has_cameras(self) -> bool:
+        """The trials had cameras: their Table 3 is the cameras' (as seed 000's was)."""
+        return any(c is not None for c in self.cameras)
+
+    @property
+    def table3(self) -> tuple[list[Optional[NeedleOutcome]], dict]:
+        """The placements Table 3 shows and their statistics: the cameras' where the trials had
+        cameras, else the encoders'."""
+        return (self.seen, self.seen_stats) if self.has_cameras else (self.outcomes, self.stats)
+
+    @property
+    def judged(self) -> tuple[list[Optional[NeedleOutcome]], dict]:
+        """The placements the verdict is on (the trials' ``acceptance.by``) and their statistics."""
+        return (self.seen, self.seen_stats) if self.judged_by == "camera" else (self.outcomes, self.stats)
+
+    @property
     def passed(self) -> bool:
         """Every repeat completed and placed the needle within the limits."""
         return bool(self.logs) and all(self.completed) and all(o is not None and o.passed
-                                                               for o in self.outcomes)
+                                                               for o in self.judged[0])
 
     def mean_tracking(self, attr: str) -> np.ndarray:
         """Mean over repeats of one :class:`JointTracking` field, per joint (NaN-aware)."""
@@ -154,11 +179,14 @@ def _status(log: TrialLog) -> tuple[bool, str]:
 
 def _side(label: str, logs: Sequence[TrialLog], sources: Sequence[str], robot,
           acceptance: Optional[tuple[float, float]], band, max_lag_s: float) -> Side:
-    tracking, outcomes, completed, reasons, contribs = [], [], [], [], []
+    tracking, outcomes, completed, reasons, contribs, cameras, seen = [], [], [], [], [], [], []
     for log in logs:
         tracking.append(joint_tracking(log, robot, band, max_lag_s))
         o = needle_of_log(log, robot, acceptance)
         outcomes.append(o)
+        figures, measured = cameras_of_log(log, robot, acceptance or acceptance_of(log))
+        cameras.append(figures)
+        seen.append(measured)
         done, why = _status(log)
         completed.append(done)
         reasons.append(why)
@@ -169,8 +197,10 @@ def _side(label: str, logs: Sequence[TrialLog], sources: Sequence[str], robot,
             contribs.append(None)
     backend = str(logs[0].metadata.get("backend", "?")) if logs else "?"
     side = Side(label, backend, list(logs), list(sources), tracking, outcomes, completed, reasons,
-                contribs)
+                contribs, cameras=cameras, seen=seen,
+                judged_by=judged_by_of(logs[0]) if logs else "encoders")
     side.stats = repeat_statistics(side.placed)
+    side.seen_stats = repeat_statistics([o for o in seen if o is not None])
     side.rig = ", ".join(sorted({str(log.metadata.get("rig") or "?") for log in logs})) or "?"
     return side
 
@@ -207,24 +237,17 @@ class Comparison:
                                  dtype=float))
 
     def summary(self) -> dict:
-        """The one-line JSON of ``hilbench compare --json``, over the subject's placed repeats:
-        ``mean`` signed, ``max`` the largest |deviation|, ``std`` the sample standard deviation
-        (mm; the angle in degrees; null when no repeat placed the needle)."""
-        s = self.subject.stats
-        one = lambda v: None if not np.isfinite(v) else round(float(v), 6) + 0.0  # noqa: E731
-        r = lambda v: [one(x) for x in np.atleast_1d(v)]  # noqa: E731
-
-        def block(k: str, vector: bool) -> dict:
-            if vector:
-                return {"mean": r(s[k]["mean"]), "max": r(s[k]["max_abs"]), "std": r(s[k]["std"])}
-            return {"mean": one(s[k]["mean"]), "max": one(s[k]["max_abs"]), "std": one(s[k]["std"])}
-
+        """The one-line JSON of ``hilbench compare --json``, over the subject's placed repeats, on
+        the tip its trials were judged on (:func:`_deviations`); with cameras, the encoders' and the
+        cameras' beside (:func:`_camera_block`)."""
         sub = self.subject
-        return {"repeats": len(sub.logs), "tip_deviation_mm": block("tip_mm", True),
-                "depth_deviation_mm": block("depth_mm", False),
-                "angle_deviation_deg": block("angle_deg", False), "rig": sub.rig, "passed": self.passed,
-                "completed": sum(bool(c) for c in sub.completed), "reason": self.why_not(),
-                "worst_joint": self.worst_joint}
+        judged = _deviations(sub.judged[1])
+        out = {"repeats": len(sub.logs), **judged, "rig": sub.rig, "passed": self.passed,
+               "completed": sum(bool(c) for c in sub.completed), "reason": self.why_not(),
+               "worst_joint": self.worst_joint}
+        if sub.has_cameras:  # the cameras' beside the encoders', whichever was judged
+            out.update(judged_by=sub.judged_by, encoders=_deviations(sub.stats), camera=_camera_block(sub))
+        return out
 
     def why_not(self) -> str:
         """Why the subject did not pass, in one line ("" when it did): the first repeat that
@@ -238,9 +261,16 @@ class Comparison:
             if not done:
                 return f"{sub.label} repeat {i + 1} stopped early: {why}"
         pos, ang = self.acceptance
-        out = [i + 1 for i, o in enumerate(sub.outcomes) if o is None or not o.passed]
+        judged = sub.judged[0]
+        unseen = [i + 1 for i, o in enumerate(judged) if o is None]
+        if sub.judged_by == "camera" and unseen:
+            why = (sub.cameras[unseen[0] - 1] or {}).get("problem") or "?"
+            return (f"the cameras did not measure the tip of {sub.label} repeat(s) "
+                    f"{', '.join(map(str, unseen))}: {why}")
+        out = [i + 1 for i, o in enumerate(judged) if o is None or not o.passed]
+        by = " (by the cameras)" if sub.judged_by == "camera" else ""
         return (f"{sub.label} repeat(s) {', '.join(map(str, out))} of {len(sub.logs)} placed the "
-                f"needle outside {pos:g} mm / {ang:g}°")
+                f"needle outside {pos:g} mm / {ang:g}°{by}")
 
     def as_dict(self) -> dict:
         """A full machine-readable record (SI per joint, mm and degrees for the needle)."""
@@ -257,7 +287,11 @@ class Comparison:
                                       for rep in sd.contributions],
                     "ranking": [{"joint": n, "tip_mm": v} for n, v in sd.contribution_ranking()],
                     "stats": {k: {m: _clean_list(np.atleast_1d(v)) for m, v in d.items()}
-                              for k, d in sd.stats.items()}}
+                              for k, d in sd.stats.items()},
+                    "judged_by": sd.judged_by, "table3_by": "cameras" if sd.has_cameras else "encoders",
+                    "cameras": sd.cameras, "seen": [o.as_dict() if o else None for o in sd.seen],
+                    "seen_stats": {k: {m: _clean_list(np.atleast_1d(v)) for m, v in d.items()}
+                                   for k, d in sd.seen_stats.items()}}
 
         return {"robot": getattr(self.robot, "name", "?"), "joints": self.joint_names,
                 "kinds": [r.kind for r in self.robot.chain.rows],
@@ -268,6 +302,34 @@ class Comparison:
                                  "max_abs": _clean_list(self.profile_mean("max_abs")),
                                  "cmd_rms": _clean_list(self.profile_mean("cmd_rms"))},
                 "summary": self.summary()}
+
+
+def _deviations(s: dict) -> dict:
+    """The needle's deviations over repeats as ``compare --json`` gives them: ``mean`` signed,
+    ``max`` the largest |deviation|, ``std`` the sample standard deviation (mm; the angle in
+    degrees; null when no repeat placed the needle)."""
+    one = lambda v: None if not np.isfinite(v) else round(float(v), 6) + 0.0  # noqa: E731
+    r = lambda v: [one(x) for x in np.atleast_1d(v)]  # noqa: E731
+
+    def block(k: str, vector: bool) -> dict:
+        if vector:
+            return {"mean": r(s[k]["mean"]), "max": r(s[k]["max_abs"]), "std": r(s[k]["std"])}
+        return {"mean": one(s[k]["mean"]), "max": one(s[k]["max_abs"]), "std": one(s[k]["std"])}
+
+    return {"tip_deviation_mm": block("tip_mm", True), "depth_deviation_mm": block("depth_mm", False),
+            "angle_deviation_deg": block("angle_deg", False)}
+
+
+def _camera_block(side: Side) -> dict:
+    """``compare --json``'s "camera": the cameras' deviations over the repeats they measured, and per
+    repeat the gap between the encoders' tip and the cameras', its flag and why a repeat has none."""
+    figures = [c or {} for c in side.cameras]
+    return {"measured": sum(o is not None for o in side.seen), **_deviations(side.seen_stats),
+            "within_limits": sum(1 for o in side.seen if o is not None and o.passed),
+            "encoder_gap_mm": [c.get("encoder_gap_mm") for c in figures],
+            "uncertainty_mm": [c.get("uncertainty_mm") for c in figures],
+            "flag": [c.get("flag") for c in figures],
+            "problem": [c.get("problem", "the trial had no cameras") for c in figures]}
 
 
 def _clean_list(v: np.ndarray) -> list:

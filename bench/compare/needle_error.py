@@ -1,5 +1,6 @@
-"""The needle of a logged trial: where it ended per repeat, each joint's share of the tip deviation
-(its placement error through the FK Jacobian) and the repeat statistics of Tables 3 and 4."""
+"""The needle of a logged trial: where it ended per repeat (the encoders' and, with cameras, the
+cameras'), each joint's share of the tip deviation (its placement error through the FK Jacobian) and
+the repeat statistics of Tables 3 and 4."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from bench.compare.signals import PlanMismatchError
 from bench.compare.tracking import placement, robot_of_log
 from bench.core.log import TrialLog
 from bench.core.outcome import NeedleOutcome, needle_outcome
+from bench.core.seen import joint_resolution, log_camera, seen_outcome
 from bench.kinematics.batch import needle_jacobian
 from bench.kinematics.needle import NeedleTarget
 
@@ -28,6 +30,22 @@ def acceptance_of(log: TrialLog) -> tuple[float, float]:
     """(position mm, angle deg) from the log's config, else seed 000's 5 mm and 1°."""
     acc = (log.metadata.get("config") or {}).get("acceptance") or {}
     return float(acc.get("position_mm", 5.0)), float(acc.get("angle_deg", 1.0))
+
+
+def judged_by_of(log: TrialLog) -> str:
+    """The tip the log's trial was judged on: "encoders" or "camera" (its config's ``acceptance.by``)."""
+    acc = (log.metadata.get("config") or {}).get("acceptance") or {}
+    return "camera" if acc.get("by") == "camera" else "encoders"
+
+
+def cameras_of_log(log: TrialLog, robot, acceptance: tuple[float, float]
+                   ) -> tuple[Optional[dict], Optional[NeedleOutcome]]:
+    """The cameras' figures of a logged trial (as ``trial --json`` gives them; None without cameras)
+    and the placement they measured against the limits (None without a measurement)."""
+    target = target_of_log(log)
+    config = log.metadata.get("config") or {}
+    figures = log_camera(log, robot, target, joint_resolution(config, log.joint_names))
+    return figures, (seen_outcome(log, target, *acceptance) if figures is not None else None)
 
 
 def needle_of_log(log: TrialLog, robot=None, acceptance: Optional[tuple[float, float]] = None,

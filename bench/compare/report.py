@@ -85,34 +85,49 @@ def _target_row(log: TrialLog) -> list[float]:
     return [float(e[0]), float(e[1]), float(e[2]), float(t["depth_m"]) * 1e3, math.degrees(t["angle_rad"])]
 
 
+def _placed(o) -> list[str]:
+    """A placement as Table 3 gives it: entry X, Y, Z, insertion and angle (— when none)."""
+    return ["—"] * 5 if o is None else [f"{v:.2f}" for v in (*o.entry_mm, o.depth_mm, o.angle_deg)]
+
+
 def _table3(side: Side) -> list[str]:
     inp = _target_row(side.logs[0])
-    lines = [f"### {side.label}", "",
-             "| Sr. No | input X (mm) | input Y (mm) | input Z (mm) | input insertion (mm) | input angle (°) "
-             "| output X (mm) | output Y (mm) | output Z (mm) | output insertion (mm) | output angle (°) |",
-             "|---|" + "---:|" * 10]
-    for i, o in enumerate(side.outcomes):
-        ins = " | ".join(f"{v:.2f}" for v in inp)
-        if o is None:
-            out = " | ".join(["—"] * 5)
-        else:
-            out = " | ".join(f"{v:.2f}" for v in (*o.entry_mm, o.depth_mm, o.angle_deg))
-        lines.append(f"| {i + 1} | {ins} | {out} |")
+    outcomes, _ = side.table3
+    head = ("| Sr. No | input X (mm) | input Y (mm) | input Z (mm) | input insertion (mm) | input angle (°) "
+            "| output X (mm) | output Y (mm) | output Z (mm) | output insertion (mm) | output angle (°) |")
+    title = f"### {side.label}"
+    if side.has_cameras:
+        title += " — output measured by the cameras (as seed 000's Table 3), the encoders' beside"
+        head += (" encoders' X (mm) | encoders' Y (mm) | encoders' Z (mm) | encoders' insertion (mm) "
+                 "| encoders' angle (°) | encoders to cameras (mm) |")
+    lines = [title, "", head, "|---|" + "---:|" * (10 + 6 * side.has_cameras)]
+    for i, o in enumerate(outcomes):
+        row = [str(i + 1), *(f"{v:.2f}" for v in inp), *_placed(o)]
+        if side.has_cameras:
+            cam = side.cameras[i] or {}
+            gap = cam.get("encoder_gap_mm")
+            why = cam.get("problem") or ("the trial had no cameras" if not cam else "")
+            seen = "—" if gap is None else f"{gap:.2f}" + (" (flagged)" if cam.get("flag") else "")
+            row += [*_placed(side.outcomes[i]), seen + (f" (no measurement: {why})" if why else "")]
+        lines.append("| " + " | ".join(row) + " |")
     return lines + [""]
 
 
-def _deviation_table(side: Side) -> list[str]:
-    lines = [f"### {side.label}", "",
+def _deviation_table(side: Side, cameras: bool = False) -> list[str]:
+    outcomes, s = (side.seen, side.seen_stats) if cameras else (side.outcomes, side.stats)
+    whose = (" — by the cameras" if cameras else " — by the encoders") if side.has_cameras else ""
+    lines = [f"### {side.label}{whose}", "",
              "| repeat | ΔX (mm) | ΔY (mm) | ΔZ (mm) | Δinsertion (mm) | Δangle (°) | tip ΔX (mm) "
              "| tip ΔY (mm) | tip ΔZ (mm) | within limits |", "|---|" + "---:|" * 8 + "---|"]
-    for i, (o, done, why) in enumerate(zip(side.outcomes, side.completed, side.reasons)):
+    for i, (o, done, why) in enumerate(zip(outcomes, side.completed, side.reasons)):
         if o is None:
+            if cameras and done:
+                why = (side.cameras[i] or {}).get("problem") or "the trial had no cameras"
             lines.append(f"| {i + 1} | " + " | ".join(["—"] * 8) + f" | no placement ({why}) |")
             continue
         verdict = "yes" if o.passed and done else ("no" if done else f"no: stopped early ({why})")
         vals = (*o.entry_deviation_mm, o.depth_deviation_mm, o.angle_deviation_deg, *o.tip_deviation_mm)
         lines.append(f"| {i + 1} | " + " | ".join(f"{v:+.3f}" for v in vals) + f" | {verdict} |")
-    s = side.stats
     for key, label in (("mean", "mean"), ("mean_abs", "mean abs"), ("max_abs", "max abs"),
                        ("std", "std")):
         vals = (*np.atleast_1d(s["entry_mm"][key]), s["depth_mm"][key], s["angle_deg"][key],
@@ -124,15 +139,16 @@ def _deviation_table(side: Side) -> list[str]:
 def _table4(comparison: Comparison) -> list[str]:
     t3 = table3_deviations()
     ref, sub = comparison.reference, comparison.subject
-    lines = ["| Deviation in | " + f"{ref.label} (mean abs) | {sub.label} (mean abs) | "
-             f"{sub.label} (max abs) | seed 000 Table 3 (mean abs, 5 repeats) | "
+    by = lambda side: ", cameras" if side.has_cameras else ""  # noqa: E731 - whose tip each column is
+    lines = ["| Deviation in | " + f"{ref.label} (mean abs{by(ref)}) | {sub.label} (mean abs{by(sub)}) | "
+             f"{sub.label} (max abs{by(sub)}) | seed 000 Table 3 (mean abs, 5 repeats) | "
              "seed 000 Table 4: current research |", "|---|---:|---:|---:|---:|---:|"]
     rows = (("X axis (mm)", "entry_mm", 0, "x"), ("Y axis (mm)", "entry_mm", 1, "y"),
             ("Z axis (mm)", "entry_mm", 2, "z"), ("Depth of insertion (mm)", "depth_mm", None, "insertion"),
             ("Angle of insertion (°)", "angle_deg", None, "angle"))
     for label, key, k, t3k in rows:
         def pick(side: Side, what: str) -> float:
-            v = np.atleast_1d(side.stats[key][what])
+            v = np.atleast_1d(side.table3[1][key][what])
             return float(v[k] if k is not None else v[0])
 
         paper = TABLE4_CURRENT_RESEARCH_MM.get(t3k)
@@ -147,6 +163,24 @@ def _table4(comparison: Comparison) -> list[str]:
                     + "/".join(f"{v:.2f}" for v in TABLE3_MEASURED["angle"])
                     + f"°. Table 4's column averages the paper's targets, Table 3 only Target 1 "
                       f"(target {TABLE3_TARGET['y']:g} mm in Y).", ""]
+
+
+def _cameras_paragraph(side: Side) -> list[str]:
+    """What the cameras said of a side's repeats: how many they placed within the limits, and each
+    repeat's gap between the encoders' tip and theirs ([] when the trials had no cameras)."""
+    if not side.has_cameras:
+        return []
+    gaps = []
+    for i, c in enumerate(side.cameras):
+        c = c or {}
+        gap = c.get("encoder_gap_mm")
+        gaps.append(f"{i + 1}: " + (f"{gap:.2f} mm" + (" flagged" if c.get("flag") else "") if gap is not None
+                                    else f"none ({c.get('problem') or 'the trial had no cameras'})"))
+    within = sum(1 for o in side.seen if o is not None and o.passed)
+    by_encoders = sum(1 for o in side.outcomes if o is not None and o.passed)
+    return [f"By the cameras, {within} of {len(side.logs)} {side.label} repeats within the limits; by the "
+            f"encoders, {by_encoders}. The gap between the encoders' tip and the cameras' (flagged beyond "
+            "the two tips' uncertainties together), per repeat: " + "; ".join(gaps) + ".", ""]
 
 
 def _tracking_table(comparison: Comparison, side: Side, loads: Optional[np.ndarray]) -> list[str]:
@@ -281,18 +315,20 @@ def render_markdown(comparison: Comparison, figures: dict[str, str], title: str,
     for a in lost:
         lines.append(f"- lost attempt of repeat {a['repeat']} (run again): {a['reason']} — `{a['run_dir']}`")
     lines.append("")
-    s = sub.stats
+    judged, s = sub.judged
     worst_tip = np.atleast_1d(s["tip_mm"]["max_abs"])
     worst_entry = np.atleast_1d(s["entry_mm"]["max_abs"])
     ranking = sub.contribution_ranking()
+    tip = "the cameras' tip" if sub.judged_by == "camera" else "the encoders' tip"
     lines += ["## Verdict", "",
-              f"**{verdict}**: {sum(o is not None and o.passed for o in sub.outcomes)} of {len(sub.logs)} "
-              f"{sub.label} repeats within {pos:g} mm / {ang:g}°"
+              f"**{verdict}**: {sum(o is not None and o.passed for o in judged)} of {len(sub.logs)} "
+              f"{sub.label} repeats within {pos:g} mm / {ang:g}° by {tip} (acceptance.by)"
               + ("" if all(sub.completed) else " (some repeats stopped early)")
               + f". Worst |deviation|: entry X {_num(worst_entry[0], 2)}, Y {_num(worst_entry[1], 2)}, "
               f"Z {_num(worst_entry[2], 2)} mm; tip X {_num(worst_tip[0], 2)}, Y {_num(worst_tip[1], 2)}, "
               f"Z {_num(worst_tip[2], 2)} mm; depth {_num(float(s['depth_mm']['max_abs']), 2)} mm; angle "
               f"{_num(float(s['angle_deg']['max_abs']), 3)}°.", ""]
+    lines += _cameras_paragraph(sub)
     if ranking:
         lines += ["Joints that explain most of the tip deviation (placement error through the FK Jacobian): "
                   + ", ".join(f"{n} {v:.2f} mm" for n, v in ranking[:4]) + ".", ""]
@@ -301,9 +337,12 @@ def render_markdown(comparison: Comparison, figures: dict[str, str], title: str,
         lines += _table3(side)
     lines += ["## Deviations over repeats", "",
               "Entry point (Table 3's X, Y, Z), insertion depth and angle, and the needle tip, achieved "
-              "minus target; each repeat placed as its trial placed it for its verdict (the median "
-              f"reading over the last {SETTLED_WINDOW_S:g} s of the insertion's settle).", ""]
+              "minus target; by the encoders, each repeat placed where its readings put it (the median "
+              f"reading over the last {SETTLED_WINDOW_S:g} s of the insertion's settle); by the cameras, "
+              "where the two cameras measured the needle as the insertion ended.", ""]
     for side in (sub, ref):
+        if side.has_cameras:
+            lines += _deviation_table(side, cameras=True)
         lines += _deviation_table(side)
     lines += ["## Average deviation (Table 4 layout)", ""] + _table4(comparison)
     lines += ["## Joint profiles (Fig. 12 layout)", "", profiles_caption(comparison), "",

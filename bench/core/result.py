@@ -17,9 +17,9 @@ import numpy as np
 from bench.config.models import TrialConfig
 from bench.core.log import TrialLog
 from bench.core.looptiming import LoopTiming, loop_timing
-from bench.core.outcome import NeedleOutcome, needle_outcome, pose_outcome, settle_rows, settled_position
+from bench.core.outcome import NeedleOutcome, needle_outcome, settled_position
 from bench.core.requirements import evaluate_requirements, trial_requirements
-from bench.core.seen import camera_pose, camera_summary, encoder_tip_sigma, joint_resolution
+from bench.core.seen import joint_resolution, log_camera, seen_outcome
 from bench.core.truth import true_outcome
 from bench.kinematics.needle import NeedleTarget
 from drivers.errors import TrialError, safe_stop_unconfirmed
@@ -85,6 +85,10 @@ class TrialResult:
     basis: str = "measured"
     #: The placement where the backend's truth puts the needle (the simulators); None elsewhere.
     true_outcome: Optional[NeedleOutcome] = None
+    #: The placement the cameras measured (bench.core.seen.seen_outcome); None without a measurement.
+    seen: Optional[NeedleOutcome] = None
+    #: The placement the encoders give (forward kinematics of the settled reading), whatever was judged.
+    encoders: Optional[NeedleOutcome] = None
 
     @property
     def failing(self) -> list[dict]:
@@ -120,7 +124,7 @@ class TrialResult:
         else:
             why = "requirement(s) not met: " + ", ".join(
                 f"{r['name']} ({'no value' if r['robustness'] is None else format(r['robustness'], '+.3f')}"
-                f"{', on the ' + ('true placement' if r['basis'] == 'sim' else 'readings') if r['basis'] else ''})"
+                f"{', on the ' + PLACEMENT_BASES.get(r['basis'], 'readings') if r['basis'] else ''})"
                 for r in self.failing)
         return "; ".join(first + ([why] if why else []))
 
@@ -142,6 +146,10 @@ class TrialResult:
             "placement_basis": self.basis,
         } | ({"monitor": self.monitor} if self.monitor is not None else {}) | (
             {"camera": self.camera, "judged_by": self.judged_by} if self.camera is not None else {})
+
+
+#: What each placement basis a requirement was judged on is called in one line.
+PLACEMENT_BASES = {"sim": "true placement", "camera": "cameras' placement", "measured": "readings"}
 
 
 def status_from_log(log: TrialLog) -> tuple[bool, str]:
@@ -171,12 +179,17 @@ def measured_outcome(log: TrialLog, prep: PreparedTrial) -> Optional[NeedleOutco
 def judge_requirements(log: TrialLog, prep: PreparedTrial, truth: Any = None) -> None:
     """Each requirement's robustness into the log's metadata (``requirements``, and the true
     placement where ``truth``, a GroundTruth recorder, saw the backend's joints), before the log
-    is saved: the record keeps what the truth said, which the log alone cannot give again."""
+    is saved: the record keeps what the truth said, which the log alone cannot give again. Without
+    a truth, a trial judged by the cameras (``acceptance.by: camera``) has its placement's
+    requirements on the cameras' placement (basis ``camera``), the readings' beside."""
     cfg = prep.config
     if cfg.excitation is not None:
         return
     measured = measured_outcome(log, prep)
     outcome, basis = measured, "measured"
+    if cfg.acceptance.by == "camera":
+        outcome, basis = seen_outcome(log, prep.target, cfg.acceptance.position_mm,
+                                      cfg.acceptance.angle_deg), "camera"
     if truth is not None and getattr(truth, "available", False):
         basis = "sim"
         try:
@@ -199,20 +212,11 @@ def judge_requirements(log: TrialLog, prep: PreparedTrial, truth: Any = None) ->
 def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialResult:
     """The trial's result computed from its log, identically at the end of a trial and later."""
     cfg = prep.config
-    outcome = measured_outcome(log, prep)
-    measured = log.metadata.get("camera")
-    camera = None
-    if measured:
-        encoders, sigma = None, 0.0
-        if outcome is not None:
-            rows = log.q[settle_rows(log.time, log.segment, log.segment_names, "insert")]
-            encoders = prep.robot.needle(settled_position(log, "insert"))
-            sigma = encoder_tip_sigma(prep.robot, rows, joint_resolution(cfg, log.joint_names))
-        camera = camera_summary(measured, encoders, prep.target, sigma)
+    encoders = outcome = measured_outcome(log, prep)
+    camera = log_camera(log, prep.robot, prep.target, joint_resolution(cfg, log.joint_names))
+    seen = seen_outcome(log, prep.target, cfg.acceptance.position_mm, cfg.acceptance.angle_deg)
     if cfg.acceptance.by == "camera":  # judged on the cameras' tip, or not at all
-        seen = camera_pose((measured or {}).get("captures", {}).get("insert"), prep.target)
-        outcome = None if seen is None else pose_outcome(seen, prep.target, cfg.acceptance.position_mm,
-                                                         cfg.acceptance.angle_deg)
+        outcome = seen
     completed, reason = status_from_log(log)
     stops = [e.message for e in log.events if e.kind == "safe-stop"]
     if cfg.excitation is None and "requirements" not in log.metadata:  # an older record, or no truth
@@ -227,7 +231,8 @@ def result_from_log(run_dir: Path, log: TrialLog, prep: PreparedTrial) -> TrialR
                        timing=loop_timing(log, cfg.control_period), monitor=log.metadata.get("monitor"),
                        camera=camera, judged_by=cfg.acceptance.by,
                        requirements=_requirement_rows(log.metadata.get("requirements")),
-                       basis=str(log.metadata.get("placement_basis", "measured")), true_outcome=true)
+                       basis=str(log.metadata.get("placement_basis", "measured")), true_outcome=true,
+                       seen=seen, encoders=encoders)
 
 
 def _requirement_rows(rows: object) -> list[dict]:

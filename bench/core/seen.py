@@ -15,14 +15,17 @@ tip half a millimetre from the truth is not flagged, an encoder bias of a degree
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Any, Mapping, Optional
 
 import numpy as np
 
+from bench.core.log import TrialLog
+from bench.core.outcome import NeedleOutcome, pose_outcome, settle_rows, settled_position
 from bench.kinematics.needle import NeedlePose, NeedleTarget, angles_of, pose_from_axis
 from drivers.dynamixel.control_table import x_series_table
 
-__all__ = ["COVERAGE", "camera_pose", "camera_summary", "encoder_tip_sigma", "joint_resolution"]
+__all__ = ["COVERAGE", "camera_pose", "camera_summary", "encoder_tip_sigma", "joint_resolution", "log_camera",
+           "seen_outcome"]
 
 #: The uncertainty reported is this many standard deviations of the tip (the root of its
 #: covariance's trace): a gap beyond it is flagged.
@@ -42,20 +45,22 @@ def camera_pose(capture: dict, target: NeedleTarget) -> Optional[NeedlePose]:
     return pose_from_axis(entry, axis, float(np.linalg.norm(tip - entry)))
 
 
-def joint_resolution(config, names) -> np.ndarray:
+def joint_resolution(config: Any, names) -> np.ndarray:
     """Each joint's reading step (joint units) on the config's backend: on a servo bus, a tick of
     its servo through the transmission; 0 where the bench reads no quantized encoder (the sensed
-    joint, whose readings' scatter counts instead; the simulator's exact joints)."""
+    joint, whose readings' scatter counts instead; the simulator's exact joints). ``config``: a
+    trial config, or the one a log's record keeps (a mapping), so a saved trial says the same."""
     out = np.zeros(len(names))
-    b = config.backend
-    if getattr(b, "kind", None) != "dynamixel":
+    b = config.get("backend") if isinstance(config, Mapping) else config.backend.model_dump()
+    if not isinstance(b, Mapping) or b.get("kind") != "dynamixel":
         return out
-    sensed = b.ultrasonic.joint if b.ultrasonic is not None else None
+    sensed = (b.get("ultrasonic") or {}).get("joint")
+    servos = b.get("servos") or {}
     tick = x_series_table()["Present Position"].scale  # rad a tick at the shaft
     for i, name in enumerate(names):
-        servo = b.servos.get(name)
+        servo = servos.get(name)
         if servo is not None and name != sensed:
-            out[i] = abs(servo.ratio) * tick
+            out[i] = abs(float(servo.get("ratio", 1.0))) * tick  # the config's default ratio: 1
     return out
 
 
@@ -109,3 +114,31 @@ def camera_summary(camera: Optional[dict], encoders: Optional[NeedlePose],
         out["encoder_uncertainty_mm"] = r(COVERAGE * encoder_sigma * 1e3)
         out["flag"] = bool(gap > COVERAGE * np.hypot(sigma, encoder_sigma))
     return out
+
+
+def log_camera(log: TrialLog, robot, target: NeedleTarget, resolution: np.ndarray) -> Optional[dict]:
+    """:func:`camera_summary` of a trial from its log alone (the record's measurement, the encoders'
+    settled needle and its uncertainty from ``resolution``, :func:`joint_resolution`); None when the
+    trial had no cameras. The same figures at the end of a trial, in a comparison and in a campaign."""
+    measured = log.metadata.get("camera")
+    if not measured:
+        return None
+    encoders, sigma = None, 0.0
+    try:
+        q = settled_position(log, "insert")
+        rows = log.q[settle_rows(log.time, log.segment, log.segment_names, "insert")]
+    except (KeyError, ValueError):  # stopped before the insertion settled: no encoders' needle
+        q = None
+    if q is not None and np.all(np.isfinite(q)):
+        encoders = robot.needle(q)
+        sigma = encoder_tip_sigma(robot, rows, resolution)
+    return camera_summary(measured, encoders, target, sigma)
+
+
+def seen_outcome(log: TrialLog, target: NeedleTarget, position_limit_mm: float,
+                 angle_limit_deg: float) -> Optional[NeedleOutcome]:
+    """The placement the cameras measured at the end of the insertion, against the limits; None
+    without a measurement (no cameras, a capture that failed, a trial stopped before it)."""
+    capture = (log.metadata.get("camera") or {}).get("captures", {}).get("insert")
+    pose = camera_pose(capture, target)
+    return None if pose is None else pose_outcome(pose, target, position_limit_mm, angle_limit_deg)

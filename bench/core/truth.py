@@ -6,7 +6,9 @@ reads, as on the real rig. Seed 000 measured its needle with an external
 camera (Table 3), so campaigns judge placement on the truth: on the
 simulator, :class:`GroundTruth` records the backend's own joint positions
 at every read, and :func:`true_outcome` puts the needle where they say. On
-hardware there is no such truth and the measured outcome stands.
+a rig (emulated or real) there is no such truth: a campaign judges its trials on
+the cameras' tip where the config has cameras (bench.core.seen), else the
+measured outcome stands.
 """
 
 from __future__ import annotations

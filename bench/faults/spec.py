@@ -306,7 +306,8 @@ FAULTS: dict[str, FaultDef] = {f.name: f for f in (
     FaultDef("bias", "encoder offset: reads truth + bias, so the goal is reached at goal − bias",
              (Param("bias_deg", 0.0, "deg", kind="revolute"),
               Param("bias_mm", 0.0, "mm", kind="prismatic")), _bias),
-    FaultDef("backlash", "play on direction reversal: the output trails the motor by the play",
+    FaultDef("backlash", "play in a slide's rack (or a joint's gears): after a reversal the output trails "
+             "the motor by the play, and the encoder, on the motor, does not see it (the cameras do)",
              (Param("play_mm", 0.5, "mm", lo=0.0, kind="prismatic"),
               Param("play_deg", 0.0, "deg", lo=0.0, kind="revolute"),
               Param("engaged", "forward", choices=("forward", "backward", "random"))),

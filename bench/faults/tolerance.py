@@ -89,12 +89,16 @@ class Bias(FaultWrapper):
 
 
 class Backlash(FaultWrapper):
-    """Play between a motor and its output (the 3D-printed racks of the linear actuators).
+    """Play between a motor and its output: the play in the 3D-printed racks of the linear
+    actuators (seed 000, section 6), the bench's one law of it.
 
     The output stays within ``[motor, motor + play]``: driven forward, it
     follows the motor exactly; after a reversal the motor travels ``play``
     before it pulls the output, which from then on trails by ``play``. The
-    encoder sits on the motor, so reads show the motor (``output − gap``).
+    encoder sits on the motor, so reads show the motor (``output − gap``):
+    the servo holds its goal while the slide sits up to ``play`` off it, which
+    the backend's truth (a simulator's joints, an emulated rig's plant, what
+    the cameras see) shows and the readings never do.
     ``engaged`` says which face of the gap the output rests on at the start:
     ``+1`` (a forward move drives it at once), ``-1`` (a backward one does).
     """

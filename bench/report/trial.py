@@ -181,9 +181,9 @@ def tracking_summary(log: TrialLog, robot) -> str:
 
 def requirements_markdown(result: "TrialResult") -> str:
     """One row per requirement: its STL formula, its robustness (the signed margin, in the formula's
-    units) and whether it holds; beside it, where the placement was judged on the backend's truth,
-    the same formula on the readings."""
-    truth = result.basis == "sim"
+    units) and whether it holds; beside it, where the placement was judged on the backend's truth
+    or the cameras', the same formula on the readings."""
+    truth = result.basis in ("sim", "camera")
     fmt = lambda v: "—" if v is None else f"{v:+.3f}"  # noqa: E731
     head = "| requirement | formula | robustness | unit | holds |" + (" on the readings |" if truth else "")
     rows = [head, "|---|---|---:|---|---|" + ("---:|" if truth else "")]
@@ -193,8 +193,10 @@ def requirements_markdown(result: "TrialResult") -> str:
         if truth:
             row += f" {fmt(r.get('measured_robustness'))} |"
         rows.append(row)
-    where = ("the placement where the simulator's joints really were (its truth), the readings' beside it"
-             if truth else "the placement the readings give")
+    where = {"sim": "the placement where the simulator's joints really were (its truth), the readings' "
+                    "beside it",
+             "camera": "the placement the cameras measured (acceptance.by: camera), the readings' beside it",
+             }.get(result.basis, "the placement the readings give")
     return "\n".join(rows) + (f"\n\nRobustness is the signed margin by which the trial met each requirement "
                               f"(negative: by how much it missed), in mm or degrees as its formula; judged on "
                               f"{where}.\n")
