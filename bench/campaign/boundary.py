@@ -1,229 +1,195 @@
-"""Tolerance boundaries: along each fault axis, the magnitude where a requirement starts failing.
+"""Tolerance boundaries: along each fault axis, and in the plane of a pair of axes, the magnitude
+where a requirement starts failing, with its interval under the trial's own randomness.
 
-Each numeric axis of a spec (uniform, loguniform, integers, or a grid of numbers) is searched on its
-own, the other axes held at their first value (a grid's first, a range's low end: for a fault
-magnitude, the least fault). The trial's score is falsification's (the lowest robustness over its
-requirement's scale, :func:`bench.campaign.falsify.score_of`), a continuous margin, so the search
-brackets its zero:
+Each numeric axis of a spec (uniform, loguniform, integers, or a grid of numbers) is a line from
+its start (a range's low end, a grid's first value: for a fault magnitude, the least fault) to the
+other end of its range, the other axes at their start; ``pair`` adds the rays of two axes' plane
+(:mod:`bench.campaign.pair`). Each line's margin is falsification's score (the lowest robustness
+over its requirement's scale, :func:`bench.campaign.falsify.score_of`), and its boundary is found
+by :class:`bench.campaign.line.LineBoundary`: a bracket (active level-set sampling where the margin
+is not monotone), then, for a random trial, each seed's own crossing.
 
-- both ends of the axis first; when they have the same sign there is no boundary in the range;
-- then, in turn: a trial where the straight line through the bracket's scores crosses zero
-  (regula falsi), a trial 0.9 × the tolerance past it toward the bracket's other end (a close
-  estimate closes the bracket at once), and a bisection (the bracket halves whatever the margin's
-  shape); until the bracket is narrower than ``tolerance`` of the axis's range;
-- every score seen is checked to fall monotonically along the axis; where it does not, the
-  boundary is the first crossing found by a scan of the trials so far and the method says so.
-
-The interval is the final bracket. Trials of all axes run together, one batch per step, as a
-campaign's: planned by the spec's planner, stored in the same ``campaign.db``, run on its pools.
+The trials are a campaign's: planned by the spec's planner (a seed's trials all have the seed of
+its repeat index), stored in the same ``campaign.db``, run on its pools, every distinct trial once,
+every line's next trials in one batch. The search is deterministic, so it resumes by replaying
+itself against the trials already stored. ``grid`` runs the dense grid beside it, for the report.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Sequence
 
 from bench.campaign.checked import DB_NAME
 from bench.campaign.falsify import open_search, row_score
+from bench.campaign.line import RANDOM_SEEDS, Line, LineBoundary, LineResult, search_lines
+from bench.campaign.pair import pair_result, ray_lines, resolve_pair
 from bench.campaign.run import CampaignError, default_out, open_store, run_campaign
 from bench.campaign.spec import Axis, Planner, load_campaign_spec
 from bench.campaign.store import CampaignStore
 
-__all__ = ["AxisSearch", "find_boundaries"]
+__all__ = ["Boundaries", "axis_line", "find_boundaries", "numeric_axes"]
 
 NUMERIC = ("uniform", "loguniform", "integers", "grid")
 
 
-def _span(a: Axis) -> tuple[float, float]:
-    vals = [float(v) for v in a.args]
-    return (vals[0], vals[1]) if a.kind != "grid" else (min(vals), max(vals))
-
-
-def _start(a: Axis) -> Any:
-    return a.args[0]
-
-
 @dataclass
-class AxisSearch:
-    """One axis's bracket of the score's zero, in the axis's units."""
+class Boundaries:
+    """What a boundary search found: per axis, per pair, and the grids run beside them."""
 
-    axis: Axis
-    tolerance: float
-    points: list[tuple[float, float, Optional[str]]] = field(default_factory=list)  # (value, score, worst)
-    lo: Optional[tuple[float, float]] = None
-    hi: Optional[tuple[float, float]] = None
-    done: bool = False
-    _step: int = 0  # secant, a step just past it, bisection, in turn
-
-    @property
-    def span(self) -> tuple[float, float]:
-        return _span(self.axis)
-
-    def next_value(self) -> Optional[float]:
-        a, b = self.span
-        seen = {v for v, _, _ in self.points}
-        if a not in seen:
-            return a
-        if b not in seen:
-            return b
-        if self.done or self.lo is None or self.hi is None:
-            return None
-        (x0, f0), (x1, f1) = self.lo, self.hi
-        width = self.tolerance * (b - a)
-        if abs(x1 - x0) <= width:
-            self.done = True
-            return None
-        last = self.points[-1][0]
-        step = self._step % 3
-        self._step += 1
-        if step == 1 and last in (x0, x1):
-            # just past the last estimate, toward the bracket's other end: when the estimate was
-            # close, the bracket closes to within the tolerance at once
-            other = x1 if last == x0 else x0
-            x = last + (0.9 * width if other > last else -0.9 * width)
-        elif step == 2:
-            x = 0.5 * (x0 + x1)  # a bisection: the bracket halves whatever the margin's shape
-        else:
-            x = x0 - f0 * (x1 - x0) / (f1 - f0) if f1 != f0 else 0.5 * (x0 + x1)
-            edge = 0.05 * abs(x1 - x0)
-            if not (min(x0, x1) + edge <= x <= max(x0, x1) - edge):
-                x = 0.5 * (x0 + x1)
-        if self.axis.kind == "integers":
-            x = float(round(x))
-            if x in seen:
-                self.done = True
-                return None
-        return x
-
-    def tell(self, x: float, score: float, worst: Optional[str]) -> None:
-        self.points.append((x, score, worst))
-        a, b = self.span
-        seen = {v: s for v, s, _ in self.points}
-        if a in seen and b in seen and self.lo is None:
-            fa, fb = _finite(seen[a]), _finite(seen[b])
-            if (fa >= 0) == (fb >= 0):
-                self.done = True  # no crossing within the range
-                return
-            self.lo, self.hi = (a, fa), (b, fb)
-            return
-        if self.lo is None or x in (a, b):
-            return
-        f = _finite(score)
-        if (f >= 0) == (self.lo[1] >= 0):
-            self.lo = (x, f)
-        else:
-            self.hi = (x, f)
-
-    def monotone(self) -> bool:
-        pts = sorted((v, _finite(s)) for v, s, _ in self.points)
-        diffs = [b[1] - a[1] for a, b in zip(pts, pts[1:])]
-        return all(d <= 1e-9 for d in diffs) or all(d >= -1e-9 for d in diffs)
-
-    def result(self, requirement_of: Callable[[float], Optional[str]]) -> dict:
-        label = self.axis.label
-        if self.lo is None:
-            return {"axis": label, "requirement": None, "value": None, "interval": None,
-                    "trials": len(self.points), "method": "no crossing in the range"}
-        method = "regula falsi, guarded by bisection"
-        x0, x1 = self.lo[0], self.hi[0]
-        if not self.monotone():  # the first sign change along the axis among the trials run
-            pts = sorted((v, _finite(s)) for v, s, _ in self.points)
-            start = pts[0][1] >= 0
-            for (va, sa), (vb, sb) in zip(pts, pts[1:]):
-                if (sb >= 0) != start:
-                    x0, x1 = va, vb
-                    break
-            method = "first crossing of a scan (the margin is not monotone)"
-        lo, hi = sorted((x0, x1))
-        value = hi if self.axis.kind == "integers" else _crossing(self.lo, self.hi, lo, hi)
-        return {"axis": label, "requirement": requirement_of(x1 if (self.hi[1] < 0) else x0),
-                "value": value, "interval": [lo, hi], "trials": len(self.points), "method": method}
+    campaign_dir: Path
+    boundaries: list[dict]  # {axis, requirement, value, interval, interval_kind, crossings, trials, method}
+    pairs: list[dict] = field(default_factory=list)  # {axes, points, trials, rays}
+    grids: list[dict] = field(default_factory=list)  # {axis, values, passed, n}
+    pair_grids: list[dict] = field(default_factory=list)  # {axes, values, passed, n}: [i][j] at a_i, b_j
 
 
-def _crossing(p0: tuple[float, float], p1: tuple[float, float], lo: float, hi: float) -> float:
-    (x0, f0), (x1, f1) = p0, p1
-    x = x0 - f0 * (x1 - x0) / (f1 - f0) if f1 != f0 else 0.5 * (x0 + x1)
-    return min(hi, max(lo, x))
+def numeric_axes(planner: Planner) -> list[Axis]:
+    return [a for a in planner.axes if a.kind in NUMERIC
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in a.args)]
 
 
-def _finite(s: float) -> float:
-    return s if math.isfinite(s) else -1e6
+def axis_line(axis: Axis, start: dict[str, Any]) -> Line:
+    """The axis from the end of its range at its start to the other end, the others at ``start``."""
+    vals = [float(v) for v in axis.args]
+    lo, hi = (vals[0], vals[1]) if axis.kind != "grid" else (min(vals), max(vals))
+    if axis.kind == "grid" and vals[0] == hi:
+        lo, hi = hi, lo  # a grid that starts at its largest value runs down
+    whole = axis.kind == "integers" or (axis.kind == "grid" and all(isinstance(v, int) for v in axis.args))
+    origin = int(lo) if whole else lo
+    return Line(axis.label, {**start, axis.label: origin}, {axis.label: hi - lo},
+                frozenset({axis.label}) if whole else frozenset())
 
 
 def find_boundaries(spec_path: Path | str, out: Path | str | None = None, tolerance: float = 0.01,
                     max_trials: int = 12, workers: Optional[int] = None, scheduler: Optional[str] = None,
-                    notify: Optional[Callable[[str], None]] = None,
-                    grid: int = 0) -> tuple[Path, list[dict], list[dict]]:
-    """Each numeric axis's boundary; the search directory, ``[{axis, requirement, value, interval,
-    trials, method}]`` (values in the axis's units) and, with ``grid`` > 1, each axis's pass rate on
-    ``grid`` evenly spaced values (``spec.repeats`` trials each) beside it: ``[{axis, values, passed,
-    n}]``."""
+                    notify: Optional[Callable[[str], None]] = None, grid: int = 0,
+                    pair: Optional[Sequence[str]] = None, rays: int = 7,
+                    repeats: Optional[int] = None) -> Boundaries:
+    """Each numeric axis's boundary (values in the axis's units) and, with ``pair``, the boundary
+    curve in the plane of those two axes; ``repeats``: the seeds a random trial is bracketed with
+    (default: the spec's, or :data:`bench.campaign.line.RANDOM_SEEDS` when it runs each draw once).
+    With ``grid`` > 1, each axis's pass rate on ``grid`` evenly spaced values, and a pair's on a
+    ``grid`` × ``grid`` grid, each value run by as many seeds."""
     if not 0 < tolerance < 1:
         raise CampaignError(f"--tolerance must be between 0 and 1 (a share of the range), got {tolerance}")
     if max_trials < 2:
         raise CampaignError(f"--max-trials must be >= 2 (the two ends), got {max_trials}")
+    if repeats is not None and repeats < 1:
+        raise CampaignError(f"--repeats must be >= 1, got {repeats}")
     spec = load_campaign_spec(spec_path)
     planner = Planner(spec)
-    axes = [a for a in planner.axes if a.kind in NUMERIC and all(isinstance(v, (int, float)) for v in a.args)]
+    axes = numeric_axes(planner)
     if not axes:
         raise CampaignError(f"{spec_path}: the spec has no numeric axis to search (uniform, loguniform, "
                             "integers or a grid of numbers)")
+    start = {a.label: a.args[0] for a in planner.axes}
+    lines = [axis_line(a, start) for a in axes]
+    plane: list[Line] = []
+    if pair:
+        a, b = resolve_pair(pair, axes)
+        plane = ray_lines(lines[axes.index(a)], lines[axes.index(b)], rays)
+        pair = [a.label, b.label]
+    seeds = repeats or (spec.repeats if spec.repeats > 1 else None)
     out = Path(out) if out is not None else default_out(f"{spec.name}-boundary")
     open_search(spec, spec_path, planner, out, {"mode": "boundary", "tolerance": tolerance,
-                                                    "max_trials": max_trials})
-    searches = [AxisSearch(a, tolerance) for a in axes]
+                                                    "max_trials": max_trials, "seeding": "common",
+                                                    "repeats": repeats, "pair": list(pair) if pair else None,
+                                                    "rays": rays if pair else None})
     say = notify or (lambda msg: None)
-    k = 0
-    run = lambda planned: _run(out, planned, workers, scheduler)  # noqa: E731
-    worst_at: dict[tuple[str, float], Optional[str]] = {}
-    while True:
-        asks = []
-        for s in searches:
-            x = s.next_value() if len(s.points) < max_trials else None
-            if x is not None:
-                asks.append((s, x))
-        if not asks:
-            break
-        planned = []
-        for s, x in asks:
-            values = {a.label: _start(a) for a in planner.axes}
-            values[s.axis.label] = int(x) if s.axis.kind == "integers" else float(x)
-            planned.append(planner.trial(k, 0, k, 0, values))
-            k += 1
-        rows = run(planned)
-        for (s, x), row in zip(asks, rows):
-            s.tell(x, row_score(row), row.get("worst"))
-            worst_at[(s.axis.label, x)] = row.get("worst")
-        say(f"{k} trial(s): " + ", ".join(f"{s.axis.label} [{s.lo[0]:.4g}, {s.hi[0]:.4g}]"
-                                          for s in searches if s.lo is not None))
-    results = [s.result(lambda x, s=s: worst_at.get((s.axis.label, x))) for s in searches]
-    grids = []
-    if grid > 1:
-        planned, where = [], []
-        for s in searches:
-            a, b = s.span
-            for i in range(grid):
-                x = a + (b - a) * i / (grid - 1)
-                values = {ax.label: _start(ax) for ax in planner.axes}
-                values[s.axis.label] = int(round(x)) if s.axis.kind == "integers" else float(x)
-                for _ in range(spec.repeats):
-                    planned.append(planner.trial(k, 0, k, 0, values))
-                    where.append((s.axis.label, values[s.axis.label]))
-                    k += 1
-        rows = run(planned)
-        for s in searches:
-            xs = sorted({x for label, x in where if label == s.axis.label})
-            sel = [[r for (label, x2), r in zip(where, rows) if label == s.axis.label and x2 == x] for x in xs]
-            grids.append({"axis": s.axis.label, "values": xs,
-                          "passed": [sum(row_score(r) >= 0 for r in g) for g in sel], "n": [len(g) for g in sel]})
+    ids = itertools.count()
+
+    def evaluate(batch: list[tuple[dict, int]]) -> list[tuple[float, Optional[str]]]:
+        planned = [planner.trial(next(ids), 0, 0, r, values) for values, r in batch]
+        return [(row_score(row), row.get("worst")) for row in _run(out, planned, workers, scheduler)]
+
+    searches = [LineBoundary(line, tolerance, max_trials, seeds) for line in lines + plane]
+    search_lines(searches, evaluate, lambda ran: say(f"{ran} trial(s): " + _brackets(lines, searches)))
+    results = [s.result() for s in searches]
+    found = Boundaries(out, [_axis_entry(line, r) for line, r in zip(lines, results)])
+    if plane:
+        found.pairs.append(pair_result(plane, searches[len(lines):], results[len(lines):]))
+    if grid > 1:  # as many runs of each value as a line's seeds
+        runs = seeds or (RANDOM_SEEDS if any(s.random for s in searches) else 1)
+        found.grids = _axis_grids(lines, grid, runs, lambda batch: _grid_rows(out, planner, ids, batch,
+                                                                               workers, scheduler))
+        if plane:
+            found.pair_grids = [_pair_grid(plane, grid, runs, lambda batch: _grid_rows(
+                out, planner, ids, batch, workers, scheduler))]
     with open_store(out) as store:
-        store.set_meta(boundaries=results, grids=grids,
+        store.set_meta(boundaries=found.boundaries, pairs=found.pairs, grids=found.grids,
+                       pair_grids=found.pair_grids,
                        ended=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
-    return out, results, grids
+    return found
+
+
+def _axis_entry(line: Line, res: LineResult) -> dict[str, Any]:
+    """A line's boundary in its axis's units."""
+    ((label, _),) = line.step.items()
+
+    def x(t: Optional[float]) -> Optional[float]:
+        return None if t is None else line.values(t)[label] if label in line.integer else float(
+            line.start[label] + t * line.step[label])
+
+    interval = None if res.interval is None else sorted(x(t) for t in res.interval)
+    return {"axis": label, "requirement": res.requirement, "value": x(res.crossing), "interval": interval,
+            "interval_kind": res.kind, "crossings": [x(t) for t in res.crossings], "trials": res.trials,
+            "method": res.method}
+
+
+def _brackets(lines: Sequence[Line], searches: Sequence[LineBoundary]) -> str:
+    parts = []
+    for line, s in zip(lines, searches):
+        br = s.first.bracket()
+        if br is not None:
+            ((label, d),) = line.step.items()
+            lo, hi = sorted(line.start[label] + t * d for t in (br[0][0], br[1][0]))
+            parts.append(f"{label} [{lo:.4g}, {hi:.4g}]")
+    return ", ".join(parts)
+
+
+def _grid_rows(out: Path, planner: Planner, ids, batch: list[dict], workers, scheduler) -> list[dict]:
+    """A grid's trials, each with a seed of its own (the pass rate is over independent trials)."""
+    planned = []
+    for values in batch:
+        k = next(ids)
+        planned.append(planner.trial(k, 0, k, 0, values))
+    return _run(out, planned, workers, scheduler)
+
+
+def _axis_grids(lines: Sequence[Line], n: int, runs: int,
+                run: Callable[[list[dict]], list[dict]]) -> list[dict]:
+    batch = [line.values(i / (n - 1)) for line in lines for i in range(n) for _ in range(runs)]
+    rows = iter(run(batch))
+    grids = []
+    for line in lines:
+        ((label, _),) = line.step.items()
+        values = sorted({line.values(i / (n - 1))[label] for i in range(n)})
+        passed = dict.fromkeys(values, 0)
+        count = dict.fromkeys(values, 0)
+        for i in range(n):
+            x = line.values(i / (n - 1))[label]
+            for _ in range(runs):
+                passed[x] += row_score(next(rows)) >= 0
+                count[x] += 1
+        grids.append({"axis": label, "values": values, "passed": [passed[x] for x in values],
+                      "n": [count[x] for x in values]})
+    return grids
+
+
+def _pair_grid(rays: Sequence[Line], n: int, runs: int, run: Callable[[list[dict]], list[dict]]) -> dict:
+    """The pass rate on an n × n grid of the pair's plane, ``[i][j]`` at (a_i, b_j)."""
+    ((ka, da),), ((kb, db),) = rays[0].step.items(), rays[-1].step.items()
+    a = [rays[0].values(i / (n - 1))[ka] for i in range(n)]
+    b = [rays[-1].values(j / (n - 1))[kb] for j in range(n)]
+    batch = [{**rays[0].start, ka: x, kb: y} for x in a for y in b for _ in range(runs)]
+    ok = [row_score(r) >= 0 for r in run(batch)]
+    passed = [[sum(ok[(i * n + j) * runs:(i * n + j + 1) * runs]) for j in range(n)] for i in range(n)]
+    return {"axes": [ka, kb], "values": [a, b], "passed": passed, "n": [[runs] * n for _ in range(n)]}
 
 
 def _run(out: Path, planned: list, workers: Optional[int], scheduler: Optional[str]) -> list[dict]:

@@ -278,15 +278,28 @@ def boundary_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fa
                                                          "hil_configs/campaigns/boundary_bias.yaml."),
                  tolerance: float = typer.Option(0.01, "--tolerance", help="Stop when the bracket is this share "
                                                  "of the axis's range."),
-                 max_trials: int = typer.Option(12, "--max-trials", min=2, help="Most trials per axis."),
+                 max_trials: int = typer.Option(12, "--max-trials", min=2, help="Most trials per axis for its "
+                                                "first seed."),
+                 repeats: Optional[int] = typer.Option(None, "--repeats", min=1, help="Seeds a random trial's "
+                                                       "boundary is bracketed with (default: the spec's "
+                                                       "repeats, 5 when it has none); 1: one seed, no check."),
+                 pair: Optional[tuple[str, str]] = typer.Option(None, "--pair", metavar="AXIS_A AXIS_B",
+                                                                help="Also the boundary curve in the plane of "
+                                                                "two axes (a label or a part of one, e.g. "
+                                                                "theta5 theta6)."),
+                 rays: int = typer.Option(7, "--rays", min=2, help="Rays of the --pair plane from its "
+                                          "least-fault corner, the two axes included."),
                  grid: int = typer.Option(0, "--grid", min=0, help="Also run this many evenly spaced values "
-                                          "per axis (× the spec's repeats) for the pass rate beside the "
-                                          "boundary (0: none)."),
+                                          "per axis (and N × N in a --pair's plane), each by as many seeds, "
+                                          "for the pass rate beside the boundary (0: none)."),
                  workers: Optional[int] = _WORKERS, scheduler: Optional[str] = _SCHEDULER,
                  out: Optional[Path] = _search_dir("boundary"),
                  as_json: bool = typer.Option(False, "--json", help='Print {"boundaries": [{"axis", '
-                                              '"requirement", "value", "interval", "trials"}]}.')) -> None:
-    """Along each fault axis, the magnitude where a requirement starts failing, and its interval."""
+                                              '"requirement", "value", "interval", "interval_kind", "trials", '
+                                              '...}], "pairs": [{"axes", "points", "trials", "rays"}]}.')) -> None:
+    """Along each fault axis, the magnitude where a requirement starts failing, and its interval
+    (the bracket, or the range of the seeds' crossings when the trial is random); with --pair, the
+    boundary curve in the plane of two axes."""
     from bench.campaign.boundary import find_boundaries  # deferred: --help stays fast
     from bench.campaign.lock import CampaignBusy  # deferred: --help and completion stay fast
     from bench.campaign.search_report import write_boundary_report  # deferred: --help stays fast
@@ -294,24 +307,34 @@ def boundary_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fa
     if not 0 < tolerance < 1:
         fail(f"--tolerance must be between 0 and 1 (a share of the axis's range), got {tolerance}")
     try:
-        directory, bounds, grids = find_boundaries(
-            spec, out, tolerance=tolerance, max_trials=max_trials, workers=workers, scheduler=scheduler,
-            grid=grid, notify=lambda m: err_console.print(m, highlight=False))
+        found = find_boundaries(spec, out, tolerance=tolerance, max_trials=max_trials, workers=workers,
+                                scheduler=scheduler, grid=grid, pair=pair if pair and pair[0] else None,
+                                rays=rays, repeats=repeats,
+                                notify=lambda m: err_console.print(m, highlight=False))
     except (CampaignSpecError, CampaignError, CampaignBusy, RuntimeError, ValueError) as e:
         fail(str(e))
     except KeyboardInterrupt:
         stopped(signal.SIGINT)
-    report = write_boundary_report(directory, {"name": Path(spec).stem, "boundaries": bounds}, grids)
+    report = write_boundary_report(found.campaign_dir, {"name": Path(spec).stem, "boundaries": found.boundaries,
+                                                        "pairs": found.pairs}, found.grids, found.pair_grids)
     if as_json:
-        emit_json({"boundaries": bounds, "campaign": str(directory)})
+        emit_json({"boundaries": found.boundaries, "pairs": found.pairs, "campaign": str(found.campaign_dir)})
         return
-    for b in bounds:
-        if b["value"] is None:
-            console.print(f"{b['axis']}: no requirement fails within its range ({b['trials']} trials)",
-                          highlight=False)
-        else:
-            lo, hi = b["interval"]
-            console.print(f"{b['axis']}: {b['requirement']} fails from {b['value']:.4g} "
-                          f"(between {lo:.4g} and {hi:.4g}; {b['trials']} trials, {b['method']})",
-                          highlight=False, soft_wrap=True)
+    for b in found.boundaries:
+        console.print(_boundary_line(b), highlight=False, soft_wrap=True)
+    for p in found.pairs:
+        points = ", ".join(f"({x:.4g}, {y:.4g})" for x, y in p["points"]) or "none"
+        console.print(f"{p['axes'][0]} × {p['axes'][1]}: boundary at {points} ({p['trials']} trials)",
+                      highlight=False, soft_wrap=True)
     console.print(f"report: {report}", highlight=False)
+
+
+def _boundary_line(b: dict) -> str:
+    if b["interval"] is None:
+        return f"{b['axis']}: no requirement fails within its range ({b['trials']} trials)"
+    lo, hi = b["interval"]
+    where = "from beyond its range" if b["value"] is None else f"from {b['value']:.4g}"
+    spread = (f"between {lo:.4g} and {hi:.4g}" if b["interval_kind"] == "bracket"
+              else f"seeds' crossings from {lo:.4g} to {hi:.4g}")
+    return (f"{b['axis']}: {b['requirement']} fails {where} ({spread}; {b['trials']} trials, "
+            f"{b['method']})")
