@@ -8,7 +8,9 @@ import time
 import pytest
 
 from drivers import CommunicationError
+from drivers.clock import VirtualClock
 from drivers.emulator.ultrasonic import UltrasonicEmulator, format_reading, standoff_distance
+from drivers.emulator.virtual import VirtualUltrasonic
 from drivers.ultrasonic import DEFAULT_STANDOFF_M, StaleReadingError, UltrasonicSensor
 
 pytestmark = pytest.mark.timeout(30)
@@ -51,19 +53,27 @@ def test_reader_tracks_the_emulated_distance_within_noise() -> None:
 
 
 def test_reader_counts_dropouts_against_the_expected_rate() -> None:
-    with UltrasonicEmulator(lambda: 1.0, rate_hz=50, dropout_prob=0.3, seed=11) as emu:
+    """On the virtual clock: a dropout is a gap in the lines' timing, which a loaded machine's late
+    reader thread would stretch; on the clock each line arrives when the sensor sent it, so the count
+    is exact."""
+    clock = VirtualClock()
+    emu = VirtualUltrasonic(lambda: 1.0, clock=clock, name="dropouts", rate_hz=50, dropout_prob=0.3,
+                            seed=11).start()
+    try:
         with UltrasonicSensor(emu.port, expected_rate_hz=50, stale_after_s=1.0) as sensor:
-            assert wait_for(lambda: sensor.counters.readings >= 1)
-            dropped_before = emu.lines_dropped
-            time.sleep(1.0)
-            emu.pause()
-            time.sleep(0.05)
+            sensor.wait_for_reading()  # the clock stops as the first line arrives: nothing lost since
+            dropped_before, counted_before = emu.lines_dropped, sensor.counters.dropouts
+            clock.sleep(2.0)
+            # the window closes on a line that arrives, so every line lost before it is noticed
+            emu.dropout_prob = 0.0
+            seen = sensor.counters.readings
+            assert clock.advance(clock.now() + 1.0, until=lambda: sensor.counters.readings > seen)
             dropped = emu.lines_dropped - dropped_before
-            counted = sensor.counters.dropouts
-            readings = sensor.counters.readings
-    assert dropped >= 5  # ~30 % of 50 lines
-    # Lines missed after the last line that arrived cannot be noticed yet.
-    assert dropped - 4 <= counted <= dropped + 1, (counted, dropped, readings)
+            counted = sensor.counters.dropouts - counted_before
+    finally:
+        emu.stop()
+    assert 20 <= dropped <= 40  # ~30 % of 100 lines
+    assert counted == dropped
 
 
 def test_reader_reports_staleness_when_the_emulator_stops() -> None:

@@ -148,8 +148,18 @@ class SignalGuard:
         last line must get out whole."""
         self._deferring += 1
 
+    def _take_put_off(self) -> None:
+        """A signal put off in an import counts from the first look out of every import: the
+        thread that sends it again may be late on a loaded machine, and the trial must not run on
+        past the signal's phase meanwhile (or end as if none had come)."""
+        if (self.signum is None and self._after_import is not None
+                and threading.current_thread() is threading.main_thread()
+                and not _importing(sys._getframe())):
+            self.signum, self._after_import = self._after_import, None
+
     def check(self) -> None:
         """Raise :class:`TrialInterrupted` if a stop signal has arrived (even if swallowed)."""
+        self._take_put_off()
         if self.signum is not None:
             raise TrialInterrupted(self.signum, self.source)
 
@@ -165,6 +175,7 @@ class SignalGuard:
 
     @property
     def interrupted(self) -> bool:
+        self._take_put_off()
         return self.signum is not None
 
     #: Guards entered while another was in place: a command's own over the entry point's. A

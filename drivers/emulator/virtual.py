@@ -127,7 +127,7 @@ class VirtualBusEmulator(_OnClock, DynamixelBusEmulator):
                     self._t = self._origin + self._steps * dt
                 elif reply <= instruction:
                     self._t, packet = self._replies.popleft()
-                    self.line.deliver(packet)
+                    self.line.deliver(packet, self._t)
                     self.stats.status_sent += 1
                     return self._t  # bytes at the host: the clock looks again
                 else:
@@ -189,7 +189,7 @@ class VirtualUltrasonic(_OnClock, UltrasonicEmulator):
                 return reached
             if arrival <= reading:
                 reached, line = self._lines.popleft()
-                self.line.deliver(line)
+                self.line.deliver(line, reached)
                 self.lines_sent += 1
                 return reached
             self._readings += 1

@@ -48,14 +48,16 @@ class VirtualLine:
     def url(self) -> str:
         return f"virtual://{self.name}"
 
-    def deliver(self, data: bytes) -> None:
-        """The device's bytes have crossed the wire now (the clock's instant)."""
+    def deliver(self, data: bytes, at: float | None = None) -> None:
+        """The device's bytes have crossed the wire at ``at``: the device's own instant, which the
+        clock only reads once the device's work returns (default: the clock's instant, for bytes put
+        on the line from outside a device's work)."""
         if not data:
             return
         if self.host is None:
             self.lost_bytes += len(data)
             return
-        self.to_host.append((self.clock.now(), bytes(data)))
+        self.to_host.append((self.clock.now() if at is None else at, bytes(data)))
 
     def pending(self) -> int:
         return sum(len(chunk) for _, chunk in self.to_host)
