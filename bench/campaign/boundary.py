@@ -1,9 +1,10 @@
-"""Tolerance boundaries: along each fault axis, and in the plane of a pair of axes, the magnitude
-where a requirement starts failing, with its interval under the trial's own randomness.
+"""Tolerance boundaries: along each axis, and in the plane of a pair of axes, the value where a
+requirement starts failing, with its interval under the trial's own randomness.
 
-Each numeric axis of a spec (uniform, loguniform, integers, or a grid of numbers) is a line from
-its start (a range's low end, a grid's first value: for a fault magnitude, the least fault) to the
-other end of its range, the other axes at their start; ``pair`` adds the rays of two axes' plane
+Each numeric axis of a spec (uniform, loguniform, integers, or a grid of numbers; a fault's
+parameter or an override's value) is a line from its start (a range's low end, a grid's first
+value: for a fault magnitude, the least fault; for a target, the range's low end) to the other end
+of its range, the other axes at their start; ``pair`` adds the rays of two axes' plane
 (:mod:`bench.campaign.pair`). Each line's margin is falsification's score (the lowest robustness
 over its requirement's scale, :func:`bench.campaign.falsify.score_of`), and its boundary is found
 by :class:`bench.campaign.line.LineBoundary`: a bracket (active level-set sampling where the margin
@@ -105,7 +106,8 @@ def find_boundaries(spec_path: Path | str, out: Path | str | None = None, tolera
 
     def evaluate(batch: list[tuple[dict, int]]) -> list[tuple[float, Optional[str]]]:
         planned = [planner.trial(next(ids), 0, 0, r, values) for values, r in batch]
-        return [(row_score(row), row.get("worst")) for row in _run(out, planned, workers, scheduler)]
+        return [(row_score(row), row.get("worst") or ("error" if row.get("status") == "error" else None))
+                for row in _run(out, planned, workers, scheduler)]
 
     searches = [LineBoundary(line, tolerance, max_trials, seeds) for line in lines + plane]
     search_lines(searches, evaluate, lambda ran: say(f"{ran} trial(s): " + _brackets(lines, searches)))

@@ -1,6 +1,7 @@
 """Falsification: search a spec's bounded axes for a trial that violates a requirement.
 
-The search runs in the unit cube of the spec's axes (:func:`decode` maps a point to axis values:
+The axes are the spec's fault parameters and override values (a target's entry point, a servo's
+physics) alike. The search runs in the unit cube of the spec's axes (:func:`decode` maps a point to axis values:
 uniform and loguniform bounds, integers, a normal's ±3σ, the choices of a grid or a choice) and
 minimises the trial's *score*, the lowest of its requirements' robustness each divided by its
 ``scale`` (a trial with no value for one, stopped before its placement, scores −∞). It stops at
@@ -199,6 +200,7 @@ class FalsifyResult:
                 "score": self.score if math.isfinite(self.score) else None,
                 "params": row.get("params"), "config": row.get("config_file"),
                 "trial": row.get("id"), "seed": row.get("seed"), "optimizer": self.optimizer,
+                "error": row.get("error") if row.get("status") == "error" else None,
                 "ran": self.ran, "campaign": str(self.campaign_dir),
                 "curve": [c if math.isfinite(c) else None for c in self.curve]}
 
@@ -236,8 +238,8 @@ def falsify(spec_path: Path | str, out: Path | str | None = None, budget: int = 
     spec = load_campaign_spec(spec_path)
     planner = Planner(spec)
     if not planner.axes:
-        raise CampaignError(f"{spec_path}: the spec has no axis to search (write a fault parameter "
-                            "as {uniform: [low, high]}, a grid or a choice)")
+        raise CampaignError(f"{spec_path}: the spec has no axis to search (write a fault parameter or a "
+                            "value under overrides: as {uniform: [low, high]}, a grid or a choice)")
     out = Path(out) if out is not None else default_out(f"{spec.name}-falsify")
     settings = {"mode": "falsify", "optimizer": optimizer, "search_seed": seed}
     open_search(spec, spec_path, planner, out, settings)

@@ -1,4 +1,4 @@
-"""Campaign reports: pass rates against fault magnitude, deviation distributions beside
+"""Campaign reports: pass rates along each axis, deviation distributions beside
 seed 000's Table 3, the worst trials — Markdown and one self-contained HTML page."""
 
 from __future__ import annotations
@@ -337,7 +337,7 @@ def render_markdown(meta: dict, rows: list[dict], counts: dict, figures: dict[st
     axes_meta = meta.get("axes", [])
     lines += cameras_markdown(done, axes_meta, _groups)
     if axes_meta:
-        lines += ["## Pass rate against fault magnitude", ""]
+        lines += ["## Pass rate along each axis", ""]
         if "rates" in figures:
             lines += [f"![pass rates]({figures['rates']})", ""]
         for axis in axes_meta:

@@ -1,5 +1,5 @@
 """Reports of the campaigns that search: a falsification's robustness curve and falsifying trial,
-and each fault axis's tolerance boundary beside the grid's pass rate — Markdown and one HTML page."""
+and each axis's tolerance boundary beside the grid's pass rate — Markdown and one HTML page."""
 
 from __future__ import annotations
 
@@ -65,6 +65,8 @@ def write_falsify_report(directory: Path | str, result: dict) -> Path:
              f"- {'violated' if result['falsified'] else 'closest to failing'}: requirement "
              f"`{result.get('requirement')}`, robustness {_fmt(result.get('robustness'))} "
              f"(its units; score {_fmt(result.get('score'))} of its scale)", ""]
+    if result.get("error"):  # refused before it moved (a target out of reach) or broken: no margin
+        lines[-2] = f"- {'violated' if result['falsified'] else 'lowest'}: the trial errored: {result['error']}"
     if result.get("params"):
         lines += ["## The trial", "", "| axis | value |", "|---|---:|"]
         lines += [f"| {k} | {v:.6g} |" if isinstance(v, float) else f"| {k} | {v} |"

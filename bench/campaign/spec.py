@@ -8,12 +8,20 @@ trial config, except that any parameter may be an *axis*::
       - {name: torque_limit, joints: [theta5], scale: {grid: [1.0, 0.5, 0.3]}}
       - {name: noise, std_deg: {uniform: [0.0, 0.2]}}               # drawn
 
+A value under ``overrides:`` (merged into the base config) may be an axis too,
+labelled by its path in the trial config (:mod:`bench.campaign.overrides`)::
+
+    overrides:
+      target: {x_mm: {uniform: [-60.0, 20.0]}, angle_deg: {grid: [30.0, 47.0]}}
+
 Grid axes multiply; ``samples`` random draws are made for every grid point
 (distributions: uniform, loguniform, normal, choice, integers); every draw
 runs ``repeats`` times. Each trial gets its own seed from
 ``SeedSequence(seed, spawn_key=(0, grid, sample, repeat))`` and its
 parameters from ``spawn_key=(1, grid, sample, axis)``, so a trial can be
 re-run alone, and adding repeats or samples leaves the existing trials as
+they were. The fault axes come first and the override axes after them, so
+adding an override axis leaves the fault axes' indices, and their draws, as
 they were. Errors name the field path.
 """
 
@@ -30,6 +38,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from bench.campaign.overrides import axis_leaves, missing_field, with_value
 from bench.config.base import describe_validation_error
 from bench.config.models import AcceptanceConfig, ConfigError, TrialConfig, read_yaml_mapping
 from bench.config.requirements import Requirement, check_requirements
@@ -56,7 +65,8 @@ class CampaignSpec(_Strict):
     samples: int = Field(default=1, ge=1, description="random draws per grid point")
     repeats: int = Field(default=1, ge=1, description="runs of every draw, each with its own seed")
     faults: list[dict[str, Any]] = Field(default_factory=list)
-    overrides: dict[str, Any] = Field(default_factory=dict, description="merged into the base config")
+    overrides: dict[str, Any] = Field(default_factory=dict, description="merged into the base config; a value "
+                                      "written as a distribution is an axis")
     acceptance: Optional[AcceptanceConfig] = None  # default: the base config's
     requirements: Optional[list[Requirement]] = None  # default: the base config's (else the acceptance's)
     max_attempts: int = Field(default=2, ge=1, description="runs of a trial that keeps erroring")
@@ -69,17 +79,22 @@ class CampaignSpec(_Strict):
 
 @dataclass(frozen=True)
 class Axis:
-    """One varying fault parameter: where it sits and how it varies."""
+    """One varying value, a fault's parameter or an override's, and how it varies."""
 
-    label: str  # e.g. "torque_limit[theta5].scale"
-    fault: int  # index in the spec's fault list
-    param: str
+    label: str  # e.g. "torque_limit[theta5].scale", or an override's path "target.x_mm"
+    fault: Optional[int]  # index in the spec's fault list; None for an override
+    param: str  # the fault's parameter, or the override's dotted path
     kind: str  # one of DISTRIBUTIONS
     args: tuple
+    path: tuple[str, ...] = ()  # an override's path in the trial config
 
     @property
     def is_grid(self) -> bool:
         return self.kind == "grid"
+
+    @property
+    def is_override(self) -> bool:
+        return self.fault is None
 
 
 @dataclass(frozen=True)
@@ -123,6 +138,7 @@ def load_campaign_spec(path: Path | str) -> CampaignSpec:
                 check_requirements(spec.requirements, get_robot(base.get("robot", "arc-train")))
             except (ValueError, KeyError) as e:
                 raise CampaignSpecError(str(e).strip("'\"")) from None
+        _check_override_values(Planner(spec))
         first = plan_trials(spec, limit=1)  # axes, faults and the base config, checked once
         _check_grid_values(spec)
         if spec.emulate and first and first[0].config["backend"]["kind"] != "dynamixel":
@@ -138,7 +154,7 @@ def _check_grid_values(spec: CampaignSpec) -> None:
     _, base = base_config_data(spec)
     names = get_robot(base.get("robot", "arc-train")).joint_names
     for a in find_axes(spec):
-        if not a.is_grid:
+        if not a.is_grid or a.is_override:  # an override's values: _check_override_values
             continue
         for v in a.args:
             fault = {k: (v if k == a.param else x) for k, x in spec.faults[a.fault].items()
@@ -147,6 +163,36 @@ def _check_grid_values(spec: CampaignSpec) -> None:
                 parse_fault(fault, names, f"faults.{a.fault}")
             except ValueError as e:
                 raise CampaignSpecError(str(e)) from None
+
+
+def _check_override_values(planner: "Planner") -> None:
+    """Every override axis on a field the trial config has, and a valid config at each value it
+    can take: a grid's or a choice's every value, a range's two ends, a normal's mean ± 3σ (the
+    span a search covers); the other axes at their first value."""
+    kind = str((planner.base.get("backend") or {}).get("kind", "pybullet"))
+    start = {a.label: a.args[0] for a in planner.axes}
+    for a in planner.axes:
+        if not a.is_override:
+            continue
+        problem = missing_field(a.path, kind)
+        if problem:
+            raise CampaignSpecError(f"overrides.{a.label}: {problem}")
+        for value, what in _extremes(a):
+            try:
+                planner.config({**start, a.label: value}, named=False)
+            except CampaignSpecError as e:
+                raise CampaignSpecError(f"overrides.{a.label}: {value!r} ({what}) makes an invalid trial "
+                                        f"config: {e}") from None
+
+
+def _extremes(a: Axis) -> list[tuple[Any, str]]:
+    """The values an axis is checked at, each with what it is."""
+    if a.kind in ("grid", "choice"):
+        return [(v, f"its {a.kind}'s value {i}") for i, v in enumerate(a.args)]
+    if a.kind == "normal":
+        mean, std = a.args
+        return [(mean - 3 * std, "its normal's mean - 3 std"), (mean + 3 * std, "its normal's mean + 3 std")]
+    return [(a.args[0], f"its {a.kind}'s low end"), (a.args[1], f"its {a.kind}'s high end")]
 
 
 # ---------------------------------------------------------------------------
@@ -178,7 +224,8 @@ def _axis(where: str, value: dict) -> tuple[str, tuple]:
 
 
 def find_axes(spec: CampaignSpec) -> list[Axis]:
-    """Every parameter written as ``{distribution: [...]}``, in the order of the spec."""
+    """Every value written as ``{distribution: [...]}``: the faults' parameters in the order of the
+    spec, then the overrides' in the order written."""
     axes: list[Axis] = []
     for i, fault in enumerate(spec.faults):
         if not isinstance(fault, dict):
@@ -193,6 +240,10 @@ def find_axes(spec: CampaignSpec) -> list[Axis]:
             if any(a.label == label for a in axes):
                 label = f"{label}#{i}"
             axes.append(Axis(label, i, key, kind, args))
+    for path, value in axis_leaves(spec.overrides, DISTRIBUTIONS):
+        label = ".".join(path)
+        kind, args = _axis(f"overrides.{label}", value)
+        axes.append(Axis(label, None, label, kind, args, path))
     return axes
 
 
@@ -288,7 +339,8 @@ class Planner:
         """The spec's faults with every axis at its value, each checked."""
         faults = [dict(f) for f in self.spec.faults]
         for a in self.axes:
-            faults[a.fault][a.param] = values[a.label]
+            if not a.is_override:
+                faults[a.fault][a.param] = values[a.label]
         for i, f in enumerate(faults):
             try:
                 parse_fault(f, self.names, f"faults.{i}")
@@ -303,14 +355,25 @@ class Planner:
         faults = self.faults(values, tid) if faults is None else faults
         seed = trial_seed(self.spec.seed, g, s, r) if seed is None else seed
         name = f"{self.spec.name}-{tid:05d}"
-        data = {**self.base, "name": name, "seed": seed, "faults": self.base_faults + faults}
+        cfg = self.config(values, faults, name, seed)
+        return PlannedTrial(tid, name, g, s, r, seed, values, faults, json_config(cfg))
+
+    def config(self, values: dict[str, Any], faults: list[dict[str, Any]] | None = None,
+               name: str | None = None, seed: int = 0, named: bool = True) -> TrialConfig:
+        """The trial config at these axis values, validated; a refusal is one line, starting with the
+        base config's name where ``named``."""
+        faults = self.faults(values, 0) if faults is None else faults
+        data = {**self.base, "name": name or f"{self.spec.name}-00000", "seed": seed,
+                "faults": self.base_faults + faults}
+        for a in self.axes:
+            if a.is_override:
+                data = with_value(data, a.path, values[a.label])
         try:
-            cfg = TrialConfig.model_validate({**data, "source": self.base_path},
-                                             context={"beside": Path(self.base_path).parent})
+            return TrialConfig.model_validate({**data, "source": self.base_path},
+                                              context={"beside": Path(self.base_path).parent})
         except ValidationError as e:
             raise CampaignSpecError(describe_validation_error(
-                e, TrialConfig, f"base {self.base_path.name}")) from None
-        return PlannedTrial(tid, name, g, s, r, seed, values, faults, json_config(cfg))
+                e, TrialConfig, f"base {self.base_path.name}" if named else None)) from None
 
 
 def json_config(cfg: TrialConfig) -> dict:

@@ -220,8 +220,8 @@ def status(campaign_dir: Path = typer.Argument(...), as_json: bool = _JSON) -> N
 
 
 @campaign_app.command("falsify")
-def falsify_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fault parameters are axes, e.g. "
-                                                        "hil_configs/campaigns/falsify_bias.yaml."),
+def falsify_cmd(spec: Path = typer.Argument(..., help="A campaign spec with axes (fault parameters, override "
+                                                        "values), e.g. hil_configs/campaigns/falsify_bias.yaml."),
                 budget: int = typer.Option(100, "--budget", min=1, help="Most trials to run."),
                 seed: int = typer.Option(0, "--seed", min=0, help="The search's seed (the trials' own come "
                                                                   "from the spec's)."),
@@ -255,12 +255,14 @@ def falsify_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fau
         emit_json(data)
     else:
         verdict = "[red]FALSIFIED[/]" if res.falsified else "[green]not falsified[/]"
+        lowest = "a trial error" if data["error"] else f"{data['requirement']} {_signed(data['robustness'])}"
         console.print(f"falsify {res.campaign_dir}: ", verdict, f" in {data['trials']} trial(s) "
-                      f"({optimizer}); lowest: {data['requirement']} {_signed(data['robustness'])}",
-                      sep="", highlight=False)
+                      f"({optimizer}); lowest: {lowest}", sep="", highlight=False)
         if data["params"]:
             console.print("at " + ", ".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}"
                                             for k, v in data["params"].items()), highlight=False, soft_wrap=True)
+        if data["error"]:  # it failed without running: refused (a target out of reach) or broken
+            console.print(f"the trial errored: {data['error']}", highlight=False, soft_wrap=True)
         if res.falsified:
             console.print(f"re-run it alone: hilbench trial {data['config']}", highlight=False, soft_wrap=True)
         console.print(f"report: {report}", highlight=False)
@@ -274,8 +276,8 @@ def _signed(v: Optional[float]) -> str:
 
 
 @campaign_app.command("boundary")
-def boundary_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fault parameters are axes, e.g. "
-                                                         "hil_configs/campaigns/boundary_bias.yaml."),
+def boundary_cmd(spec: Path = typer.Argument(..., help="A campaign spec with axes (fault parameters, override "
+                                                         "values), e.g. hil_configs/campaigns/boundary_bias.yaml."),
                  tolerance: float = typer.Option(0.01, "--tolerance", help="Stop when the bracket is this share "
                                                  "of the axis's range."),
                  max_trials: int = typer.Option(12, "--max-trials", min=2, help="Most trials per axis for its "
@@ -297,7 +299,7 @@ def boundary_cmd(spec: Path = typer.Argument(..., help="A campaign spec whose fa
                  as_json: bool = typer.Option(False, "--json", help='Print {"boundaries": [{"axis", '
                                               '"requirement", "value", "interval", "interval_kind", "trials", '
                                               '...}], "pairs": [{"axes", "points", "trials", "rays"}]}.')) -> None:
-    """Along each fault axis, the magnitude where a requirement starts failing, and its interval
+    """Along each numeric axis, the value where a requirement starts failing, and its interval
     (the bracket, or the range of the seeds' crossings when the trial is random); with --pair, the
     boundary curve in the plane of two axes."""
     from bench.campaign.boundary import find_boundaries  # deferred: --help stays fast

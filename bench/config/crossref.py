@@ -66,7 +66,9 @@ def _joint_names(config: CrossReferenced, names: list[str]) -> None:
             raise ValueError(f"excitation.joints: no joint named; {config.robot} has {names}")
     if ex is not None and ex.f1_hz <= ex.f0_hz:
         raise ValueError(f"excitation.f1_hz ({ex.f1_hz:g}) must be above f0_hz ({ex.f0_hz:g})")
-    _unknown("emulator.servo_physics", config.emulator.servo_physics, names, config, frozenset({"all"}))
+    for key, physics in (("emulator", config.emulator.servo_physics),
+                         ("backend", getattr(b, "servo_physics", {}))):
+        _unknown(f"{key}.servo_physics", physics, names, config, frozenset({"all"}))
     _unknown("emulator.joint_friction", config.emulator.joint_friction, names, config)
     if b.kind == "dynamixel" or b.servos:
         servos = set(b.servos)

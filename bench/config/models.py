@@ -21,7 +21,7 @@ from bench.config.crossref import check_cross_references
 from bench.config.emulator import SEED_MAX, EmulatorConfig
 from bench.config.monitor import MonitorConfig
 from bench.config.requirements import REQUIREMENTS_HELP, Requirement, check_requirements
-from bench.config.servo_model import load_servo_model_file
+from bench.config.servo_model import ServoPhysics, load_servo_model_file
 from bench.faults import parse_faults
 from bench.kinematics.registry import get_robot, trial_refusal
 from bench.paths import REPO_ROOT, resolve_named, robot_urdf
@@ -152,6 +152,11 @@ class PyBulletBackendConfig(Strict):
                     "XM430-W350 per joint through the robot's transmissions, zero at home)")
     transport_delay_ms: float = Field(default=0.0, ge=0, le=100,
                                       description="how long a goal takes to reach the servos (servo model)")
+    servo_physics: dict[str, ServoPhysics] = Field(
+        default_factory=dict, max_length=32,
+        description="with a servo model: physics by joint name or `all` over the model's (the datasheet's "
+                    "or the file's), each key given replacing the model's (kt_scale too: a factor on the "
+                    "datasheet's), e.g. a campaign's axis on a servo's friction or motor")
     ultrasonic: Optional["UltrasonicConfig"] = Field(
         default=None, description="with a servo model: the train read through its ultrasonic sensor "
                                   "and steered by the host loop, as on the rig (the port is not opened)")
@@ -167,10 +172,11 @@ class PyBulletBackendConfig(Strict):
 
     @model_validator(mode="after")
     def _effort_needs_servos(self) -> "PyBulletBackendConfig":
-        if self.start_effort and self.servo_model == "ideal":
-            raise ValueError("backend.start_effort: an effort is held by a servo, and PyBullet's ideal "
-                             "motors have none; set backend.servo_model: datasheet (or a model file), "
-                             "or drop start_effort")
+        for key, what in (("start_effort", "an effort is held by a servo"),
+                          ("servo_physics", "servo physics need a servo")):
+            if getattr(self, key) and self.servo_model == "ideal":
+                raise ValueError(f"backend.{key}: {what}, and PyBullet's ideal motors have none; set "
+                                 f"backend.servo_model: datasheet (or a model file), or drop {key}")
         return self
 
 

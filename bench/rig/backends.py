@@ -13,7 +13,7 @@ import numpy as np
 
 from bench.config.calibration import CalibrationFile, calibration_of
 from bench.config.models import ConfigError, ServoConfig, TrialConfig, load_servo_model_file, model_number
-from bench.config.servo_model import apply_physics
+from bench.config.servo_model import apply_physics, physics_for
 from bench.kinematics.arc_train import epsilon_from_d2, train_pose
 from bench.kinematics.transmission import servo_transmissions
 from bench.rig.serving import hooks_for
@@ -124,11 +124,15 @@ def make_servo_sim(config: TrialConfig, robot) -> Actuators:
     limits = backend_limits(config, robot)
     params = servo_params(table, names)
     datasheet_kt = params.kt.copy()
+    per_joint: list[dict] = [{} for _ in names]
     if b.servo_model != "datasheet":  # a servo model file: the rig's physics over the datasheet
         model = load_servo_model_file(config.resolve(Path(b.servo_model)))
         if model.robot != config.robot:
             raise ConfigError(f"backend.servo_model: {b.servo_model} is for {model.robot}, not {config.robot}")
-        params = with_physics(params, [model.physics_of(n) for n in names])
+        per_joint = [model.physics_of(n) for n in names]
+    if b.servo_model != "datasheet" or b.servo_physics:  # the config's own physics over the model's
+        params = with_physics(params, [{**p, **physics_for(b.servo_physics, n)}
+                                       for p, n in zip(per_joint, names)])
     settings = ServoSimSettings(
         robot_urdf=config.robot_urdf, joint_names=names, servos=params,
         ratio=[table[n].ratio for n in names], offset=[table[n].offset for n in names],
