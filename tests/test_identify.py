@@ -237,3 +237,29 @@ def test_a_value_fitted_to_the_edge_of_its_range_is_not_observable_and_takes_its
     assert model.joints["train"].coulomb_nm == pytest.approx(0.06)
     assert set(edge) <= set(model.unobservable["train"])
     assert any("train" in n and "edge" in n for n in model.notes)
+
+
+def test_a_batch_simulated_on_the_pool_is_the_batch_simulated_alone(rigs):
+    """The pool splits a batch's servos between processes (a wide batch: a long log's): each servo's
+    simulation is its own, so the split changes no number, and a narrow batch stays in one process."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from bench.identify.fit import _Problem, initial_physics
+    from bench.identify.logs import load_runs
+
+    setup, runs = load_runs([rigs["a"]])
+    joints = np.flatnonzero(np.any([r.excited for r in runs], axis=0))
+    rng = np.random.default_rng(5)
+    which = np.resize(np.arange(len(joints)), 3 * len(joints))
+    physics = initial_physics(setup)[joints][which] * rng.uniform(0.7, 1.3, (len(which), 6))
+    alone = _Problem(setup, runs, joints, None).simulate(physics, which)
+    with ProcessPoolExecutor(2) as pool:
+        pooled = _Problem(setup, runs, joints, pool, workers=2)
+        narrow = pooled.simulate(physics, which)  # under the pool's threshold: one process
+        assert not pool._processes
+        pooled.pool_min_servos = 1
+        split = pooled.simulate(physics, which)
+        assert len(pool._processes) == 2
+    for a, b, c in zip(alone, narrow, split):
+        for x, y, z in zip(a, b, c):
+            assert np.array_equal(x, y) and np.array_equal(x, z)

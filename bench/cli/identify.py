@@ -25,7 +25,7 @@ def identify(run_dirs: list[Path] = typer.Argument(..., metavar="RUN_DIR",
              out: Path = typer.Option(..., "--out", help="The servo model file to write (.yaml); its report "
                                                          "goes beside it (.html, .md)."),
              workers: int = typer.Option(0, "--workers", min=0, max=64,
-                                         help="Processes for the simulations (0: one per core)."),
+                                         help="Processes for the simulations (0: one per core); a batch too small to gain from them runs in one."),
              generations: int = typer.Option(40, "--generations", min=0, max=500,
                                              help="CMA-ES generations of the search (0: none)."),
              iterations: int = typer.Option(8, "--iterations", min=1, max=50,

@@ -109,6 +109,8 @@ class ServoBus:
         self.clock = self._link.clock  # the wall clock; an emulated line's virtual one
         self._byte_s = 10.0 / baud
         self._heard = False  # bytes arrived during the last receive
+        #: servo ID -> the request it last left unanswered: its answer may still be on its way
+        self._unanswered: dict[int, bytes] = {}
         self._trailing = False  # and more came after its first status
         self.last_problem = ""  # what was wrong with the replies of the last failed transaction
 
@@ -265,16 +267,25 @@ class ServoBus:
         packet = build_instruction(sid, instruction, params)
         wait = (len(packet) + 11 + reply_params) * self._byte_s + _LATENCY_S
         problem = "no reply"
+        # That servo left another request unanswered: its late answer (held up on a loaded host
+        # or in the adapter) would pass for this one's, its ID and length matching. The line falls
+        # quiet first, and a status is taken only once no second one follows it closely.
+        stale = self._unanswered.pop(sid, packet) != packet
+        if stale:
+            drain_until_quiet(self._link, wait, 4 * wait)
         for _ in range(self.tries if tries is None else max(1, tries)):
             self._drain()
             self._send(packet)
             replies = self._receive(self.clock.now() + wait, until_any=True)
             if not replies:
                 problem = "a corrupt reply" if self._heard else "no reply"
+                self._unanswered[sid] = packet  # a late answer to the same request is its answer
                 if self._heard:  # the rest of a broken reply may still be on its way
                     drain_until_quiet(self._link, wait, 4 * wait)
                 continue
             pkt = replies[0]
+            if stale and not (self._trailing or self._pending()):
+                self._trailing = self._link.wait(self.clock.now() + wait)
             problem = reply_mismatch(pkt, sid, reply_params) or (
                 "bytes after the status (a duplicated or late reply)"
                 if self._trailing or self._pending() else None)
