@@ -55,12 +55,9 @@ PRIOR_WEIGHT = 0.005
 FD_FRACTION = 0.1  # difference steps: this fraction of the value ...
 FD_FLOOR = np.array([0.02, 0.001, 0.02, 0.005, 0.005, 0.02])  # ... at least this
 LAMBDAS = (0.25, 1.0, 4.0)  # damping factors tried together at each iteration
-#: A batch goes out to the pool only when each worker gets at least this many simulated servos
-#: (slots × windows): a step of a narrower array costs numpy's per-call overhead more than its
-#: arithmetic, which every worker pays again, and the results' transfer comes on top. Measured on
-#: a 58 s log (12 windows): 108 servos 0.19 s, 1728 0.30 s, 6912 0.98 s a simulation; a fit's
-#: batches of 80 to 104 slots (about 1000 servos) took 29-32 s alone and 34-35 s on two workers,
-#: with 1.6 times the processor time.
+#: A batch goes to the pool only when each worker gets this many simulated servos (slots × windows):
+#: narrower, numpy's per-call overhead outweighs the arithmetic and every worker pays it again (a
+#: 58 s log's fit: 29-32 s alone, 34-35 s and 1.6 times the processor time on two workers).
 POOL_MIN_SERVOS = 3000
 
 Progress = Callable[[int, int], None]  # (iterations done, at most)
