@@ -181,9 +181,10 @@ def _pair_figure(path: Path, pair: dict, grid: dict | None) -> str:
         ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color="#b00", label="boundary")
     ax.set_xlabel(pair["axes"][0])
     ax.set_ylabel(pair["axes"][1])
-    ax.set_title(f"{pair['trials']} trials, {len(pair['rays'])} rays", fontsize=9)
+    ax.set_title(f"{pair['trials']} trials, {len(pair['rays'])} rays", fontsize=9, pad=24)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    # above the plane, not over it: the curve and the grid reach every corner
+    ax.legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=2, frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
