@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench.campaign.execute import execute_trial  # noqa: E402
-from bench.campaign.falsify import decode, make_optimizer, score_of  # noqa: E402
+from bench.campaign.falsify import decode, score_of, trials_to_violation  # noqa: E402
 from bench.campaign.spec import Planner, load_campaign_spec  # noqa: E402
 
 SPEC = ROOT / "hil_configs" / "campaigns" / "falsify_bias.yaml"
@@ -76,17 +76,7 @@ def run(job: tuple[str, int, int]) -> dict:
     t0 = time.process_time()
     try:
         if method in ("corners-cma", "cma", "random"):
-            opt = make_optimizer(method, len(f.planner.axes), seed)
-            while len(f.scores) < budget and f.first() is None:
-                asked = opt.ask(getattr(opt, "popsize", None) or 1)
-                points = asked[: budget - len(f.scores)]
-                scores = []
-                for p in points:
-                    scores.append(f(p))
-                    if scores[-1] < 0:
-                        break
-                if len(scores) == len(asked) and f.first() is None:
-                    opt.tell(points, scores)
+            trials_to_violation(method, len(f.planner.axes), seed, f, budget)  # f keeps every score
         elif method == "grid":
             points = list(itertools.product((0.0, 0.5, 1.0), repeat=len(f.planner.axes)))
             order = np.random.default_rng(seed).permutation(len(points))

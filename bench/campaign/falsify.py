@@ -38,6 +38,7 @@ from bench.campaign.spec import Axis, CampaignSpec, Planner, load_campaign_spec,
 from bench.campaign.store import CampaignStore
 
 __all__ = ["OPTIMIZERS", "DEFAULT_OPTIMIZER", "FalsifyResult", "decode", "falsify", "make_optimizer",
+           "trials_to_violation",
            "open_search", "row_score", "score_of", "trial_config_yaml"]
 
 OPTIMIZERS = ("corners-cma", "cma", "random")
@@ -170,6 +171,26 @@ def make_optimizer(name: str, dim: int, seed: int):
     if name == "cma":
         return CmaSearch(dim, seed)
     raise CampaignError(f"--optimizer {name!r}: unknown; valid: {', '.join(OPTIMIZERS)}")
+
+
+def trials_to_violation(name: str, dim: int, seed: int, score: Callable[[np.ndarray], float],
+                        budget: int) -> float:
+    """The trials optimiser ``name`` takes to a negative ``score`` on the unit cube, one point at a
+    time (inf when none within ``budget``): a search against a plain function, for measuring the
+    optimisers (a kinematic stand-in, or a benchmark's trial function) apart from the store."""
+    opt, k = make_optimizer(name, dim, seed), 0
+    while k < budget:
+        asked = opt.ask(getattr(opt, "popsize", None) or 1)
+        points = asked[: budget - k]  # the last generation is cut at the budget (and never told)
+        scores = []
+        for p in points:
+            scores.append(score(p))
+            k += 1
+            if scores[-1] < 0:
+                return k
+        if len(points) == len(asked):
+            opt.tell(points, scores)
+    return math.inf
 
 
 # ---------------------------------------------------------------------------
