@@ -275,6 +275,9 @@ class Comparison:
     def as_dict(self) -> dict:
         """A full machine-readable record (SI per joint, mm and degrees for the needle)."""
 
+        def stats(d: dict) -> dict:
+            return {k: {m: _clean_list(np.atleast_1d(v)) for m, v in row.items()} for k, row in d.items()}
+
         def side(sd: Side) -> dict:
             return {"label": sd.label, "backend": sd.backend, "rig": sd.rig, "sources": sd.sources,
                     "completed": sd.completed, "reasons": sd.reasons, "passed": sd.passed,
@@ -286,12 +289,10 @@ class Comparison:
                     "contributions": [[c.as_dict() for c in rep] if rep else None
                                       for rep in sd.contributions],
                     "ranking": [{"joint": n, "tip_mm": v} for n, v in sd.contribution_ranking()],
-                    "stats": {k: {m: _clean_list(np.atleast_1d(v)) for m, v in d.items()}
-                              for k, d in sd.stats.items()},
+                    "stats": stats(sd.stats),
                     "judged_by": sd.judged_by, "table3_by": "cameras" if sd.has_cameras else "encoders",
                     "cameras": sd.cameras, "seen": [o.as_dict() if o else None for o in sd.seen],
-                    "seen_stats": {k: {m: _clean_list(np.atleast_1d(v)) for m, v in d.items()}
-                                   for k, d in sd.seen_stats.items()}}
+                    "seen_stats": stats(sd.seen_stats)}
 
         return {"robot": getattr(self.robot, "name", "?"), "joints": self.joint_names,
                 "kinds": [r.kind for r in self.robot.chain.rows],
