@@ -173,42 +173,45 @@ ULTRA_OFFSET_M, ULTRA_SCALE = 0.004, 1.02
 
 @pytest.fixture
 def miscalibrated_rig(tmp_path):
-    """The robot held at its reference (home): integral gain on every joint, physics settled."""
+    """The robot held at its reference (home): integral gain on every joint, physics settled; on the
+    virtual clock, so what calibration recovers is the same on any machine, however loaded."""
+    from drivers.clock import VirtualClock
+
     base = lab_data(position_i=300)
     src = tmp_path / "base.yaml"
     src.write_text(yaml.safe_dump(base, sort_keys=False))
     planted = Planted(zero_errors=ZERO_ERRORS, ultrasonic_offset_m=ULTRA_OFFSET_M,
                       ultrasonic_scale=ULTRA_SCALE)
-    with emulated(load_trial_config(src), planted=planted, warm_start_s=8.0) as rig:
-        yield rig, rig_config(tmp_path / "lab.yaml", rig, base), base
+    cfg = load_trial_config(src)
+    with EmulatedRig(cfg, planted=planted, warm_start_s=8.0, clock=VirtualClock()) as rig:
+        yield rig, rig.retarget(cfg), base
 
 
 def test_calibrate_recovers_planted_zero_offsets_and_ultrasonic(miscalibrated_rig, tmp_path):
-    rig, path, base = miscalibrated_rig
+    """Calibration against the driver as at the rig (packets, sync reads, the sensor's lines), on
+    the virtual clock; the command line's own path is the sagging rig's test below."""
+    from bench.lab.calibrate import calibrate
+
+    rig, cfg, base = miscalibrated_rig
+    clock = rig.clock
     servos = base["backend"]["servos"]
     ids = {j: s["id"] for j, s in servos.items()}
 
     # 1. Joint zeros as a config override: the servos are only read.
-    out = hilbench("calibrate", str(path), "--yes", "--stops", "0", "--json",
-                   "--out", str(tmp_path / "zeros.yaml"))
-    assert out.returncode == 0, out.stderr
-    res = json.loads(out.stdout)
+    res = calibrate(cfg, write="config", stops=0, out=tmp_path / "zeros.yaml")
     cal = yaml.safe_load((tmp_path / "zeros.yaml").read_text())
-    assert res["write"] == "config" and cal["joint_offsets"] == "config" and not cal["homing_offsets"]
+    assert cal["joint_offsets"] == "config" and not cal["homing_offsets"]
     for joint, s in servos.items():
         truth = s.get("offset", 0.0) + ZERO_ERRORS.get(joint, 0.0)
         one_tick = TICK * abs(s.get("ratio", 1.0))
         assert abs(cal["servos"][joint]["offset"] - truth) <= one_tick, joint
-        assert cal["servos"][joint]["offset"] == pytest.approx(res["joints"][joint]["offset"])
+        assert cal["servos"][joint]["offset"] == pytest.approx(res.zeros[joint].offset)
     assert all(rig.bus.servo(i).torque_enabled for i in ids.values())
     assert all(rig.bus.servo(i).get("Homing Offset") == 0 for i in ids.values())
 
     # 2. Joint zeros into the Homing Offset registers, and the ultrasonic sensor over 4 stops.
-    out = hilbench("calibrate", str(path), "--yes", "--write", "homing", "--stops", "4",
-                   "--span-deg", "60", "--samples", "50", "--json", "--out", str(tmp_path / "cal.yaml"),
-                   timeout=180)
-    assert out.returncode == 0, out.stderr
     cal_file = tmp_path / "cal.yaml"
+    calibrate(cfg, write="homing", stops=4, span=math.radians(60), samples=50, out=cal_file)
     cal = yaml.safe_load(cal_file.read_text())
     assert cal["joint_offsets"] == "homing" and not cal["servos"]
     for joint, s in servos.items():
@@ -217,12 +220,10 @@ def test_calibrate_recovers_planted_zero_offsets_and_ultrasonic(miscalibrated_ri
         assert abs(written - ZERO_ERRORS.get(joint, 0.0)) <= TICK * abs(ratio) + 1e-12, joint
     # the arm is held after driving, never dropped onto its stops
     assert all(s.torque_enabled for s in rig.bus.servos.values())
-    time.sleep(2.0)  # (the Homing Offset writes let each joint go for a moment; the servos hold it)
-    with rig.bus.lock:
-        held = rig.plant.joint_position()
+    clock.sleep(2.0)  # (the Homing Offset writes let each joint go for a moment; the servos hold it)
+    held = rig.plant.joint_position()
     lower = rig.robot.chain.lower  # where a released arm falls to
-    # held near the pose (a busy machine lets the emulated servos sag a few degrees while the
-    # writes go through), and far from the stops a released arm falls to
+    # held near the pose, and far from the stops a released arm falls to
     assert np.all(np.abs(held[1:7]) < math.radians(10)) and np.all(held[1:7] > lower[1:7] + math.radians(45))
     u = cal["ultrasonic"]
     standoff = base["backend"]["ultrasonic"]["standoff_mm"]
@@ -236,24 +237,29 @@ def test_calibrate_recovers_planted_zero_offsets_and_ultrasonic(miscalibrated_ri
     from bench.kinematics.arc_train import train_pose
     from bench.rig.backends import make_dynamixel_backend
 
-    cfg = load_trial_config(rig_config(tmp_path / "calibrated.yaml", rig, base,
-                                       calibration=str(cal_file)))
+    calibrated = cfg.model_copy(update={"calibration": str(cal_file)})
+    calibrated = load_trial_config(_written(tmp_path / "calibrated.yaml", calibrated))
     ratio = np.array([servos[n].get("ratio", 1.0) for n in rig.robot.joint_names])
     p = rig.robot.params
-    with make_dynamixel_backend(cfg, get_robot(cfg.robot)) as act:
+    with make_dynamixel_backend(calibrated, get_robot(calibrated.robot)) as act:
         act.enable()  # the arm fell when the calibration let go of it: hold it where it is
-        deadline = time.monotonic() + 10.0
+        deadline = clock.now() + 10.0
         while True:  # (a wrong zero would never agree; a swinging arm agrees once it slows down)
-            time.sleep(0.3)
+            clock.sleep(0.3)
             st = act.read()
-            with rig.bus.lock:
-                truth = rig.plant.joint_position()
+            truth = rig.plant.joint_position()
             joints_ok = np.all(np.abs(st.position[1:] - truth[1:]) <= 2 * TICK * np.abs(ratio[1:]))
             d2_err = abs(train_pose(st.position[0], p).d2 - train_pose(truth[0], p).d2)
-            if (joints_ok and d2_err < 2e-3) or time.monotonic() > deadline:
+            if (joints_ok and d2_err < 2e-3) or clock.now() > deadline:
                 break
     assert joints_ok, (st.position - truth) / (TICK * np.abs(ratio))  # in ticks
     assert d2_err < 2e-3
+
+
+def _written(path: Path, cfg) -> Path:
+    """``cfg`` as a config file (a calibration file is loaded with its config, as a user's is)."""
+    path.write_text(yaml.safe_dump(cfg.model_dump(mode="json", exclude_none=True), sort_keys=False))
+    return path
 
 
 def test_calibrate_on_a_sagging_rig_refuses_the_sag_as_a_zero_and_says_why(tmp_path):

@@ -115,6 +115,31 @@ def test_temporal_operators_read_the_log_in_seconds(nominal):
     assert rows["ever"] == pytest.approx(err.max() - 0.5, abs=1e-9)
 
 
+@pytest.mark.parametrize("formula, temporal", [
+    ("abs(tip_dx_mm) <= 5 and abs(tip_dy_mm) <= 5", False),
+    ("(track_theta5_deg >= -1) or (abs(effort_theta5) <= 2)", False), ("not (x_1e3 > 5e-3)", False),
+    ("always(gantry_clearance_mm >= 20)", True), ("G(x <= 1)", True), ("eventually[0:0.5](x > 1)", True),
+    ("prev(x) > 1", True), ("x until y", True), ("once_mm <= 1", False)])
+def test_a_formula_without_a_temporal_operator_reads_its_first_sample_as_the_whole_trace_does(formula, temporal):
+    """rtamt is given two samples of a formula with no temporal operator (its value at the first
+    sample reads that sample alone): the robustness is the one the whole trace gives, bit for bit."""
+    from bench.config.requirements import is_temporal, rtamt_module
+    from bench.core.requirements import _robustness
+
+    assert is_temporal(formula) is temporal
+    names = formula_signals(formula)
+    rng = np.random.default_rng(len(formula))
+    signals = {name: rng.normal(0.0, 4.0, 500) for name in names}
+    spec = rtamt_module().StlDiscreteTimeOfflineSpecification()
+    spec.set_sampling_period(0.01, "s", 0.1)
+    for name in names:
+        spec.declare_var(name, "float")
+    spec.spec = formula
+    spec.parse()
+    whole = spec.evaluate({"time": [i * 0.01 for i in range(500)], **{k: v.tolist() for k, v in signals.items()}})
+    assert _robustness(formula, signals, names, 0.01) == float(whole[0][1])
+
+
 def test_the_report_tables_each_requirement(nominal):
     _, res, _ = nominal
     md = (res.run_dir / "report.md").read_text()

@@ -34,7 +34,7 @@ from typing import Sequence
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 __all__ = ["PLACEMENT_SIGNALS", "REQUIREMENTS_HELP", "Requirement", "check_requirements", "default_requirements",
-           "formula_signals", "formula_unit", "rtamt_module", "signal_names", "signal_unit"]
+           "formula_signals", "formula_unit", "is_temporal", "rtamt_module", "signal_names", "signal_unit"]
 
 REQUIREMENTS_HELP = ("named STL formulas over the trial's signals, each with its robustness (docs/campaigns.md, "
                      "Requirements); default: the acceptance limits at the end of the insertion and the "
@@ -42,11 +42,14 @@ REQUIREMENTS_HELP = ("named STL formulas over the trial's signals, each with its
 #: The placement at the end of the insertion (truth where known), in mm and degrees.
 PLACEMENT_SIGNALS = ("tip_dx_mm", "tip_dy_mm", "tip_dz_mm", "entry_dx_mm", "entry_dy_mm", "entry_dz_mm",
                      "depth_dev_mm", "angle_dev_deg")
+#: rtamt's temporal operators: a formula with none reads one sample only (its value at an instant
+#: is a function of the signals at that instant).
+_TEMPORAL = frozenset("always eventually historically once since until unless rise fall prev next "
+                      "G F H O S U X P R W".split())
 #: Words of rtamt's STL that are not signals.
-_KEYWORDS = frozenset("""always eventually historically once since until unless and or not implies iff
-xor abs sqrt exp pow rise fall prev next true false G F H O S U X P R W in out""".split())
+_KEYWORDS = _TEMPORAL | frozenset("and or not implies iff xor abs sqrt exp pow true false in out".split())
 _IDENT = re.compile(r"(?<![\w.])([A-Za-z_][A-Za-z0-9_]*)")
-_NUMBER_EXP = re.compile(r"\d(?:[eE][+-]?\d+)")
+_NUMBER_EXP = re.compile(r"(?<![\w.])(?:\d+\.?\d*|\.\d+)[eE][+-]?\d+")  # a number in e-notation, not a name
 
 
 class Requirement(BaseModel):
@@ -79,6 +82,13 @@ def formula_signals(formula: str) -> list[str]:
         if word not in _KEYWORDS and word not in out:
             out.append(word)
     return out
+
+
+def is_temporal(formula: str) -> bool:
+    """Whether a formula has a temporal operator (or a bounded interval): without one its
+    robustness at a sample reads that sample alone."""
+    text = _NUMBER_EXP.sub("0", formula)
+    return "[" in formula or any(m.group(1) in _TEMPORAL for m in _IDENT.finditer(text))
 
 
 def rtamt_module():

@@ -20,7 +20,8 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from bench.config.requirements import (PLACEMENT_SIGNALS, Requirement, default_requirements, formula_signals, formula_unit, rtamt_module)
+from bench.config.requirements import (PLACEMENT_SIGNALS, Requirement, default_requirements, formula_signals,
+                                      formula_unit, is_temporal, rtamt_module)
 from bench.core.log import TrialLog
 from bench.core.outcome import NeedleOutcome
 from bench.scene.contact import GantryClearance
@@ -87,9 +88,11 @@ def _robustness(formula: str, signals: dict[str, np.ndarray], names: list[str], 
     spec.spec = formula
     spec.parse()
     n = len(next(iter(signals.values())))
+    if not is_temporal(formula):  # its value at the first sample reads that sample alone: rtamt is
+        n = min(n, 2)             # given two (the fewest it takes to know the period), not thousands
     data: dict[str, list] = {"time": [i * period for i in range(n)]}
     for name in names:
-        data[name] = signals[name].tolist()
+        data[name] = signals[name][:n].tolist()
     rob = spec.evaluate(data)
     return float(rob[0][1])
 
