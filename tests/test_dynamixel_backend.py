@@ -274,3 +274,29 @@ def test_real_trial_without_hardware_names_the_port_and_starts_nothing(tmp_path)
     lines = [line for line in out.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "/dev/ttyUSB0" in lines[0] and "--emulate" in lines[0]
     assert not runs.exists()
+
+
+def test_a_dead_bus_at_set_up_names_every_servo_in_one_timeout_a_round(rig, monkeypatch):
+    """The cable out before set-up: every servo is named as silent, and once a round went
+    unanswered the next pings one servo (a bus of nine costs one timeout a round, not nine): the
+    safe stop's check of a lost rig takes seconds, not tens of seconds."""
+    from drivers.dynamixel.io import StuffingPacketHandler
+
+    r, cfg = rig
+    pinged: list[int] = []
+    ping = StuffingPacketHandler.ping
+
+    def counted(self, port, sid):
+        pinged.append(sid)
+        return ping(self, port, sid)
+
+    monkeypatch.setattr(StuffingPacketHandler, "ping", counted)
+    r.bus.unplug()
+    with pytest.raises(BackendSetupError, match=r"servo ID\(s\) 1 \(train\), 2 \(theta3\).*9 \(d10\) did not answer"):
+        backend_for(cfg)
+    rounds = max(cfg.backend.retries, 3) + 1
+    assert pinged == list(range(1, 10)) + [1] * (rounds - 1)
+    r.bus.replug()
+    pinged.clear()
+    with backend_for(cfg):  # a live bus: one round, every servo once
+        assert pinged == list(range(1, 10))

@@ -279,7 +279,7 @@ def test_backend_register_access_takes_only_the_answer_it_asked_for(peer, monkey
         def call():
             sid = rng.choice(IDS)
             if rng.random() < 0.15:
-                model, _ = regs.ping(sid, tries=4)
+                model, _ = regs.ping_all([sid], tries=4)[sid]
                 return ("ping", sid, model) if model is not None else None
             size = rng.choice((1, 2, 4))
             address = rng.randrange(0, 250)
@@ -370,7 +370,7 @@ def test_a_short_ping_reply_is_no_servo_model(monkeypatch):
     port = BlockingPortHandler(peer.port)
     assert port.openPort() and port.setBaudRate(BAUD)
     try:
-        model, why = RegisterAccess(port, StuffingPacketHandler(), retries=3).ping(1, tries=3)
+        model, why = RegisterAccess(port, StuffingPacketHandler(), retries=3).ping_all([1], tries=3)[1]
         assert model is None and "where 3 were asked" in why
         port.closePort()
         with ServoBus(peer.port, BAUD, tries=3) as bus:

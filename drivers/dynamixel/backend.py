@@ -185,10 +185,10 @@ class DynamixelActuators(ActuatorsBase):
     def _check_servos(self) -> None:
         s = self.settings
         missing = []
+        pinged = self._regs.ping_all([sv.id for sv in s.servos], tries=max(s.retries, 3) + 1)
         for sv in s.servos:
-            model, why = self._regs.ping(sv.id, tries=max(s.retries, 3) + 1)
+            model, problem = pinged[sv.id]
             if model is None:
-                problem = why if why.startswith("a reply with error bits") else self.ph.last_problem
                 missing.append(f"{sv.id} ({sv.joint})" + (f" [{problem}]" if problem != "no reply" else ""))
                 continue
             if model != sv.model:

@@ -26,6 +26,7 @@
 from __future__ import annotations
 
 import os
+from typing import Sequence
 
 from dynamixel_sdk import PortHandler, Protocol2PacketHandler
 from dynamixel_sdk.protocol2_packet_handler import (
@@ -296,18 +297,32 @@ class RegisterAccess:
     def __init__(self, port: PortHandler, handler: StuffingPacketHandler, retries: int) -> None:
         self.port, self.ph, self.tries = port, handler, max(0, int(retries)) + 1
 
-    def ping(self, sid: int, tries: int) -> tuple[int | None, str]:
-        """The model number of servo ``sid`` (None if no good answer in ``tries``), and why not."""
-        why = ""
+    def ping_all(self, ids: Sequence[int], tries: int) -> dict[int, tuple[int | None, str]]:
+        """Each servo's model number (None if no good answer in ``tries``) and why not, in rounds: a
+        round pings every servo still silent, then waits a little longer than the last (a bus just
+        plugged in may be slow). After a round that no servo answered, the next asks one servo first
+        and the others only once it answers: a dead bus costs one timeout a round, not one a servo."""
+        found: dict[int, tuple[int | None, str]] = {sid: (None, "") for sid in ids}
+        heard = True
         for attempt in range(tries):
-            model, result, err = self.ph.ping(self.port, sid)
-            if result == COMM_SUCCESS and not err & 0x7F:
-                return model, ""
-            # error bits 1-7: the instruction failed, whatever the parameters say
-            why = (f"a reply with error bits ({self.ph.getRxPacketError(err)})"
-                   if result == COMM_SUCCESS else self._why(result))
-            self.port.clock.sleep(0.01 * attempt)  # a bus just plugged in may be slow
-        return None, why
+            silent = [sid for sid, (model, _) in found.items() if model is None]
+            if not silent:
+                break
+            if attempt:
+                self.port.clock.sleep(0.01 * attempt)
+            answered = False
+            for sid in silent:
+                model, result, err = self.ph.ping(self.port, sid)
+                if result == COMM_SUCCESS and not err & 0x7F:
+                    found[sid], answered = (model, ""), True
+                else:  # error bits 1-7: the instruction failed, whatever the parameters say
+                    found[sid] = (None, f"a reply with error bits ({self.ph.getRxPacketError(err)})"
+                                  if result == COMM_SUCCESS else self.ph.last_problem)
+                    answered = answered or result == COMM_SUCCESS
+                if not (heard or answered):  # the bus was silent and still is: probe again later
+                    break
+            heard = answered
+        return found
 
     def read(self, sid: int, address: int, size: int, what: str, signed: bool = False) -> int:
         """The register's value. After a failed try the line is left to fall quiet for longer than
