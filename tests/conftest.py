@@ -75,8 +75,8 @@ def pytest_terminal_summary(terminalreporter) -> None:
     now = time.time()
     checks = int(installed) - int(started)
     terminalreporter.write_line(
-        f"ci time: {now - int(started):.0f} s in all (install and packaging checks {checks} s, "
-        f"tests {now - int(installed):.0f} s) on {os.cpu_count()} cores")
+        f"ci time: {now - int(started):.0f} s in all (install {checks} s, tests {now - int(installed):.0f} s, "
+        f"the wheel and docs checks beside them) on {os.cpu_count()} cores")
 
 
 @pytest.fixture(scope="session")

@@ -31,7 +31,7 @@ def test_the_run_prints_its_time_above_pytests_closing_line(tmp_path):
     assert run.returncode == 1
     lines = [ln for ln in run.stdout.splitlines() if ln.strip()]
     ci = [i for i, ln in enumerate(lines) if ln.startswith("ci time: ")]
-    assert len(ci) == 1 and "checks 30 s" in lines[ci[0]] and ci[0] < len(lines) - 1
+    assert len(ci) == 1 and "install 30 s" in lines[ci[0]] and ci[0] < len(lines) - 1
     assert "1 failed, 1 passed" in lines[-1]
 
 
