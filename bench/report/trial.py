@@ -14,6 +14,7 @@ from bench.core.outcome import settled_position
 from bench.core.result import PreparedTrial, TrialResult, write_result_json
 from bench.kinematics.arc_train import train_pose
 from bench.report.cameras import camera_markdown, draw_camera_views
+from bench.report.panels import FIGURE_DPI, panel_figure, place_panels
 from bench.report.twin import plot_twin, twin_markdown
 from bench.scene.render import SIDE_VIEW, render_robot
 
@@ -58,15 +59,10 @@ LEGEND_FONTSIZE = 11
 
 def joint_figure(log: TrialLog, robot, title: str = ""):
     """The figure of :func:`plot_joint_profiles` (matplotlib), one panel a joint, one legend above."""
-    import matplotlib  # heavy: loaded only when a figure is drawn
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # heavy: loaded only when a figure is drawn
-
     names = log.joint_names
     cols = 3
     rows = int(np.ceil(len(names) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(12, 3.0 * rows + 0.6), sharex=True, squeeze=False)
+    fig, axes = panel_figure(rows, cols, 3.0 * rows + 0.6)
     t = log.time - (log.time[0] if len(log) else 0.0)
     for ax, name in zip(axes.flat, names):
         j = log.joint(name)
@@ -74,7 +70,7 @@ def joint_figure(log: TrialLog, robot, title: str = ""):
         meas, _, _ = joint_display(robot, name, log.q[:, j])
         ax.plot(t, meas, **MEASURED_STYLE)
         ax.plot(t, cmd, **COMMANDED_STYLE)
-        ax.set_title(label)
+        ax.set_title(label, y=1.0)  # at the frame's top: nothing above it to clear, so no search per draw
         ax.set_ylabel(unit)
         ax.ticklabel_format(axis="y", useOffset=False)  # values as read, not as offsets
         both = np.concatenate([cmd, meas])
@@ -97,19 +93,14 @@ def joint_figure(log: TrialLog, robot, title: str = ""):
     handles, labels = axes.flat[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=LEGEND_FONTSIZE,
                frameon=False, bbox_to_anchor=(0.5, 1.0 - title_in / height))
-    if title:
-        fig.suptitle(title, fontsize=13, y=1.0 - 0.08 / height, va="top")
-    fig.tight_layout(rect=(0, 0, 1, 1.0 - (title_in + 0.15) / height))
+    heading = fig.suptitle(title, fontsize=13, y=1.0 - 0.08 / height, va="top") if title else None
+    place_panels(fig, axes, len(names), top_in=title_in + 0.15, title=heading)
     return fig
 
 
 def plot_joint_profiles(log: TrialLog, robot, path: Path, title: str = "") -> Path:
     """Commanded (theoretical) over measured profile of every joint, one panel each, as a PNG."""
-    import matplotlib.pyplot as plt  # heavy: loaded only when a figure is drawn
-
-    fig = joint_figure(log, robot, title)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    joint_figure(log, robot, title).savefig(path, dpi=FIGURE_DPI)
     return Path(path)
 
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from bench.core.log import TrialLog
 from bench.monitor.detector import Cusum, CusumParams
+from bench.report.panels import FIGURE_DPI, panel_figure, place_panels
 
 __all__ = ["plot_twin", "twin_markdown"]
 
@@ -20,11 +21,6 @@ THRESHOLD_STYLE = {"color": "#c0392b", "ls": (0, (5, 3)), "lw": 1.4, "label": "a
 
 def plot_twin(log: TrialLog, summary: dict, path: Path) -> Path:
     """One panel a watched joint: its residual over σ and the detector's sum against the threshold."""
-    import matplotlib  # heavy: loaded only when a figure is drawn
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # heavy: loaded only when a figure is drawn
-
     params = CusumParams(summary["cusum"]["drift_sigma"], summary["cusum"]["threshold_sigma"])
     watched = [log.joint(n) for n in summary["joints"]]
     z, zc, both = log.twin_z, log.twin_current_z, log.twin_columns
@@ -34,7 +30,7 @@ def plot_twin(log: TrialLog, summary: dict, path: Path) -> Path:
     t = log.time - log.time[0]
     cols = 3
     rows = int(np.ceil(len(watched) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(12, 2.6 * rows + 0.7), sharex=True, squeeze=False)
+    fig, axes = panel_figure(rows, cols, 2.6 * rows + 0.7)
     alarms = summary.get("alarms") or []
     for ax, j in zip(axes.flat, watched):
         name = log.joint_names[j]
@@ -54,7 +50,7 @@ def plot_twin(log: TrialLog, summary: dict, path: Path) -> Path:
         if float(np.nanmax(scores[:, j], initial=0.0)) > top:
             ax.text(0.99, 0.96, f"CUSUM peaks at {np.nanmax(scores[:, j]):.0f} σ", transform=ax.transAxes,
                     ha="right", va="top", fontsize=9, color=SCORE_STYLE["color"])
-        ax.set_title(name)
+        ax.set_title(name, y=1.0)  # at the frame's top: nothing above it to clear, so no search per draw
         ax.set_ylabel("σ")
         ax.grid(alpha=0.3)
     for ax in axes.flat[len(watched):]:
@@ -66,12 +62,10 @@ def plot_twin(log: TrialLog, summary: dict, path: Path) -> Path:
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)
     labels = list(handles)
-    height = fig.get_figheight()
     fig.legend([handles[k] for k in labels], labels, loc="upper center", ncol=len(labels), fontsize=11,
                frameon=False, bbox_to_anchor=(0.5, 1.0))
-    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.45 / height))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    place_panels(fig, axes, len(watched), top_in=0.45)
+    fig.savefig(path, dpi=FIGURE_DPI)
     return Path(path)
 
 

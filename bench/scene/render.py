@@ -17,10 +17,7 @@ def render_png(client: int, path: Path, target=(-0.22, 0.2, 0.12), distance: flo
                yaw: float = -50.0, pitch: float = -30.0, size: tuple[int, int] = (960, 720),
                fov_deg: float = 45.0, ambient: float = 0.6, ortho_half: float | None = None) -> Path:
     """Render the world of a PyBullet client to ``path`` (PNG) with TinyRenderer."""
-    import matplotlib  # heavy: matplotlib, only when a plot is drawn
-
-    matplotlib.use("Agg")
-    import matplotlib.image as mpimg  # heavy: matplotlib, only when a plot is drawn
+    from PIL import Image  # heavy: only when a picture is drawn
 
     pb = quiet_pybullet()
 
@@ -38,7 +35,7 @@ def render_png(client: int, path: Path, target=(-0.22, 0.2, 0.12), distance: flo
     img = np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4)[:, :, :3]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    mpimg.imsave(path, img)
+    Image.fromarray(np.ascontiguousarray(img)).save(path)  # RGB: the render has no transparency
     return path
 
 
@@ -52,6 +49,9 @@ NEEDLE_RGBA = (0.1, 0.7, 0.2, 1.0)
 SIDE_VIEW = "from the foot of the bed, along its axis"
 _SIDE_YAW = 90.0
 _APPROACH_M = 0.03
+#: The scene's bodies a side view leaves out: the needle's path is inside the one, the other rings
+#: the frame.
+_LEFT_OUT = ("phantom", "ct_gantry")
 
 
 
@@ -95,16 +95,12 @@ def render_robot(robot: str, q: np.ndarray, path: Path, target=None) -> Path:
     in red (entry point to tip, a ball at the entry), its approach above the entry in orange, and
     the needle as placed at ``q``, green balls at its entry point and tip."""
     model = get_robot(robot)
-    settings = PyBulletSettings(robot_urdf(robot), model.joint_names, default_scene(),
-                                initial_position=q)
+    scene = [o for o in default_scene() if target is None or Path(o.urdf).stem not in _LEFT_OUT]
+    settings = PyBulletSettings(robot_urdf(robot), model.joint_names, scene, initial_position=q)
     with PyBulletActuators(settings) as sim:
         if target is None:
             return render_png(sim.client, path)
         pb = quiet_pybullet()
-        for name in ("phantom", "ct_gantry"):
-            body = sim.scene_bodies.get(name)
-            if body is not None:
-                pb.removeBody(body, physicsClientId=sim.client)
         placed = model.needle(np.asarray(q, dtype=float))
         entry, tip = np.asarray(target.entry, dtype=float), np.asarray(target.tip, dtype=float)
         above = entry - _APPROACH_M * np.asarray(target.direction, dtype=float)
