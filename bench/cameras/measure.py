@@ -175,7 +175,7 @@ def measure_tip(views: Sequence[View], found: Sequence[dict[str, np.ndarray]], t
     if len(views) != 2 or len(found) != 2:
         return Measurement(problem=f"two views are needed, {len(found)} given")
     both = [b for b in balls if all(b.name in f for f in found)]
-    seen = {v.name: sorted(f) for v, f in zip(views, found)}
+    seen = {v.name: {k: np.asarray(f[k])[:2].tolist() for k in sorted(f)} for v, f in zip(views, found)}  # drawn
     if len(both) < 3:
         return Measurement(pixels=seen, problem=(
             f"the fiducial is hidden: {len(both)} of {len(balls)} balls in both views "
