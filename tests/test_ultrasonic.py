@@ -198,35 +198,41 @@ def test_no_target_codes_never_reach_the_filter() -> None:
 
 @pytest.mark.parametrize("rate_hz", [6.0, 10.0, 20.0])
 def test_dropouts_are_counted_against_the_nominal_rate(rate_hz: float) -> None:
-    pty = _Pty()
+    """Twelve lines on time count no dropout; three silent periods, then a line on time, count three.
+    On the virtual clock: a line's gap is the sensor's, never a late reader thread's."""
+    clock = VirtualClock()
+    emu = VirtualUltrasonic(lambda: 0.5, clock=clock, name=f"nominal-{rate_hz}", rate_hz=rate_hz).start()
     try:
-        with UltrasonicSensor(pty.port, expected_rate_hz=rate_hz, stale_after_s=5.0) as sensor:
-            _lines(pty, [b"R0500\r"] * 12, rate_hz)  # on time: no dropout
-            assert wait_for(lambda: sensor.counters.readings == 12)
+        with UltrasonicSensor(emu.port, expected_rate_hz=rate_hz, stale_after_s=5.0) as sensor:
+            sensor.wait_for_reading()
+            assert clock.advance(clock.now() + 2.0, until=lambda: sensor.counters.readings == 12)
             assert sensor.counters.dropouts == 0
-            time.sleep(3.0 / rate_hz)  # two lines missing, then the next on time
-            _lines(pty, [b"R0500\r"], rate_hz)
-            assert wait_for(lambda: sensor.counters.readings == 13)
+            emu.pause()  # three lines missing, then the next on time
+            clock.sleep(3.0 / rate_hz)
+            emu.resume()
+            assert clock.advance(clock.now() + 2.0 / rate_hz, until=lambda: sensor.counters.readings == 13)
             assert sensor.counters.dropouts == 3
     finally:
-        pty.close()
+        emu.stop()
 
 
 def test_staleness_follows_the_nominal_rate() -> None:
-    """At 6 Hz one missed line is not stale; three periods without a reading are."""
-    pty = _Pty()
+    """At 6 Hz one missed line is not stale; three periods without a reading are (on the virtual
+    clock, where the time between two reads is the one the test says)."""
+    clock = VirtualClock()
+    emu = VirtualUltrasonic(lambda: 0.5, clock=clock, name="stale-6hz", rate_hz=6.0).start()
     try:
-        with UltrasonicSensor(pty.port, expected_rate_hz=6.0) as sensor:
+        with UltrasonicSensor(emu.port, expected_rate_hz=6.0) as sensor:
             assert sensor.stale_after_s == pytest.approx(3 / 6 + 0.05)
-            pty.send(b"R0500\r")
-            assert wait_for(lambda: sensor.counters.readings == 1)
-            time.sleep(2 / 6)  # one line missed
+            sensor.wait_for_reading()
+            emu.pause()
+            clock.sleep(2 / 6)  # one line missed
             assert sensor.read()[0] == pytest.approx(0.5)
-            time.sleep(0.3)
+            clock.sleep(0.3)
             with pytest.raises(StaleReadingError, match="stale after 0.550 s"):
                 sensor.read()
     finally:
-        pty.close()
+        emu.stop()
 
 
 def test_garbage_without_cr_does_not_swallow_the_next_line() -> None:
