@@ -79,7 +79,7 @@ def main() -> None:
         key = "ci.serial" if args.serial else ("suite.hogs" if args.hogs else "ci.quiet")
         what = {"ci.serial": "the suite one file after another",
                 "suite.hogs": f"`.ci/run` in a fresh clone beside {args.hogs} CPU hogs",
-                "ci.quiet": "`.ci/run` in a fresh clone (the README's test command, two workers)"}[key]
+                "ci.quiet": "`.ci/run` in a fresh clone (the README's test command, three workers on two cores)"}[key]
         value = f"{minutes}; {summary}" + (f"; {ci_line.removeprefix('ci time: ')}" if ci_line else "")
         record("benchmarks/suite_time.py", {key: (what, value)}, f"exit {done.returncode}")
     sys.exit(0 if done.returncode == 0 else 1)

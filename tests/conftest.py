@@ -17,9 +17,9 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 #: current test only (the shortest tests run last), not for a file of them.
 ALONE_LAST = ("test_live.py",)
 
-#: The longest test files (a minute or more each, mostly the emulated rig's trials in real time),
-#: started first: the suite runs on two workers, each file whole on one (README, the test
-#: command), and a long file started last would leave one worker alone for its last minutes.
+#: The longest test files (half a minute or more each), started first: the suite runs on three
+#: workers, each file whole on one (README, the test command), and a long file started last
+#: would leave one worker alone for its last minutes.
 LONGEST_FIRST = ("test_servo_model.py", "test_compare.py", "test_identify.py", "test_identify_worn.py", "test_stop_unconfirmed.py",
                  "test_lab_tools.py", "test_signals.py", "test_cli_hostile_bus.py", "test_campaign.py")
 

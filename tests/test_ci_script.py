@@ -15,7 +15,7 @@ CI = (REPO / ".ci" / "run").read_text()
 
 def test_ci_runs_the_readmes_test_command_and_lists_the_slowest_tests():
     readme = (REPO / "README.md").read_text()
-    command = "pytest -q -n 2 --dist loadfile"
+    command = "pytest -q -n 3 --dist loadfile"
     assert command in readme and command in CI
     assert "--durations=15" in CI
     assert 'exit "$rc"' in CI  # pytest's own exit code: a failing test fails CI

@@ -18,7 +18,7 @@ README = (REPO / "README.md").read_text()
 MAIN_JOB = ("python3 -m venv .venv && .venv/bin/pip install -e . && "
             ".venv/bin/hilbench trial hil_configs/sim_target1.yaml")
 TESTS = ("python3 -m venv .venv && .venv/bin/pip install -e '.[test]' && "
-         ".venv/bin/pytest -q -n 2 --dist loadfile")
+         ".venv/bin/pytest -q -n 3 --dist loadfile")
 
 
 def _figures():
