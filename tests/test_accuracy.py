@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
+from cli_in_process import invoke as _invoke
 from bench.accuracy import analysis as acc
 from bench.kinematics import para_brachy as pb
 from bench.kinematics.batch import needle_jacobian, needle_vectors
@@ -30,6 +30,7 @@ CLI_ROBOTS = ["arc-train", "para-brachy", "zerobot"]
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
+    """``hilbench ARGS`` in its own process: the installed command, start-up and exit code included."""
     return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=120)
 
 
@@ -209,8 +210,8 @@ def test_accuracy_arc_train_json_is_one_line_with_the_budget_beside_table3():
     exceed Table 3's five-repeat scatter (0.55, 0.90 mm) — within what five samples can tell —
     but X's +1.32 mm offset with 0.07 mm scatter and the 0.23 mm depth scatter (budget 0.03 mm)
     are not the deadband's: it is zero-mean and the d10 servo is geared down to 0.05 mm."""
-    out = run("accuracy", "arc-train", "--json")
-    assert out.returncode == 0, out.stderr
+    out = _invoke("accuracy", "arc-train", "--json")
+    assert out.exit_code == 0, out.stderr
     assert out.stdout.count("\n") == 1
     s = json.loads(out.stdout)
     assert s["robot"] == "arc-train" and s["tol_deg"] == 0.29 and s["samples"] == 20000
@@ -235,8 +236,8 @@ def test_accuracy_works_for_every_robot(robot):
     from bench.kinematics.registry import ROBOTS
 
     assert robot in ROBOTS or robot == "para-brachy"  # zerobot is registered: this runs for real
-    out = run("accuracy", robot, "--json", "--samples", "2000", "--seed", "4")
-    assert out.returncode == 0, out.stderr
+    out = _invoke("accuracy", robot, "--json", "--samples", "2000", "--seed", "4")
+    assert out.exit_code == 0, out.stderr
     s = json.loads(out.stdout)
     assert s["robot"] == robot and s["samples"] == 2000 and s["seed"] == 4
     assert all(s["tip_mm"][a]["std"] > 0 for a in "xyz")
@@ -246,8 +247,8 @@ def test_accuracy_works_for_every_robot(robot):
 
 
 def test_accuracy_report(tmp_path):
-    out = run("accuracy", "arc-train", "--samples", "3000", "--out", str(tmp_path / "rep"), "--json")
-    assert out.returncode == 0, out.stderr
+    out = _invoke("accuracy", "arc-train", "--samples", "3000", "--out", str(tmp_path / "rep"), "--json")
+    assert out.exit_code == 0, out.stderr
     d = tmp_path / "rep"
     assert json.loads(out.stdout)["report"] == str(d / "report.html")
     for name in ("tip_errors.png", "shares.png", "sweep.png"):
@@ -279,9 +280,7 @@ def test_accuracy_report(tmp_path):
     (["workspace", "arc-train"], "the map exists for para-brachy only"),
 ])
 def test_bad_input_exits_2_with_one_line(args, words):
-    from bench.cli.app import app
-
-    res = CliRunner().invoke(app, args)
+    res = _invoke(*args)
     assert res.exit_code == 2
     assert res.stdout == ""
     lines = [line for line in res.stderr.splitlines() if line.strip()]
@@ -297,12 +296,10 @@ def test_bad_robot_from_the_shell_exits_2():
 
 def test_workspace_command_writes_the_map(tmp_path, monkeypatch):
     """The command's wiring on a coarse grid (the full default grid takes seconds)."""
-    from bench.cli.app import app
-
     full = pb.workspace_map
     monkeypatch.setattr(pb, "workspace_map",
                         lambda grid=None, **kw: full(pb.WorkspaceGrid.around(half_width=0.2, n=(5, 5, 3, 3, 3)), **kw))
-    res = CliRunner().invoke(app, ["workspace", "para-brachy", "--out", str(tmp_path / "ws"), "--json"])
+    res = _invoke("workspace", "para-brachy", "--out", str(tmp_path / "ws"), "--json")
     assert res.exit_code == 0, res.stderr
     s = json.loads(res.stdout)
     data = np.load(s["npz"])

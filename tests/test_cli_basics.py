@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_in_process import invoke as _invoke
 from bench.config.models import load_trial_config
 from bench.core.log import TrialLog
 from bench.trial.plan import prepare
@@ -23,8 +24,15 @@ SIM = REPO / "hil_configs" / "sim_target1.yaml"
 
 
 def _cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    """``hilbench ARGS`` in its own process: the installed command, start-up and exit code included."""
     return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=120,
                           env=env, cwd=REPO)
+
+
+@pytest.fixture(autouse=True)
+def _at_the_repository(monkeypatch):
+    """Commands run in this process start where ``_cli`` starts them: at the repository's root."""
+    monkeypatch.chdir(REPO)
 
 
 def test_version_matches_the_installed_package():
@@ -61,44 +69,44 @@ def test_runs_lists_passed_stopped_and_killed_trials_with_their_verdicts(tmp_pat
     log.flush()
     (out / "compare-x").mkdir()  # not a trial: left out
 
-    res = _cli("runs", "--out", str(out), "--json")
-    assert res.returncode == 0, res.stderr
+    res = _invoke("runs", "--out", str(out), "--json")
+    assert res.exit_code == 0, res.stderr
     runs = json.loads(res.stdout)["runs"]
     assert [r["status"] for r in runs] == ["incomplete", "passed", "stopped"]
     assert [r["config"] for r in runs] == ["killed", cfg.name, "stopped"]
     assert runs[1]["tip_deviation_mm"] == round(float(np.linalg.norm(passed.outcome.tip_deviation_mm)), 3)
     assert runs[1]["report"].endswith("report.html") and runs[2]["report"] is None
     assert runs[2]["reason"] == stopped.reason and "interlock" in stopped.reason
-    text = _cli("runs", "--out", str(out), env={**os.environ, "COLUMNS": "80"})
-    assert text.returncode == 0
+    text = _invoke("runs", "--out", str(out), columns=80)
+    assert text.exit_code == 0
     table = [ln for ln in text.stdout.splitlines() if ": " not in ln]  # reasons wrap as the terminal likes
     assert len(table) >= 7 and all(len(line) <= 80 for line in table)
     assert passed.run_dir.name in text.stdout  # a run's name is never broken mid-value
     assert f"{stopped.run_dir.name}: {stopped.reason}" in text.stdout
-    missing = _cli("runs", "--out", str(tmp_path / "none"))
-    assert missing.returncode == 2 and missing.stderr.strip() == f"error: --out {tmp_path / 'none'}: no such directory"
+    missing = _invoke("runs", "--out", str(tmp_path / "none"))
+    assert missing.exit_code == 2 and missing.stderr.strip() == f"error: --out {tmp_path / 'none'}: no such directory"
     (tmp_path / "empty").mkdir()
-    empty = _cli("runs", "--out", str(tmp_path / "empty"))
-    assert empty.returncode == 0 and "no trials, comparisons or campaigns" in empty.stdout
+    empty = _invoke("runs", "--out", str(tmp_path / "empty"))
+    assert empty.exit_code == 0 and "no trials, comparisons or campaigns" in empty.stdout
 
 
 def passed_segments(run_dir: Path) -> list[str]:
     return TrialLog.load(run_dir / "trial.npz").segment_names
 
 
-def test_gui_without_a_display_is_refused_with_one_line(tmp_path):
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    res = _cli("trial", str(SIM), "--gui", "--out", str(tmp_path / "o"), env=env)
-    assert res.returncode == 2
+def test_gui_without_a_display_is_refused_with_one_line(tmp_path, monkeypatch):
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):  # read when the trial starts, not at start-up
+        monkeypatch.delenv(name, raising=False)
+    res = _invoke("trial", str(SIM), "--gui", "--out", str(tmp_path / "o"))
+    assert res.exit_code == 2
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "--gui needs a display" in lines[0]
     assert not (tmp_path / "o").exists()
 
 
 def test_trial_summary_fits_80_columns_without_splitting_a_value(tmp_path):
-    res = _cli("trial", str(SIM), "--out", str(tmp_path / "o"),
-               env={**os.environ, "COLUMNS": "80"})
-    assert res.returncode == 0, res.stderr
+    res = _invoke("trial", str(SIM), "--out", str(tmp_path / "o"), columns=80)
+    assert res.exit_code == 0, res.stderr
     lines = res.stdout.splitlines()
     tip = next(ln for ln in lines if ln.startswith("tip deviation: "))
     assert len(tip) <= 80 and all(f" {axis} " in tip for axis in "XYZ") and tip.endswith(" mm")
@@ -126,9 +134,9 @@ def _numbers(text: str) -> list[str]:
 def test_summaries_fit_80_columns_and_never_split_a_value(args):
     """On an 80-column terminal every line fits, and every number printed on a wide terminal
     is printed whole (tables shrink their padding and wrap words, never digits)."""
-    wide = _cli(*args, env={**os.environ, "COLUMNS": "200"})
-    narrow = _cli(*args, env={**os.environ, "COLUMNS": "80"})
-    assert wide.returncode == narrow.returncode == 0, narrow.stderr
+    wide = _invoke(*args, columns=200)
+    narrow = _invoke(*args, columns=80)
+    assert wide.exit_code == narrow.exit_code == 0, narrow.stderr
     too_long = [ln for ln in narrow.stdout.splitlines() if len(ln) > 80]
     assert not too_long, too_long
     assert _numbers(narrow.stdout) == _numbers(wide.stdout)
@@ -152,9 +160,9 @@ def test_help_lists_every_command_with_a_whole_sentence():
 
 def test_check_ends_with_a_count_line_also_with_emulate():
     lab = Path(__file__).resolve().parent.parent / "hil_configs" / "lab_real.yaml"
-    emulated = _cli("check", str(lab), "--emulate")
-    assert emulated.returncode == 0, emulated.stderr
+    emulated = _invoke("check", str(lab), "--emulate")
+    assert emulated.exit_code == 0, emulated.stderr
     assert " ".join(emulated.stdout.split()).endswith(
         "2 of 2 checks passed; the serial ports not checked (--emulate brings its own)"), emulated.stdout
-    real = _cli("check", str(lab))  # no adapter here: the ports fail, and the count says so
-    assert real.returncode == 2 and real.stdout.splitlines()[-1] == "2 of 3 checks passed"
+    real = _invoke("check", str(lab))  # no adapter here: the ports fail, and the count says so
+    assert real.exit_code == 2 and real.stdout.splitlines()[-1] == "2 of 3 checks passed"

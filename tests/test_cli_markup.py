@@ -16,7 +16,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from click.testing import Result
 
+from cli_in_process import invoke as _invoke
 from drivers.dynamixel.protocol import Instruction
 from test_cli_hostile_bus import RigImpostor, rig_config
 
@@ -27,6 +29,7 @@ MARKUP = ("[/x]", "[bold red]lspb", "[/]", "[link=file:///etc]x[/link]")
 
 
 def hilbench(*args: str) -> subprocess.CompletedProcess:
+    """``hilbench ARGS`` in its own process: the installed command, start-up and exit code included."""
     return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=120)
 
 
@@ -39,7 +42,7 @@ def squashed(text: str) -> str:
     return re.sub(r"\s+", "", text)
 
 
-def one_error_line(res: subprocess.CompletedProcess) -> str:
+def one_error_line(res: Result | subprocess.CompletedProcess) -> str:
     assert "Traceback" not in res.stderr and "MarkupError" not in res.stderr, res.stderr
     out = lines(res.stderr)
     assert len(out) == 1 and out[0].startswith("error: "), res.stderr
@@ -57,45 +60,45 @@ def config_with(tmp_path: Path, edit) -> Path:
 @pytest.mark.parametrize("text", MARKUP)
 def test_a_config_value_comes_back_whole(tmp_path, text):
     cfg = config_with(tmp_path, lambda d: d["plan"].update(trajectory=text))
-    res = hilbench("trial", str(cfg), "--out", str(tmp_path / "runs"))
-    assert res.returncode == 2
+    res = _invoke("trial", str(cfg), "--out", str(tmp_path / "runs"))
+    assert res.exit_code == 2
     assert repr(text) in one_error_line(res)
-    checked = hilbench("check", str(cfg), "--json")
-    assert checked.returncode == 2
+    checked = _invoke("check", str(cfg), "--json")
+    assert checked.exit_code == 2
     assert repr(text) in one_error_line(checked) and repr(text) in json.loads(checked.stdout)["reason"]
-    human = hilbench("check", str(cfg))
-    assert human.returncode == 2 and repr(text) in human.stdout.replace("\n", " "), human.stdout
+    human = _invoke("check", str(cfg))
+    assert human.exit_code == 2 and repr(text) in human.stdout.replace("\n", " "), human.stdout
 
 
 @pytest.mark.parametrize("text", MARKUP)
 def test_a_config_key_and_a_robot_name_come_back_whole(tmp_path, text):
     cfg = config_with(tmp_path, lambda d: d["plan"].update({text: 1}))
-    assert text in one_error_line(hilbench("trial", str(cfg)))
+    assert text in one_error_line(_invoke("trial", str(cfg)))
     cfg = config_with(tmp_path, lambda d: d.update(robot=text))
-    assert text in one_error_line(hilbench("trial", str(cfg)))
-    res = hilbench("robot", text)
-    assert res.returncode == 2 and repr(text) in one_error_line(res)
-    res = hilbench("fk", text)
-    assert res.returncode == 2 and repr(text) in one_error_line(res)
+    assert text in one_error_line(_invoke("trial", str(cfg)))
+    res = _invoke("robot", text)
+    assert res.exit_code == 2 and repr(text) in one_error_line(res)
+    res = _invoke("fk", text)
+    assert res.exit_code == 2 and repr(text) in one_error_line(res)
 
 
 @pytest.mark.parametrize("text", ["[/x]", "[bold]d[/]"])
 def test_a_path_comes_back_whole(tmp_path, text):
     missing = tmp_path / text / "c.yaml"
-    res = hilbench("trial", str(missing))
-    assert res.returncode == 2 and str(missing) in one_error_line(res)
+    res = _invoke("trial", str(missing))
+    assert res.exit_code == 2 and str(missing) in one_error_line(res)
     out = tmp_path / f"runs{text}"
     out.mkdir(parents=True)
-    listed = hilbench("runs", "--out", str(out))
-    assert listed.returncode == 0 and squashed(listed.stdout) == squashed(f"no trials, comparisons or campaigns in {out}")
-    compared = hilbench("compare", str(missing.with_suffix(".npz")), str(missing))
-    assert compared.returncode == 2 and str(missing.with_suffix(".npz")) in one_error_line(compared)
+    listed = _invoke("runs", "--out", str(out))
+    assert listed.exit_code == 0 and squashed(listed.stdout) == squashed(f"no trials, comparisons or campaigns in {out}")
+    compared = _invoke("compare", str(missing.with_suffix(".npz")), str(missing))
+    assert compared.exit_code == 2 and str(missing.with_suffix(".npz")) in one_error_line(compared)
 
 
 def test_a_trial_writing_under_a_bracketed_directory_names_it_whole(tmp_path):
     out = tmp_path / "[/x][bold]runs"
-    res = hilbench("trial", str(FAST), "--out", str(out))
-    assert res.returncode == 0, res.stderr
+    res = _invoke("trial", str(FAST), "--out", str(out))
+    assert res.exit_code == 0, res.stderr
     assert "Traceback" not in res.stderr
     run = next(out.iterdir())
     assert squashed(f"({run})") in squashed(res.stdout)
@@ -103,7 +106,8 @@ def test_a_trial_writing_under_a_bracketed_directory_names_it_whole(tmp_path):
 
 
 def test_the_servos_that_did_not_answer_a_ping_are_named_whole(tmp_path):
-    """The refusal names each servo with what came back in brackets: all of it reaches the line."""
+    """The refusal names each servo with what came back in brackets: all of it reaches the line.
+    Run as the installed command, its driver on a real pseudo-terminal apart from the peer's thread."""
     peer = RigImpostor("garbage", [Instruction.PING])
     try:
         res = hilbench("trial", str(rig_config(tmp_path, peer.port)), "--out", str(tmp_path / "runs"))

@@ -13,6 +13,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from cli_in_process import invoke as _invoke
 from bench.scene.contact import GantryClearance
 from bench.trial.record import load_record
 
@@ -24,9 +25,8 @@ HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("runs")
-    done = subprocess.run([HILBENCH, "trial", str(SIM), "--out", str(out), "--json"],
-                          capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
+    done = _invoke("trial", str(SIM), "--out", str(out), "--json")
+    assert done.exit_code == 0, done.stderr
     return Path(json.loads(done.stdout)["run_dir"])
 
 
@@ -46,7 +46,7 @@ def _read(path: Path):
 
 
 def test_the_mcap_file_holds_the_trial_log_exactly(run_dir, tmp_path):
-    path = tmp_path / "trial.mcap"
+    path = tmp_path / "trial.mcap"  # written by the installed command
     done = subprocess.run([HILBENCH, "export", str(run_dir), "--mcap", str(path), "--json"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
@@ -116,6 +116,6 @@ def test_export_refuses_in_one_line(run_dir, tmp_path):
                         ([str(tampered), "--mcap", str(tmp_path / "a.mcap")], "not a plain file name"),
                         ([str(run_dir), "--mcap", str(tmp_path / "no" / "a.mcap")], "does not exist"),
                         ([str(run_dir), "--mcap", str(tmp_path)], "is a directory")):
-        done = subprocess.run([HILBENCH, "export", *args], capture_output=True, text=True, timeout=120)
-        assert done.returncode == 2 and words in done.stderr, done.stderr
+        done = _invoke("export", *args)
+        assert done.exit_code == 2 and words in done.stderr, done.stderr
         assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr

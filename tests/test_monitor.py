@@ -21,9 +21,8 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 import pytest
 import yaml
-from click.testing import Result
-from typer.testing import CliRunner
 
+from cli_in_process import invoke as _invoke
 from bench.monitor.detector import Cusum, CusumParams
 
 if TYPE_CHECKING:
@@ -38,15 +37,6 @@ LAB = REPO / "hil_configs" / "lab_real.yaml"
 def _run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     """``hilbench ARGS`` in its own process: the installed command, start-up and exit code included."""
     return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=300, cwd=cwd)
-
-
-def _invoke(*args: str) -> Result:
-    """``hilbench ARGS`` through the command line's own code in this process (its parsing, output
-    and exit code; ``_run`` keeps the installed command checked), without an interpreter started
-    and the bench imported again for each command."""
-    from bench.cli.app import app
-
-    return CliRunner().invoke(app, list(args))
 
 
 def _config(tmp: Path, base: Path = SERVO_SIM, **changes) -> Path:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
+from cli_in_process import invoke as _invoke
 from bench.config.models import load_trial_config
 from bench.core.result import TrialError
 from bench.kinematics.registry import get_robot
@@ -24,6 +25,7 @@ HILBENCH = str(Path(sys.executable).with_name("hilbench"))
 
 
 def hilbench(*args: str) -> subprocess.CompletedProcess:
+    """``hilbench ARGS`` in its own process: the installed command, start-up and exit code included."""
     return subprocess.run([HILBENCH, *args], capture_output=True, text=True, timeout=120)
 
 
@@ -47,24 +49,24 @@ def test_check_passes_the_target1_config_and_names_what_it_checked():
 
 
 def test_check_of_a_real_rig_config_names_the_missing_ports():
-    out = hilbench("check", str(LAB))
-    assert out.returncode == 2
+    out = _invoke("check", str(LAB))
+    assert out.exit_code == 2
     assert "servo port /dev/ttyUSB0 not found" in out.stdout
     assert len(out.stderr.strip().splitlines()) == 1
-    rehearsal = hilbench("check", str(LAB), "--emulate", "--json")
-    assert rehearsal.returncode == 0 and json.loads(rehearsal.stdout)["ok"]
+    rehearsal = _invoke("check", str(LAB), "--emulate", "--json")  # checks only: no rig is started
+    assert rehearsal.exit_code == 0 and json.loads(rehearsal.stdout)["ok"]
 
 
 def test_a_planned_path_into_the_gantry_margin_is_refused_by_check_and_by_trial(tmp_path):
     """A 300 mm margin (a typo for 30) puts the gantry within reach of the planned path."""
     cfg = variant(tmp_path, "safety", gantry_margin_mm=300)
-    out = hilbench("check", str(cfg), "--json")
-    assert out.returncode == 2
+    out = _invoke("check", str(cfg), "--json")
+    assert out.exit_code == 2
     reason = json.loads(out.stdout)["reason"]
     assert "planned path trips the gantry_clearance interlock" in reason and "nothing moved" in reason
     runs = tmp_path / "runs"
-    trial = hilbench("trial", str(cfg), "--out", str(runs))
-    assert trial.returncode == 2
+    trial = _invoke("trial", str(cfg), "--out", str(runs))
+    assert trial.exit_code == 2
     assert len(trial.stderr.strip().splitlines()) == 1 and "gantry_clearance" in trial.stderr
     assert "Traceback" not in trial.stderr
     assert not runs.exists() or not any(runs.iterdir()), "a refused trial writes no run"
@@ -93,8 +95,8 @@ def test_a_needle_pointing_up_from_the_bed_is_refused(joint, value):
 
 def test_check_refuses_what_the_schema_refuses_with_one_line(tmp_path):
     cfg = variant(tmp_path, "target", angle_deg=147.0)
-    out = hilbench("check", str(cfg))
-    assert out.returncode == 2
+    out = _invoke("check", str(cfg))
+    assert out.exit_code == 2
     assert "angle_deg" in out.stdout and "FAIL" in out.stdout
     assert len(out.stderr.strip().splitlines()) == 1
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
+from cli_in_process import invoke as _invoke
 from bench.config.models import ConfigError, load_trial_config
 from bench.core.log import TrialLog
 from bench.core.result import TrialError
@@ -64,9 +65,8 @@ def test_ideal_sim_trial_reaches_target_1(tmp_path, trajectory):
 
 
 def test_cli_trial_json(tmp_path):
-    out = subprocess.run([HILBENCH, "trial", str(SIM), "--out", str(tmp_path), "--json"],
-                         capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
+    out = _invoke("trial", str(SIM), "--out", str(tmp_path), "--json")
+    assert out.exit_code == 0, out.stderr
     res = json.loads(out.stdout)
     assert set(res) == {"run_dir", "tip_deviation_mm", "depth_deviation_mm", "angle_deviation_deg",
                         "passed", "completed", "reason", "safe_stop", "loop_timing", "camera", "judged_by",
@@ -92,9 +92,8 @@ def test_cli_trial_json(tmp_path):
 def test_bad_configs_fail_before_anything_moves(tmp_path, changes, words):
     path = write_config(tmp_path, **changes)
     runs = tmp_path / "runs"
-    out = subprocess.run([HILBENCH, "trial", str(path), "--out", str(runs), "--json"],
-                         capture_output=True, text=True, timeout=120)
-    assert out.returncode == 2
+    out = _invoke("trial", str(path), "--out", str(runs), "--json")
+    assert out.exit_code == 2
     lines = [line for line in out.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and words in lines[0], out.stderr
     assert not runs.exists()  # no run directory: nothing started
@@ -116,6 +115,7 @@ def test_report_rebuilt_from_the_record_equals_the_original(tmp_path):
                                                             "result.json")}
     for name in originals:
         (d / name).unlink()
+    # the installed command, in a process of its own: the report is rebuilt from the files alone
     out = subprocess.run([HILBENCH, "report", str(d), "--json"], capture_output=True, text=True,
                          timeout=120)
     assert out.returncode == 0, out.stderr
@@ -149,9 +149,8 @@ def test_report_refuses_a_modified_log(tmp_path):
     res = run_trial(prepare(load_trial_config(SIM)), tmp_path)
     with open(res.log_path, "ab") as f:
         f.write(b"tampered")
-    out = subprocess.run([HILBENCH, "report", str(res.run_dir)], capture_output=True, text=True,
-                         timeout=120)
-    assert out.returncode == 2
+    out = _invoke("report", str(res.run_dir))
+    assert out.exit_code == 2
     assert "checksum" in out.stderr
 
 

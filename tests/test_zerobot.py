@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_in_process import invoke as _invoke
 from bench.kinematics.dh import DHRow, dh_transform, joint_split, mdh_transform
 from bench.kinematics.needle import NeedleTarget, UnreachableError, needle_direction
 from bench.kinematics.zerobot import DEG, ZerobotParams, ZerobotRobot, eq3_tip_pose
@@ -168,23 +169,21 @@ def test_urdf_is_generated_and_loads_quietly():
 
 
 def test_cli_robot_ik_fk_with_tilt():
-    out = subprocess.run([HILBENCH, "robot", "zerobot", "--json"], capture_output=True, text=True,
-                         timeout=120)
-    assert out.returncode == 0, out.stderr
+    out = _invoke("robot", "zerobot", "--json")
+    assert out.exit_code == 0, out.stderr
     joints = json.loads(out.stdout)["joints"]
     assert [j["name"] for j in joints] == ["q1", "q2", "q3", "q4", "q5", "q6"]
     assert [j["type"] for j in joints] == ["prismatic"] * 3 + ["revolute"] * 2 + ["prismatic"]
-    out = subprocess.run([HILBENCH, "ik", "zerobot", "--x-mm", "0", "--y-mm", "150", "--z-mm", "80",
-                          "--depth-mm", "40", "--angle-deg", "20", "--tilt-deg", "-10", "--json"],
-                         capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
+    out = _invoke("ik", "zerobot", "--x-mm", "0", "--y-mm", "150", "--z-mm", "80",
+                  "--depth-mm", "40", "--angle-deg", "20", "--tilt-deg", "-10", "--json")
+    assert out.exit_code == 0, out.stderr
     sol = json.loads(out.stdout)
     assert sol["joints"]["q4"] == pytest.approx(20 * DEG) and sol["joints"]["q5"] == pytest.approx(10 * DEG)
-    back = subprocess.run([HILBENCH, "fk", "zerobot", "--joints", json.dumps(sol["joints"]), "--json"],
-                          capture_output=True, text=True, timeout=120)
+    back = _invoke("fk", "zerobot", "--joints", json.dumps(sol["joints"]), "--json")
     fk = json.loads(back.stdout)
     assert fk["entry_mm"] == pytest.approx([0.0, 150.0, 80.0], abs=1e-6)
     assert fk["tip_mm"] == pytest.approx(sol["tip_mm"], abs=1e-6)
+    # the installed command in its own process
     bad = subprocess.run([HILBENCH, "ik", "zerobot", "--x-mm", "0", "--y-mm", "150", "--z-mm", "800",
                           "--depth-mm", "40", "--angle-deg", "20", "--json"],
                          capture_output=True, text=True, timeout=120)
