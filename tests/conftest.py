@@ -12,6 +12,10 @@ from typing import Iterator
 import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+# The commands print as into a pipe, whatever terminal started the suite: a width its tests
+# ask for is the one they get (a console fixes COLUMNS, if exported, as it is created).
+for _name in ("COLUMNS", "LINES"):
+    os.environ.pop(_name, None)
 
 #: Files whose ``alone`` tests are best started last: the one worker then waits for the other's
 #: current test only (the shortest tests run last), not for a file of them.
