@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from typer.testing import CliRunner
 
 from bench.campaign.boundary import axis_line, numeric_axes
 from bench.campaign.bracket import Bracket
@@ -23,7 +22,7 @@ from bench.campaign.line import SEED_TRIALS, Line, LineBoundary, search_lines
 from bench.campaign.pair import ray_lines
 from bench.campaign.search_report import write_boundary_report
 from bench.campaign.spec import Planner, load_campaign_spec
-from bench.cli.app import app
+from cli_in_process import invoke
 from bench.config.models import TrialConfig
 from bench.core.outcome import needle_outcome
 from bench.trial.plan import prepare
@@ -32,9 +31,6 @@ REPO = Path(__file__).resolve().parent.parent
 FAST = REPO / "hil_configs" / "sim_target1_fast.yaml"
 BIAS = REPO / "hil_configs" / "campaigns" / "boundary_bias.yaml"
 
-
-def invoke(*args: str):
-    return CliRunner().invoke(app, list(args))
 
 
 @pytest.fixture(scope="module")

@@ -76,14 +76,11 @@ def wait_for_done(db: Path, n: int, timeout: float = 120.0) -> None:
 
 
 def hilbench_here(*args: str) -> "Result":
-    """``hilbench ARGS`` run in this process by typer's runner: its exit code, stdout and stderr
-    without a fresh interpreter's second of imports, its trials on this process's forkserver. The
+    """``hilbench ARGS`` run in this process, its trials on this process's forkserver. The
     campaigns that are killed or interrupted run as processes of their own."""
-    from typer.testing import CliRunner
+    from cli_in_process import invoke
 
-    from bench.cli.app import app
-
-    return CliRunner().invoke(app, list(args))
+    return invoke(*args)
 
 
 def check_consistent(campaign_dir: Path) -> list[dict]:

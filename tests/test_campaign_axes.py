@@ -13,14 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from typer.testing import CliRunner
 
 from bench.campaign.boundary import axis_line, numeric_axes
 from bench.campaign.falsify import decode, trials_to_violation, write_trial_config
 from bench.campaign.run import create_campaign, run_campaign
 from bench.campaign.spec import CampaignSpecError, Planner, load_campaign_spec, plan_trials
 from bench.campaign.store import CampaignStore
-from bench.cli.app import app
+from cli_in_process import invoke
 from bench.core.outcome import needle_outcome
 from bench.kinematics.registry import get_robot
 from bench.trial.plan import target_of
@@ -36,9 +35,6 @@ def write(tmp_path: Path, name: str, **fields) -> Path:
     p.write_text(yaml.safe_dump({"name": name, "base": str(FAST), "seed": 7, **fields}, sort_keys=False))
     return p
 
-
-def invoke(*args: str):
-    return CliRunner().invoke(app, list(args))
 
 
 # ---------------------------------------------------------------------------

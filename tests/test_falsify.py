@@ -13,11 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from typer.testing import CliRunner
 
 from bench.campaign.falsify import decode, trials_to_violation
 from bench.campaign.spec import Axis, Planner, load_campaign_spec
-from bench.cli.app import app
+from cli_in_process import invoke
 from bench.config.models import TrialConfig
 from bench.core.outcome import needle_outcome
 from bench.trial.plan import prepare
@@ -31,9 +30,6 @@ def spec(tmp_path: Path, name: str, faults: list[dict]) -> Path:
     p.write_text(yaml.safe_dump({"name": name, "base": str(FAST), "seed": 7, "faults": faults}))
     return p
 
-
-def invoke(*args: str):
-    return CliRunner().invoke(app, list(args))
 
 
 def test_decode_maps_the_unit_cube_onto_each_axis():

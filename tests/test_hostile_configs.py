@@ -16,6 +16,7 @@ import yaml
 from typer.testing import CliRunner
 
 from bench.cli.app import app
+from cli_in_process import invoke
 from bench.config.models import load_trial_config, read_yaml_mapping
 
 REPO = Path(__file__).resolve().parent.parent
@@ -143,7 +144,7 @@ def test_emulated_rig_with_an_impossible_baud_names_the_reason(tmp_path):
     cfg = tmp_path / "lab.yaml"
     cfg.write_text(yaml.safe_dump(_set(LAB, "backend.baud", 123456)))
     # refused while the config loads, before any rig starts
-    res = CliRunner().invoke(app, ["trial", str(cfg), "--emulate"], catch_exceptions=False)
+    res = invoke("trial", str(cfg), "--emulate")
     assert res.exit_code == 2 and "baud 123456 is not an X-series rate" in res.stderr
 
 

@@ -5,6 +5,7 @@ the plan's goals byte for byte."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -74,10 +75,10 @@ def test_a_virtual_trials_capture_is_the_same_file_bit_for_bit(captures):
         assert times == sorted(times), role
 
 
-def _cycles(run: dict, sent: list[bytes]) -> tuple[list[bytes], list[list[bytes]], list[bytes], list[str]]:
+def _cycles(run: dict, sent: list[bytes]) -> tuple[list[bytes], dict[str, list[bytes]], list[bytes], dict[str, float]]:
     """A trial's commands as the set-up's, each segment's goal writes (one a cycle, the log's
-    segment of that cycle; the last, held, ends the last segment) and the safe stop's; and the
-    plan's segments as the log's events state them (name, duration and settle)."""
+    segment of that cycle; the last, held, ends the last segment) and the safe stop's; and each
+    segment's planned duration and settle, as the log's events state them."""
     from bench.trial.record import load_record
 
     log, _ = load_record(Path(run["run_dir"]))
@@ -86,11 +87,15 @@ def _cycles(run: dict, sent: list[bytes]) -> tuple[list[bytes], list[list[bytes]
     assert len(writes) == cycles + 1  # one goal a cycle, and the last one, held to the safe stop
     segment = np.asarray(log.segment)[:cycles]
     goals = [sent[i] for i in writes[:cycles]]
-    per_segment = [[g for g, s in zip(goals, segment) if s == k] for k in range(len(log.segment_names))]
-    per_segment[-1].append(sent[writes[-1]])  # the last goal, held: the last segment's end
+    per_segment = {name: [g for g, s in zip(goals, segment) if s == k] for k, name in enumerate(log.segment_names)}
+    per_segment[log.segment_names[-1]].append(sent[writes[-1]])  # the last goal, held: the last segment's end
     between = [p for p in sent[writes[0]:writes[-1]] if p[7] != SYNC_WRITE]  # the start's reads
-    plans = [e.message for e in log.events if e.kind == "segment"]
-    return sent[:writes[0]] + between, per_segment, sent[writes[-1] + 1:], plans
+    planned = {}
+    for e in log.events:  # "start approach (2.842 s + 1.000 s settle)"
+        if e.kind == "segment":
+            name, move, settle = re.fullmatch(r"start (\S+) \(([\d.]+) s \+ ([\d.]+) s settle\)", e.message).groups()
+            planned[name] = float(move) + float(settle)
+    return sent[:writes[0]] + between, per_segment, sent[writes[-1] + 1:], planned
 
 
 def test_the_real_time_capture_holds_the_same_instructions_in_the_same_order(captures):
@@ -102,20 +107,21 @@ def test_the_real_time_capture_holds_the_same_instructions_in_the_same_order(cap
     segments planned alike are compared."""
     virtual = _commands(packets(read_capture(captures["virtual"][0]), "dynamixel", ">"))
     real = _commands(packets(read_capture(captures["realtime"][0]), "dynamixel", ">"))
-    v_setup, v_segments, v_stop, v_plans = _cycles(captures["virtual"][1], virtual)
-    r_setup, r_segments, r_stop, r_plans = _cycles(captures["realtime"][1], real)
+    v_setup, v_segments, v_stop, v_planned = _cycles(captures["virtual"][1], virtual)
+    r_setup, r_segments, r_stop, r_planned = _cycles(captures["realtime"][1], real)
     assert v_setup == r_setup and v_stop == r_stop  # every register access outside the cycles
-    plan_only, compared = 0, []
-    dt = 1.0 / 100.0  # the lab rig's loop
-    for name, a, b, plan_a, plan_b in zip(("approach", "insert", "retract"), v_segments, r_segments,
-                                          v_plans, r_plans):
-        if plan_a != plan_b:  # re-aimed at another first reading: its length is its plan's
-            dur = [float(p.split("(")[1].split(" s")[0]) for p in (plan_a, plan_b)]
-            assert name == "approach" and abs(len(a) - len(b) - round((dur[0] - dur[1]) / dt)) <= 1, (
-                plan_a, plan_b, len(a), len(b))
+    assert v_segments.keys() == r_segments.keys() == v_planned.keys() == r_planned.keys()
+    dt = captures["virtual"][1]["loop_timing"]["period_s"]
+    plan_only, expected, compared = 0, 0, []
+    for name, a in v_segments.items():
+        b = r_segments[name]
+        if v_planned[name] != r_planned[name]:  # re-aimed at another first reading: its length is its plan's
+            assert name == "approach" and abs(len(a) - len(b) - round((v_planned[name] - r_planned[name]) / dt)) <= 1, (
+                name, v_planned[name], r_planned[name], len(a), len(b))
             continue
-        assert len(a) == len(b), (name, plan_a)
+        assert len(a) == len(b), (name, v_planned[name])
         compared.append(name)
+        expected += 7 * len(a)  # the seven servos whose goals are the plan's alone
         for ga, gb in zip(map(_goals, a), map(_goals, b)):
             assert ga.keys() == gb.keys()
             for sid in ga.keys() - FROM_READINGS:
@@ -124,7 +130,7 @@ def test_the_real_time_capture_holds_the_same_instructions_in_the_same_order(cap
             for sid in ga.keys() & FROM_READINGS:  # a reading's millimetre of noise, a few ticks
                 assert abs(ga[sid] - gb[sid]) <= 20, (name, sid, ga[sid], gb[sid])
     assert {"insert", "retract"} <= set(compared)  # planned from the entry, never re-aimed
-    assert plan_only >= 7 * sum(len(v_segments[["approach", "insert", "retract"].index(n)]) for n in compared)
+    assert plan_only >= expected
 
 
 def test_capture_is_refused_where_there_is_no_bus_and_a_file_that_is_not_one_is_named(tmp_path):
